@@ -1,0 +1,234 @@
+"""The ``noiselab`` command line.
+
+Exit codes (DESIGN.md): 0 success, 2 bad input (one line on stderr naming what is wrong),
+1 a bug (a traceback). Every long-running command has a bound (``--duration``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .model import ModelError, load_model
+
+__version__ = "0.1.0"
+
+
+class UsageError(ValueError):
+    """Bad command-line input; the message is one line."""
+
+
+def _bad_input_types():
+    from .nodes.mcapio import McapIoError, RecordingExistsError
+    from .nodes.wire import WireError
+    return (ModelError, UsageError, WireError, McapIoError, RecordingExistsError)
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # argparse's own errors: one line, exit 2
+        self.exit(2, f"noiselab: {message}\n")
+
+
+def _positive_float(name):
+    def conv(text):
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}")
+        if not math.isfinite(v) or v <= 0:
+            raise argparse.ArgumentTypeError(f"{name} must be a finite number > 0, got {text!r}")
+        return v
+    return conv
+
+
+def _seed(text):
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"seed must be an integer >= 0, got {text!r}")
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"seed must be an integer >= 0, got {text!r}")
+    return v
+
+
+# -- predict ------------------------------------------------------------------------------------
+def _vec(v):
+    return None if v is None else [float(x) for x in np.atleast_1d(v)]
+
+
+def predict_report(model) -> dict:
+    """The scriptable prediction (DESIGN.md, ``noiselab predict --json``)."""
+    pr = model.predictor()
+    st = pr.steady_state()
+    modifiers = {}
+    for eid, eff in model.effects.items():
+        if eff.role == "modifier" and st.var_y is not None:
+            other = model.without_effect(eid).predictor().steady_state()
+            modifiers[eid] = None if other.var_y is None else _vec(st.var_y - other.var_y)
+    return {
+        "model": model.name,
+        "source": model.source,
+        "Ts": model.Ts,
+        "discretization": model.discretization,
+        "outputs": model.p,
+        "var_y": _vec(st.var_y),
+        "std_y": None if st.var_y is None else _vec(np.sqrt(st.var_y)),
+        "bias_var_rate": _vec(st.bias_var_rate),
+        "P": None if st.P is None else st.P.tolist(),
+        "state_names": list(model.plant.state_names),
+        "contributions": {k: _vec(v) for k, v in st.contributions.items()},
+        "modifiers": modifiers,
+        "stable": st.stable,
+        "notes": st.notes,
+    }
+
+
+def _fmt(v):
+    return "null" if v is None else "  ".join(f"{x:.4e}" for x in v)
+
+
+def cmd_predict(args) -> int:
+    model = load_model(args.model)
+    rep = predict_report(model)
+    if args.json:
+        print(json.dumps(rep, indent=2))
+        return 0
+    print(f"model {rep['model']} ({rep['source']}), Ts = {rep['Ts']:g} s, {rep['discretization']}")
+    print(f"{'effect':<24} {'variance added to y (units^2)':>32}   share")
+    total = rep["var_y"]
+    for eid, v in rep["contributions"].items():
+        share = "" if v is None or total is None else "  ".join(f"{100 * a / b:5.1f} %" for a, b in zip(v, total))
+        print(f"{eid:<24} {_fmt(v):>32}   {share}")
+    for eid, v in rep["modifiers"].items():
+        print(f"{eid:<24} {_fmt(v):>32}   (change of var_y it causes)")
+    print(f"{'var_y (steady state)':<24} {_fmt(total):>32}")
+    print(f"{'std_y':<24} {_fmt(rep['std_y']):>32}")
+    print(f"{'bias_var_rate (per s)':<24} {_fmt(rep['bias_var_rate']):>32}")
+    if rep["P"] is None:
+        print("P: null (the plant is not stable: no steady state)")
+    else:
+        print("P (plant state covariance, " + ", ".join(rep["state_names"]) + "):")
+        for row in rep["P"]:
+            print("   " + "  ".join(f"{x: .4e}" for x in row))
+    for note in rep["notes"]:
+        print(f"note: {note}")
+    return 0
+
+
+# -- simulate -------------------------------------------------------------------------------------
+class Progress:
+    """A one-line progress bar on stderr for long runs (only on a terminal, or when forced)."""
+
+    def __init__(self, total: int, label: str, enabled: bool | None = None):
+        self.total, self.label = total, label
+        self.enabled = sys.stderr.isatty() if enabled is None else enabled
+        self.t0 = time.monotonic()
+        self.last = 0.0
+
+    def update(self, done: int) -> None:
+        now = time.monotonic()
+        if not self.enabled or (now - self.last < 0.2 and done < self.total):
+            return
+        self.last = now
+        frac = done / self.total
+        bar = "#" * int(30 * frac)
+        rate = done / max(now - self.t0, 1e-9)
+        eta = (self.total - done) / rate if rate > 0 else 0
+        sys.stderr.write(f"\r{self.label} [{bar:<30}] {100 * frac:5.1f} %  {rate:,.0f} samples/s  eta {eta:4.0f} s")
+        if done >= self.total:
+            sys.stderr.write("\n")
+        sys.stderr.flush()
+
+
+def write_simulation(model, n: int, seed: int, out: Path, *, force: bool = False,
+                     progress: bool | None = None) -> dict:
+    """Simulate ``n`` samples and write them in the wire contract (DESIGN.md) to ``out``."""
+    from .nodes import mcapio, wire
+
+    topics = {kind: wire.key(model.name, kind) for kind in ("truth", "command", "measurement")}
+    meta = {"generator": "noiselab simulate", "version": __version__, "model_name": model.name,
+            "model_source": model.source, "model_toml": model.to_toml(), "Ts": repr(model.Ts),
+            "seed": str(seed), "samples": str(n)}
+    bar = Progress(n, f"simulate {model.name}", progress)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with mcapio.RecordingWriter(out, force=force, chunk_size=1 << 20, metadata=meta) as w:
+        k0 = 0
+        for blk in model.simulate_blocks(n, seed=seed):
+            nb = blk.t.size
+            t, pub = wire.sample_times(k0, nb, model.Ts)
+            for kind, arr in (("truth", blk.x[0]), ("command", blk.u[0]), ("measurement", blk.y[0])):
+                payloads = wire.encode_batch(kind, k0, t, arr, topic=topics[kind])
+                # offline: there is no receive time, log_time = publish_time (readers must not
+                # assume log_time is wall-clock, DESIGN.md)
+                w.write_batch(topics[kind], kind, k0, pub, pub, payloads)
+            k0 += nb
+            bar.update(k0)
+        counts = w.counts
+    return {"out": str(out), "samples": n, "messages": counts}
+
+
+def cmd_simulate(args) -> int:
+    model = load_model(args.model)
+    n = int(round(args.duration / model.Ts))
+    if n < 1:
+        raise UsageError(f"--duration {args.duration:g} s is shorter than one sample (Ts = {model.Ts:g} s)")
+    out = Path(args.out) if args.out else Path("recordings") / f"{model.name}-seed{args.seed}.mcap"
+    t0 = time.perf_counter()
+    rep = write_simulation(model, n, args.seed, out, force=args.force, progress=args.progress or None)
+    dt = time.perf_counter() - t0
+    rep["seconds"] = dt
+    if args.json:
+        print(json.dumps(rep))
+    else:
+        print(f"wrote {rep['out']}: {n} samples x 3 topics of {model.name} "
+              f"({args.duration:g} s at Ts = {model.Ts:g} s) in {dt:.2f} s")
+    return 0
+
+
+# -- entry point --------------------------------------------------------------------------------------
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="noiselab", description="Live emulator and model checker for noisy sensors and actuators.")
+    p.add_argument("--version", action="version", version=f"noiselab {__version__}")
+    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    sp = sub.add_parser("predict", help="predicted steady-state statistics of a model")
+    sp.add_argument("model", help="model file (TOML) or built-in scenario name (seed, seed-nominal, ...)")
+    sp.add_argument("--json", action="store_true", help="machine-readable output")
+    sp.set_defaults(func=cmd_predict)
+
+    ss = sub.add_parser("simulate", help="simulate a model as fast as possible into an MCAP recording")
+    ss.add_argument("model", help="model file (TOML) or built-in scenario name")
+    ss.add_argument("--duration", type=_positive_float("--duration"), required=True, help="seconds of signal")
+    ss.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
+    ss.add_argument("--out", help="output .mcap (default recordings/<name>-seed<N>.mcap)")
+    ss.add_argument("--force", action="store_true", help="overwrite an existing output file")
+    ss.add_argument("--progress", action="store_true", help="show the progress bar even when not on a terminal")
+    ss.add_argument("--json", action="store_true", help="machine-readable summary")
+    ss.set_defaults(func=cmd_simulate)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except _bad_input_types() as exc:
+        print(f"noiselab: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("noiselab: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:  # e.g. `noiselab predict seed --json | head`
+        import os
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,54 @@
+"""``actuator.ar1``: colored actuator noise, an AR(1) process (seed sections 2, 5 and 10).
+
+n_{k+1} = rho n_k + e_k,  Var(e_k) = (1 - rho^2) std^2  (seed section 5, sigma_e^2 = (1-rho^2) sigma_n^2)
+so the stationary std is ``std``; rho = exp(-Ts / tau_s) when ``tau_s`` is given. As in the seed the
+noise is updated before it is used: the input at sample k carries n_{k+1}. It starts at 0.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.signal import lfilter
+
+from ..schema import nonnegative
+from .base import Effect, parse_rho_tau
+
+
+class ActuatorAR1(Effect):
+    id = "actuator.ar1"
+    stage = "actuator"
+    chain_order = 2
+    draw_order = 1
+    summary = "colored (AR(1)) actuator noise in the input channel"
+
+    def parse(self, t):
+        self.params["std"] = t.vector("std", self.dims.m, check=nonnegative, expect="std >= 0")
+        rho, tau = parse_rho_tau(t, self.dims.m, self.dims.Ts)
+        self.rho = rho
+        self.params["rho" if t.has("rho") else "tau_s"] = rho if t.has("rho") else tau
+        # innovation std: sigma_e = sqrt(1 - rho^2) sigma_n
+        self.c = np.sqrt(1.0 - rho**2) * self.params["std"]
+
+    def n_normals(self):
+        return self.dims.m
+
+    def init_state(self, static_rng, trials):
+        return {"n": np.zeros((trials, self.dims.m))}
+
+    def actuator_batch(self, u, e, state):
+        # n_{k+1} = rho n_k + c e_k per channel; lfilter computes c*e + rho*n with the same
+        # two products and one sum as actuator_step, so both paths give identical floats.
+        out = np.empty_like(e)
+        for j in range(self.dims.m):
+            out[..., j], zf = lfilter([self.c[j]], [1.0, -self.rho[j]], e[..., j], axis=-1,
+                                      zi=(self.rho[j] * state["n"][:, j])[:, None])
+        state["n"] = out[:, -1, :].copy()
+        return u + out
+
+    def actuator_step(self, u, e, state):
+        n = self.c * e + self.rho * state["n"]
+        state["n"] = n
+        return u + n
+
+    def drive_linear(self):
+        return np.diag(self.rho), np.diag(self.c), np.diag(self.rho), np.diag(self.c)

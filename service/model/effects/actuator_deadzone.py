@@ -1,0 +1,33 @@
+"""``actuator.deadzone``: a drive inside [-width, width] has no effect; outside, u - sign(u) width.
+
+Predictions use the same statistical linearization as the saturation: mean E[dz(u)], gain
+g_k = P(|u| > width) for a Gaussian drive (seed section 7).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..schema import positive
+from .base import Effect
+
+
+class ActuatorDeadzone(Effect):
+    id = "actuator.deadzone"
+    stage = "actuator"
+    role = "modifier"
+    chain_order = 5
+    linear = False
+    summary = "actuator dead zone"
+
+    def parse(self, t):
+        self.params["width"] = t.vector("width", self.dims.m, check=positive, expect="widths > 0")
+
+    def actuator_batch(self, u, e, state):
+        w = self.params["width"]
+        return np.sign(u) * np.maximum(np.abs(u) - w, 0.0)
+
+    actuator_step = actuator_batch
+
+    def knots(self):
+        return [np.array([-w, w]) for w in self.params["width"]]

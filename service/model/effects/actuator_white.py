@@ -1,0 +1,32 @@
+"""``actuator.white``: white noise added to the command in the input channel, n_k ~ N(0, std^2)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..schema import nonnegative
+from .base import Effect
+
+
+class ActuatorWhite(Effect):
+    id = "actuator.white"
+    stage = "actuator"
+    chain_order = 1
+    draw_order = 0
+    summary = "white actuator noise in the input channel"
+
+    def parse(self, t):
+        self.params["std"] = t.vector("std", self.dims.m, check=nonnegative, expect="std >= 0")
+
+    def n_normals(self):
+        return self.dims.m
+
+    def actuator_batch(self, u, e, state):
+        return u + self.params["std"] * e
+
+    def actuator_step(self, u, e, state):
+        return u + self.params["std"] * e
+
+    def drive_linear(self):
+        m = self.dims.m
+        return np.zeros((0, 0)), np.zeros((0, m)), np.zeros((m, 0)), np.diag(self.params["std"])

@@ -1,0 +1,104 @@
+"""Base class of the physical effects of DESIGN.md's catalogue.
+
+Each effect is one module with one subclass of :class:`Effect` that knows its own physics:
+
+* parsing and validating its TOML table (``__init__``),
+* simulation, vectorized over a block of samples (``*_batch``) and one sample at a time
+  (``*_step``), consuming ``n_normals`` standard normals per sample from the run's stream in the
+  fixed ``draw_order`` of the catalogue (so the step and batch paths see the same draws),
+* what it adds to the predictions, through one of the hooks below.
+
+Signal chain at sample k (discrete time, sample period Ts):
+
+    drive_k  = N(u_c,k + n_a,k)        actuator noises n_a (white, AR(1)) then static nonlinearities N
+    x_{k+1}  = A_d x_k + B_d drive_k + process noise     (plant, with actuator lag states if any;
+                                                           drive held over [k Ts, (k+1) Ts))
+    y_k      = Q( (1 + s_f) (C x_k + D drive_k) + b_k + beta_k + v_k + tone_k + ydot_k dt_k )
+
+The AR(1) actuator noise is updated before it is used (seed section 10: u_act,k = u_k + n_{a,k+1})
+and the bias walk is stepped after the measurement it enters, so y_k holds k bias increments.
+
+Prediction hooks (implemented by the effects they concern; defaults contribute nothing):
+
+* ``drive_linear()``: an actuator-noise source as a discrete linear system driven by its normals
+  (states s, s_{k+1} = F s_k + G e_k, noise_k = C s_k + D e_k), per input channel.
+* ``knots()``: a static actuator nonlinearity as a piecewise-linear map, for Gaussian expectations.
+* ``augment()``: continuous states added to the plant (actuator lag).
+* ``process_factor()``: the per-sample state-noise factor S (x_{k+1} += S e_k).
+* ``sensor_linear()``: a sensor source with states (Gauss-Markov bias): (F, G, H), y += H s.
+* ``spectral()``: non-state contributions as primitives: ``("white", var)``, ``("walk", q, var0)``,
+  ``("tone", amplitude, frequency_hz)``.
+* ``output_gain()``: a multiplicative modifier of the plant output (scale factor).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from ..schema import Table
+
+
+@dataclass(frozen=True)
+class Dims:
+    """Sizes and sampling the effects need: inputs m, outputs p, process-noise channels nw."""
+
+    m: int
+    p: int
+    nw: int
+    Ts: float
+    discretization: str
+
+
+class Effect:
+    id: ClassVar[str] = ""
+    stage: ClassVar[str] = ""          # "process" | "actuator" | "sensor"
+    role: ClassVar[str] = "source"     # "source" adds noise; "modifier" changes how signals pass
+    chain_order: ClassVar[int] = 0     # position in the signal chain (catalogue order)
+    draw_order: ClassVar[int] = 99     # position in the per-sample block of normals
+    summary: ClassVar[str] = ""
+    linear: ClassVar[bool] = True      # False: predictions use an approximation (documented)
+
+    def __init__(self, table: Table, dims: Dims):
+        self.dims = dims
+        self.params: dict[str, np.ndarray | float] = {}
+        self.parse(table)
+        table.done()
+
+    def parse(self, table: Table) -> None:  # pragma: no cover - every effect overrides
+        raise NotImplementedError
+
+    # -- simulation -------------------------------------------------------------------------
+    def n_normals(self) -> int:
+        return 0
+
+    def init_state(self, static_rng: np.random.Generator, trials: int) -> dict:
+        """Per-run state (trials, ...). ``static_rng`` draws the run's static randoms."""
+        return {}
+
+    # -- description ------------------------------------------------------------------------
+    def param_dict(self) -> dict:
+        """Parameters with the model file's names; scalars when every channel is equal."""
+        out = {}
+        for k, v in self.params.items():
+            a = np.atleast_1d(np.asarray(v, float))
+            out[k] = float(a[0]) if np.all(a == a[0]) else [float(x) for x in a]
+        return out
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.param_dict()})"
+
+
+def parse_rho_tau(table: Table, n: int, Ts: float) -> tuple[np.ndarray, np.ndarray]:
+    """AR(1)/Gauss-Markov correlation: ``rho`` or ``tau_s`` (rho = exp(-Ts/tau_s)), exactly one."""
+    if table.has("rho") == table.has("tau_s"):
+        raise table.error("rho", "give exactly one of rho (per sample, |rho| < 1) or tau_s (s, > 0)")
+    if table.has("rho"):
+        rho = table.vector("rho", n, check=lambda v: bool(np.all(np.abs(v) < 1)), expect="|rho| < 1")
+        with np.errstate(divide="ignore"):
+            tau = np.where(rho > 0, -Ts / np.log(np.where(rho > 0, rho, 0.5)), np.nan)
+        return rho, tau
+    tau = table.vector("tau_s", n, check=lambda v: bool(np.all(v > 0)), expect="time constants in s > 0")
+    return np.exp(-Ts / tau), tau

@@ -1,0 +1,50 @@
+"""``process.white``: white force/disturbance noise w_k entering the plant through L.
+
+* ``std``: per-sample standard deviation of w_k, held over the sample (a zero-order-held input):
+  x_{k+1} += G_d w_k with G_d = int_0^Ts e^{A s} ds L (zoh) or Ts L (euler, as the seed lesson).
+* ``psd``: continuous two-sided intensity q of w(t) (units^2 s), E[w(t) w(s)] = q delta(t - s):
+  x_{k+1} += e_k with Cov(e_k) = Q_d from Van Loan's formula (zoh) or L q L^T Ts (euler).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .. import discretize
+from ..schema import nonnegative
+from .base import Effect
+
+
+class ProcessWhite(Effect):
+    id = "process.white"
+    stage = "process"
+    chain_order = 0
+    draw_order = 2
+    summary = "white process (force) noise through L"
+
+    def parse(self, t):
+        if t.has("std") == t.has("psd"):
+            raise t.error("std", "give exactly one of std (per-sample std) or psd (continuous intensity)")
+        key = "std" if t.has("std") else "psd"
+        self.mode = key
+        self.params[key] = t.vector(key, self.dims.nw, check=nonnegative, expect="values >= 0")
+        self._S = None
+
+    def process_factor(self, Ac: np.ndarray, L: np.ndarray) -> np.ndarray:
+        """S with x_{k+1} += S e_k, e_k standard normal (n_x, n_e)."""
+        Ts, disc = self.dims.Ts, self.dims.discretization
+        if self.mode == "std":
+            if disc == "euler":
+                Gd = Ts * L
+            else:
+                _, Gd = discretize.zoh(Ac, L, Ts)
+            return Gd * self.params["std"]
+        Qc = L @ np.diag(self.params["psd"]) @ L.T
+        Qd = discretize.euler_noise(Qc, Ts) if disc == "euler" else discretize.van_loan(Ac, Qc, Ts)
+        return discretize.psd_sqrt(Qd)
+
+    def bind(self, Ac: np.ndarray, L: np.ndarray) -> None:
+        self._S = self.process_factor(Ac, L)
+
+    def n_normals(self) -> int:
+        return self._S.shape[1]

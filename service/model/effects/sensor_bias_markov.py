@@ -1,0 +1,52 @@
+"""``sensor.bias_markov``: first-order Gauss-Markov bias (bias instability).
+
+Continuous beta' = -beta / tau + white, stationary std ``std``; exact discretization
+beta_{k+1} = phi beta_k + std sqrt(1 - phi^2) xi_k with phi = exp(-Ts / tau_s). Starts at 0.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.signal import lfilter
+
+from ..schema import nonnegative
+from .base import Effect, parse_rho_tau
+
+
+class SensorBiasMarkov(Effect):
+    id = "sensor.bias_markov"
+    stage = "sensor"
+    chain_order = 8
+    draw_order = 4
+    summary = "first-order Gauss-Markov sensor bias (bias instability)"
+
+    def parse(self, t):
+        self.params["std"] = t.vector("std", self.dims.p, check=nonnegative, expect="std >= 0")
+        phi, tau = parse_rho_tau(t, self.dims.p, self.dims.Ts)
+        self.params["rho" if t.has("rho") else "tau_s"] = phi if t.has("rho") else tau
+        self.phi = phi
+        self.c = np.sqrt(1.0 - phi**2) * self.params["std"]
+
+    def n_normals(self):
+        return self.dims.p
+
+    def init_state(self, static_rng, trials):
+        return {"b": np.zeros((trials, self.dims.p))}
+
+    def sensor_batch(self, y, e, state, ydot):
+        # beta_k (before the update with xi_k) enters y_k
+        out = np.empty_like(y)
+        for j in range(self.dims.p):
+            nxt, _ = lfilter([self.c[j]], [1.0, -self.phi[j]], e[..., j], axis=-1,
+                             zi=(self.phi[j] * state["b"][:, j])[:, None])
+            out[..., j] = np.concatenate([state["b"][:, j:j + 1], nxt[:, :-1]], axis=1)
+            state["b"][:, j] = nxt[:, -1]
+        return y + out
+
+    def sensor_step(self, y, e, state, ydot):
+        b = state["b"]
+        state["b"] = self.c * e + self.phi * b
+        return y + b
+
+    def sensor_linear(self):
+        return np.diag(self.phi), np.diag(self.c), np.eye(self.dims.p)

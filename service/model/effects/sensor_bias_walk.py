@@ -1,0 +1,54 @@
+"""``sensor.bias_walk``: bias random walk (seed sections 2 and 6.2).
+
+b_{k+1} = b_k + std sqrt(Ts) eta_k, eta_k ~ N(0, 1), so Q_b = std^2 Ts per sample and
+Var(b_k) = Var(b_0) + k Q_b (seed section 6.2); ``std`` is in output units / sqrt(s) (the rate
+random-walk coefficient K). ``initial_std`` (optional, default 0) is the std of b_0.
+Nonstationary: it is reported as ``bias_var_rate`` = std^2 per second, not in the steady state.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..schema import nonnegative
+from .base import Effect
+
+
+class SensorBiasWalk(Effect):
+    id = "sensor.bias_walk"
+    stage = "sensor"
+    chain_order = 7
+    draw_order = 3
+    summary = "sensor bias random walk (drift)"
+
+    def parse(self, t):
+        self.params["std"] = t.vector("std", self.dims.p, check=nonnegative, expect="std >= 0 in units/sqrt(s)")
+        init = t.vector("initial_std", self.dims.p, None, check=nonnegative, expect="std >= 0")
+        if init is not None:
+            self.params["initial_std"] = init
+        self.init_std = np.zeros(self.dims.p) if init is None else init
+        self.q_step = self.params["std"] * np.sqrt(self.dims.Ts)   # sqrt(Q_b)
+
+    def n_normals(self):
+        return self.dims.p
+
+    def init_state(self, static_rng, trials):
+        b0 = self.init_std * static_rng.standard_normal((trials, self.dims.p)) if np.any(self.init_std) \
+            else np.zeros((trials, self.dims.p))
+        return {"b": b0}
+
+    def sensor_batch(self, y, e, state, ydot):
+        # b_k = b_{k-1} + q eta_{k-1}: a sequential cumulative sum started from the carried bias,
+        # the same additions in the same order as sensor_step (identical floats)
+        inc = self.q_step * e
+        b = np.cumsum(np.concatenate([state["b"][:, None, :], inc], axis=1), axis=1)
+        state["b"] = b[:, -1, :].copy()
+        return y + b[:, :-1, :]
+
+    def sensor_step(self, y, e, state, ydot):
+        b = state["b"]
+        state["b"] = b + self.q_step * e
+        return y + b
+
+    def spectral(self):
+        return [("walk", self.params["std"] ** 2 * self.dims.Ts, self.init_std**2)]

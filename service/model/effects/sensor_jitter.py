@@ -1,0 +1,38 @@
+"""``sensor.jitter``: the sampling instant is t_k + dt_k, dt_k ~ N(0, std_s^2) white.
+
+First-order Taylor (seed section 6.3): y(t_k + dt_k) ~ y(t_k) + ydot(t_k) dt_k, with ydot from the
+continuous plant, (1 + s_f) C (A x_k + B drive_k) (+ D drive rate, neglected: the drive is held).
+The error is white but its variance depends on the signal, Var(n_j,k) = E[ydot_k^2] std_s^2;
+predictions use the time average of E[ydot_k^2] over the record. One dt_k per sample (all outputs
+are sampled at the same instant). Valid while std_s is small against the plant's time scales.
+"""
+
+from __future__ import annotations
+
+from ..schema import nonnegative
+from .base import Effect
+
+
+class SensorJitter(Effect):
+    id = "sensor.jitter"
+    stage = "sensor"
+    chain_order = 11
+    draw_order = 6
+    linear = False
+    summary = "sampling-time jitter"
+
+    def parse(self, t):
+        self.params["std_s"] = t.number("std_s", check=lambda v: 0 <= v < self.dims.Ts,
+                                        expect=f"a std in s, 0 <= std_s < Ts = {self.dims.Ts:g}")
+
+    def n_normals(self):
+        return 1
+
+    def sensor_batch(self, y, e, state, ydot):
+        return y + ydot * (self.params["std_s"] * e)
+
+    sensor_step = sensor_batch
+
+    def spectral(self, mean_sq_ydot=None):
+        # filled in by the predictor, which knows E[ydot^2]
+        return [("jitter", self.params["std_s"] ** 2)]

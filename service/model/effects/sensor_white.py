@@ -1,0 +1,28 @@
+"""``sensor.white``: white measurement noise v_k ~ N(0, std^2) (seed: sigma_v)."""
+
+from __future__ import annotations
+
+from ..schema import nonnegative
+from .base import Effect
+
+
+class SensorWhite(Effect):
+    id = "sensor.white"
+    stage = "sensor"
+    chain_order = 9
+    draw_order = 5
+    summary = "white sensor noise"
+
+    def parse(self, t):
+        self.params["std"] = t.vector("std", self.dims.p, check=nonnegative, expect="std >= 0")
+
+    def n_normals(self):
+        return self.dims.p
+
+    def sensor_batch(self, y, e, state, ydot):
+        return y + self.params["std"] * e
+
+    sensor_step = sensor_batch
+
+    def spectral(self):
+        return [("white", self.params["std"] ** 2)]

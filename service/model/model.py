@@ -1,0 +1,292 @@
+"""Model files: load, validate (in one place, via :mod:`.schema`), assemble, write back.
+
+A model is a plant plus a set of effects (DESIGN.md). :func:`load_model` accepts a path to a TOML
+file or the name of a built-in scenario (``service/scenarios/<name>.toml``). Every problem is a
+one-line :class:`ModelError`.
+
+Assembled symbols -> attribute names (shapes; n_x = plant states + lag states):
+
+=========  ===============  ==================================================================
+symbol     attribute        meaning
+=========  ===============  ==================================================================
+A_c, B_c   ``Ac``, ``Bc``   continuous plant (+ lag) state and drive-input matrices
+C, D       ``Cy``, ``Dy``   output matrix on the state and feedthrough of the drive (p, n_x)/(p, m)
+L          ``L``            process-noise input (n_x, n_w)
+A_d, B_d   ``Ad``, ``Bd``   discretized (zoh or euler) state and input matrices
+G_d Q_w^½  ``S_proc``       per-sample process-noise factor: x_{k+1} += S_proc e_k, e_k ~ N(0, I)
+1 + s_f    ``out_gain``     sensor gain (p,)
+=========  ===============  ==================================================================
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import tomllib
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from . import discretize
+from .command import Command, parse_command
+from .effects import CATALOGUE, Dims, Effect
+from .errors import ModelError
+from .plant import Plant, parse_plant
+from .schema import Table
+
+NAME_RE = re.compile(r"^[A-Za-z0-9_-]+$")
+GROUPS = ("process", "actuator", "sensor")
+
+
+def scenario_names() -> list[str]:
+    pkg = resources.files("service.scenarios")
+    return sorted(p.name[:-5] for p in pkg.iterdir() if p.name.endswith(".toml"))
+
+
+def scenario_text(name: str) -> str:
+    return resources.files("service.scenarios").joinpath(f"{name}.toml").read_text()
+
+
+def load_model(spec: str | Path) -> "Model":
+    """Load a model from a TOML path or a built-in scenario name (``seed``, ``seed-nominal``, ...)."""
+    path = Path(spec)
+    if path.suffix == ".toml" or path.exists():
+        try:
+            text = path.read_text()
+        except FileNotFoundError:
+            raise ModelError(f"{spec}: no such model file (built-in scenarios: {', '.join(scenario_names())})")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ModelError(f"{spec}: cannot read the model file ({type(exc).__name__}: {exc})")
+        return parse_model(text, str(spec))
+    if str(spec) in scenario_names():
+        return parse_model(scenario_text(str(spec)), f"scenario {spec}")
+    raise ModelError(f"{spec}: no such model file or built-in scenario (built-in: {', '.join(scenario_names())})")
+
+
+def parse_model(text: str, source: str = "<model>") -> "Model":
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ModelError(f"{source}: invalid TOML: {exc}")
+    top = Table(data, "", source)
+    name = top.string("name", pattern=lambda s: bool(NAME_RE.match(s)),
+                      expect="a device name of letters, digits, '_' or '-'")
+    description = top.string("description", "")
+    top._absent("sampling", None)
+    if "sampling" not in data:
+        raise top.error("sampling", "missing required table [sampling] (with Ts)")
+    samp = Table(data["sampling"], "sampling", source)
+    Ts = samp.number("Ts", check=lambda v: v > 0, expect="a sample period in s > 0")
+    disc = samp.string("discretization", "zoh", choices=("zoh", "euler"))
+    samp.done()
+    top._absent("plant", None)
+    if "plant" not in data:
+        raise top.error("plant", "missing required table [plant] (m, c, k or A, B, C)")
+    plant = parse_plant(Table(data["plant"], "plant", source))
+    top._absent("command", None)
+    command = parse_command(Table(data["command"], "command", source) if "command" in data else None, plant.m)
+    dims = Dims(m=plant.m, p=plant.p, nw=plant.nw, Ts=Ts, discretization=disc)
+    effects: dict[str, Effect] = {}
+    for group in GROUPS:
+        if top._absent(group, None):
+            continue
+        gt = data[group]
+        if not isinstance(gt, dict):
+            raise top.error(group, f"expected effect tables like [{group}.<effect>], got {gt!r:.40}")
+        for sub, body in gt.items():
+            eid = f"{group}.{sub}"
+            if eid not in CATALOGUE:
+                known = ", ".join(k for k in CATALOGUE if k.startswith(group + "."))
+                raise ModelError(f"{source}: [{eid}]: unknown effect (known {group} effects: {known})")
+            effects[eid] = CATALOGUE[eid](Table(body, eid, source), dims)
+    top.done()
+    ordered = {k: effects[k] for k in CATALOGUE if k in effects}
+    return Model(name=name, description=description, Ts=Ts, discretization=disc, plant=plant,
+                 command=command, effects=ordered, source=source, text=text)
+
+
+@dataclass
+class Model:
+    """A validated, assembled model. Pure math: no I/O beyond what created it."""
+
+    name: str
+    Ts: float
+    discretization: str
+    plant: Plant
+    command: Command
+    effects: dict[str, Effect]
+    source: str = "<model>"
+    text: str = ""
+    description: str = ""
+    _asm: dict = field(default_factory=dict, repr=False)
+
+    def __post_init__(self):
+        self._assemble()
+
+    # -- assembly -----------------------------------------------------------------------------
+    def _assemble(self) -> None:
+        p = self.plant
+        Ac, Bc, Cy, Dy, L = p.A, p.B, p.C, p.D, p.L
+        for eff in self.effects.values():
+            if hasattr(eff, "augment"):
+                Ac, Bc, Cy, Dy, L = eff.augment(Ac, Bc, Cy, Dy, L)
+        self.Ac, self.Bc, self.Cy, self.Dy, self.L = Ac, Bc, Cy, Dy, L
+        if self.discretization == "euler":
+            self.Ad, self.Bd = discretize.euler(Ac, Bc, self.Ts)
+        else:
+            self.Ad, self.Bd = discretize.zoh(Ac, Bc, self.Ts)
+        proc = self.effects.get("process.white")
+        if proc is not None:
+            proc.bind(Ac, L)
+            self.S_proc = proc._S
+        else:
+            self.S_proc = np.zeros((Ac.shape[0], 0))
+        gain = np.ones(p.p)
+        for eff in self.effects.values():
+            if hasattr(eff, "output_gain"):
+                gain = gain * eff.output_gain()
+        self.out_gain = gain
+        # the per-sample block of standard normals: effects in draw order
+        layout, start = [], 0
+        for eff in sorted(self.effects.values(), key=lambda e: e.draw_order):
+            n = eff.n_normals()
+            if n:
+                layout.append((eff, slice(start, start + n)))
+                start += n
+        self.normal_layout = layout
+        self.n_normals = start
+
+    # -- sizes ----------------------------------------------------------------------------------
+    @property
+    def n_x(self) -> int:
+        """Continuous-stage states (plant + actuator lag)."""
+        return self.Ac.shape[0]
+
+    @property
+    def m(self) -> int:
+        return self.plant.m
+
+    @property
+    def p(self) -> int:
+        return self.plant.p
+
+    def normal_layout_slot(self, eff: Effect) -> slice | None:
+        """Columns of the per-sample normals block that belong to ``eff`` (None: it draws none)."""
+        for e, sl in self.normal_layout:
+            if e is eff:
+                return sl
+        return None
+
+    def effects_in(self, stage: str) -> list[Effect]:
+        return [e for e in self.effects.values() if e.stage == stage]
+
+    # -- editing (diagnosis adds or changes effects) ------------------------------------------------
+    def to_dict(self) -> dict:
+        d: dict = {"name": self.name}
+        if self.description:
+            d["description"] = self.description
+        d["sampling"] = {"Ts": self.Ts, "discretization": self.discretization}
+        d["plant"] = _plant_dict(self.plant, self.text, self.source)
+        d["command"] = _command_dict(self.command)
+        for eid, eff in self.effects.items():
+            g, s = eid.split(".")
+            d.setdefault(g, {})[s] = eff.param_dict()
+        return d
+
+    def to_toml(self) -> str:
+        return dumps_toml(self.to_dict())
+
+    def with_effect(self, eid: str, params: dict) -> "Model":
+        d = self.to_dict()
+        g, s = eid.split(".")
+        d.setdefault(g, {})[s] = params
+        return parse_model(dumps_toml(d), f"{self.source} + [{eid}]")
+
+    def without_effect(self, eid: str) -> "Model":
+        d = self.to_dict()
+        g, s = eid.split(".")
+        d.get(g, {}).pop(s, None)
+        if g in d and not d[g]:
+            del d[g]
+        return parse_model(dumps_toml(d), f"{self.source} - [{eid}]")
+
+    # -- convenience front doors ----------------------------------------------------------------
+    def simulate(self, n: int, *, seed=None, trials: int | None = None, command=None, normals=None,
+                 block: int = 1 << 16):
+        from .simulate import simulate
+        return simulate(self, n, seed=seed, trials=trials, command=command, normals=normals, block=block)
+
+    def simulate_blocks(self, n: int, *, seed=None, trials: int | None = None, command=None,
+                        normals=None, block: int = 1 << 16):
+        from .simulate import simulate_blocks
+        return simulate_blocks(self, n, seed=seed, trials=trials, command=command, normals=normals, block=block)
+
+    def stepper(self, seed=None, normals=None):
+        from .simulate import Stepper
+        return Stepper(self, seed=seed, normals=normals)
+
+    def predictor(self):
+        from .predict import Predictor
+        return Predictor(self)
+
+
+def _plant_dict(plant: Plant, text: str, source: str) -> dict:
+    try:
+        raw = tomllib.loads(text).get("plant") if text else None
+    except tomllib.TOMLDecodeError:
+        raw = None
+    if raw is not None:
+        return raw
+    return {"A": plant.A.tolist(), "B": plant.B.tolist(), "C": plant.C.tolist(), "D": plant.D.tolist(),
+            "L": plant.L.tolist()}
+
+
+def _command_dict(cmd: Command) -> dict:
+    out: dict = {"kind": cmd.kind}
+    for k, v in cmd.params.items():
+        a = np.atleast_1d(np.asarray(v, float)) if not isinstance(v, int) else None
+        if a is None:
+            out[k] = v
+        else:
+            out[k] = float(a[0]) if np.all(a == a[0]) else [float(x) for x in a]
+    return out
+
+
+# -- a small TOML writer for the model schema (tables of scalars, strings and numeric arrays) ----
+def _fmt(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if not math.isfinite(v):
+            raise ModelError(f"cannot write a non-finite value {v!r} to a model file")
+        return repr(v)
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return "[" + ", ".join(_fmt(x.item() if isinstance(x, np.generic) else x) for x in v) + "]"
+    if isinstance(v, np.generic):
+        return _fmt(v.item())
+    raise ModelError(f"cannot write {type(v).__name__} to a model file")
+
+
+def dumps_toml(d: dict) -> str:
+    lines: list[str] = []
+
+    def emit(prefix: str, table: dict) -> None:
+        scalars = {k: v for k, v in table.items() if not isinstance(v, dict)}
+        subs = {k: v for k, v in table.items() if isinstance(v, dict)}
+        if prefix and scalars:
+            lines.append(f"[{prefix}]")
+        for k, v in scalars.items():
+            lines.append(f"{k} = {_fmt(v)}")
+        if scalars:
+            lines.append("")
+        for k, v in subs.items():
+            emit(f"{prefix}.{k}" if prefix else k, v)
+
+    emit("", d)
+    return "\n".join(lines).rstrip() + "\n"

@@ -1,0 +1,514 @@
+"""Predictions of the model: mean response, covariance, PSD, ACF and Allan variance, per effect.
+
+The linear-Gaussian part is one augmented discrete system (seed sections 4 and 7: colored effects
+augment the state). Symbols -> names:
+
+=========  ==========  =================================================================
+symbol     name        meaning
+=========  ==========  =================================================================
+s_k        state       [x (plant + lag), actuator-noise states, sensor-bias states]
+F          ``F``       s_{k+1} = F s_k + Gamma e_k, e_k ~ N(0, I), columns owned by effects
+Gamma      ``Gam``     noise input, (n_s, n_e)
+H, J       ``H, J``    centered y_k = H s_k + J e_k + (white, walk, tone, jitter primitives)
+P_k        ``P``       Cov(s_k), P_{k+1} = F P_k F^T + Gamma Gamma^T (seed section 4)
+S_y,k      ``Sy``      Cov(y_k) = H P_k H^T + J J^T + R_v + R_q + R_b,k + ... (seed section 4)
+R_b,k      walk        R_b,0 + k Q_b (seed sections 4 and 6.2)
+=========  ==========  =================================================================
+
+Effects contribute through the hooks of :mod:`.effects.base`. Independent sources add, so every
+second-order prediction is a sum over the effects that own noise (``contributions``). Static
+actuator nonlinearities enter by statistical linearization around the mean drive (seed section 7):
+the mean drive is E[N(u)] and the noise passes with gain g_k = E[N'(u)], u ~ N(u_c,k, s_k^2).
+Spectral conventions: PSDs are ONE-SIDED, units^2/Hz, over 0 <= f <= 1/(2 Ts), of the sampled
+(discrete-time) process, so aliasing is included: S(f) = 2 Ts |T(e^{i 2 pi f Ts})|^2 for unit
+white input. The ACF is the autocovariance R(d) = E[y~_{k+d} y~_k] (units^2) at lag d samples.
+The Allan variance treats y as rate data with tau = m Ts: AVAR(m) = E[(ybar_{k+1} - ybar_k)^2]/2
+over adjacent m-sample means, computed exactly for the sampled process from the variogram
+gamma(d) = E[(y_{k+d} - y_k)^2]/2:  AVAR(m) = -(1/m^2) sum_{d=1}^{2m-1} c_m(d) gamma(d), with
+c_m(d) = 2m - 3d (d <= m), -(2m - d) (m < d < 2m) (the autocorrelation of the Allan filter).
+For white noise this gives var/m; for a walk of increment variance q, q (2 m^2 + 1) / (6 m), the
+discrete form of K^2 tau / 3 (NIST SP 1065, Table 6).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.linalg import block_diag, solve_discrete_lyapunov
+from scipy.special import ndtr
+
+from .simulate import propagate
+
+_SQRT2PI = np.sqrt(2.0 * np.pi)
+
+
+# -- Gaussian expectations of piecewise-linear maps (statistical linearization) ---------------------
+def gauss_pwl(fn, knots: np.ndarray, mu: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """E[f(U)] and E[f'(U)] for U ~ N(mu, sigma^2), f piecewise linear with kinks at ``knots``.
+
+    Exact (closed form with Phi and phi on each linear piece); sigma = 0 gives f(mu), f'(mu).
+    """
+    b = np.unique(np.asarray(knots, float))
+    ext = np.concatenate([[b[0] - 1.0], b, [b[-1] + 1.0]])
+    fv = fn(ext)
+    slope = np.diff(fv) / np.diff(ext)                      # K+1 pieces
+    icpt = fv[:-1] - slope * ext[:-1]
+    lo = np.concatenate([[-np.inf], b])
+    hi = np.concatenate([b, [np.inf]])
+    mu = np.asarray(mu, float)[..., None]
+    sg = np.asarray(sigma, float)[..., None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a = np.where(sg > 0, (lo - mu) / sg, np.where(lo <= mu, -np.inf, np.inf))
+        c = np.where(sg > 0, (hi - mu) / sg, np.where(hi <= mu, -np.inf, np.inf))
+    dP = ndtr(c) - ndtr(a)
+    pdf = lambda z: np.where(np.isfinite(z), np.exp(-0.5 * np.where(np.isfinite(z), z, 0) ** 2) / _SQRT2PI, 0.0)
+    dphi = pdf(c) - pdf(a)
+    mean = np.sum(icpt * dP + slope * (mu * dP - sg * dphi), axis=-1)
+    gain = np.sum(slope * dP, axis=-1)
+    return mean, gain
+
+
+@dataclass
+class LinearSystem:
+    F: np.ndarray
+    Gam: np.ndarray
+    H: np.ndarray
+    J: np.ndarray
+    Hd: np.ndarray          # rows giving ydot (for jitter): ydot~ = Hd s + Jd e
+    Jd: np.ndarray
+    owners: dict            # effect id -> column indices of e
+    n_x: int                # plant (+ lag) states at the top of s
+    plant_block: slice      # rows/cols of s that are plant states (without lag)
+
+
+@dataclass
+class MeanResponse:
+    t: np.ndarray           # (N,) s
+    x: np.ndarray           # (N, n_x) mean continuous-stage state
+    drive: np.ndarray       # (N, m) mean plant input E[N(u_c + n_a)]
+    gain: np.ndarray        # (N, m) statistical-linearization gain of the actuator nonlinearities
+    drive_var: np.ndarray   # (N, m) variance of the actuator noise before the nonlinearities
+    ydot: np.ndarray        # (N, p) mean derivative of the plant output
+    y: np.ndarray           # (N, p) predicted mean measurement
+
+
+@dataclass
+class Covariance:
+    P: np.ndarray                       # (N, n_s, n_s) state covariance P_k
+    Sy: np.ndarray                      # (N, p) variance of y_k (diagonal of S_y,k)
+    parts: dict = field(default_factory=dict)   # effect id -> (N, p) its share of Sy
+
+
+@dataclass
+class Steady:
+    var_y: np.ndarray | None            # (p,) stationary variance of the centered measurement
+    P: np.ndarray | None                # (n, n) plant state covariance, None if not stable
+    contributions: dict                 # effect id -> (p,) or None
+    bias_var_rate: np.ndarray           # (p,) growth of Var(y) per second from the bias walk
+    stable: bool
+    notes: list
+
+
+class Predictor:
+    """Predictions for one model. ``horizon_s`` sets how long a command history is averaged over
+    for signal-dependent approximations (jitter, nonlinear actuator gains)."""
+
+    def __init__(self, model, horizon_s: float = 60.0):
+        self.model = model
+        self.horizon = max(int(np.ceil(horizon_s / model.Ts)), 2)
+        m = model
+        self._act_src = [e for e in m.effects.values() if hasattr(e, "drive_linear")]
+        self._nonlin = [e for e in m.effects.values() if hasattr(e, "knots")]
+        self._sen_lin = [e for e in m.effects.values() if hasattr(e, "sensor_linear")]
+        blocks = [e.drive_linear() for e in self._act_src]
+        mm = m.m
+        self._Fa = block_diag(*[b[0] for b in blocks]) if blocks else np.zeros((0, 0))
+        self._Ga = [b[1] for b in blocks]
+        self._Ca = np.hstack([b[2] for b in blocks]) if blocks else np.zeros((mm, 0))
+        self._Da = [b[3] for b in blocks]
+        if self._Fa.shape != (self._Ca.shape[1],) * 2:     # block_diag of 0x0 blocks
+            self._Fa = np.zeros((self._Ca.shape[1],) * 2)
+        self._steady_cache = None
+
+    # -- actuator drive statistics ----------------------------------------------------------------
+    def drive_noise_var(self, n: int) -> np.ndarray:
+        """Var of the actuator noise n_a,k (before nonlinearities), k = 0..n-1, per channel (n, m)."""
+        m = self.model.m
+        DD = sum((D @ D.T for D in self._Da), np.zeros((m, m)))
+        GG = block_diag(*[G @ G.T for G in self._Ga]) if self._Ga else np.zeros((0, 0))
+        Pa = np.zeros_like(self._Fa)
+        out = np.empty((n, m))
+        for k in range(n):
+            v = np.diag(self._Ca @ Pa @ self._Ca.T + DD)
+            out[k] = v
+            if k > 0 and np.allclose(v, out[k - 1], rtol=1e-14, atol=0):
+                out[k:] = v
+                break
+            Pa = self._Fa @ Pa @ self._Fa.T + GG
+        return out
+
+    def _nonlinear(self, u: np.ndarray) -> np.ndarray:
+        for e in self._nonlin:
+            u = e.actuator_batch(u, None, None)
+        return u
+
+    def drive_stats(self, u_c: np.ndarray, var: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Mean drive E[N(u_c + n)] and gain E[N'(u_c + n)], n ~ N(0, var), per channel."""
+        if not self._nonlin:
+            return u_c.copy(), np.ones_like(u_c)
+        mean = np.empty_like(u_c)
+        gain = np.empty_like(u_c)
+        sd = np.sqrt(np.broadcast_to(var, u_c.shape))
+        for j in range(self.model.m):
+            knots = np.concatenate([e.knots()[j] for e in self._nonlin])
+
+            def fj(v, j=j):
+                arr = np.zeros((v.size, self.model.m))
+                arr[:, j] = v
+                return self._nonlinear(arr)[:, j]
+
+            mean[:, j], gain[:, j] = gauss_pwl(fj, knots, u_c[:, j], sd[:, j])
+        return mean, gain
+
+    # -- mean (seed section 3) ------------------------------------------------------------------------
+    def mean_response(self, n: int | None = None, command: np.ndarray | None = None) -> MeanResponse:
+        """m_{k+1} = A_d m_k + B_d E[drive_k]; E[y_k] = (1+s_f)(C m_k + D E[drive_k]) (seed sec. 3).
+        ``command`` (N, m) is a recorded command; default: the model's own command generator."""
+        mdl = self.model
+        if command is None:
+            n = self.horizon if n is None else n
+            u = mdl.command.values(0, n, mdl.Ts)
+        else:
+            u = np.asarray(command, float).reshape(len(command), -1)
+            n = u.shape[0]
+        var = self.drive_noise_var(n)
+        drive, gain = self.drive_stats(u, var)
+        x = propagate(mdl.Ad, drive @ mdl.Bd.T)
+        y = (x @ mdl.Cy.T + drive @ mdl.Dy.T) * mdl.out_gain
+        ydot = (x @ (mdl.Cy @ mdl.Ac).T + drive @ (mdl.Cy @ mdl.Bc).T) * mdl.out_gain
+        return MeanResponse(t=np.arange(n) * mdl.Ts, x=x, drive=drive, gain=gain, drive_var=var, ydot=ydot, y=y)
+
+    # -- the augmented linear system -------------------------------------------------------------------
+    def linear_system(self, g: np.ndarray | None = None) -> LinearSystem:
+        mdl = self.model
+        g = np.ones(mdl.m) if g is None else np.asarray(g, float)
+        G = np.diag(g)
+        nx, na = mdl.n_x, self._Fa.shape[0]
+        sen = [e.sensor_linear() for e in self._sen_lin]
+        Fs = block_diag(*[s[0] for s in sen]) if sen else np.zeros((0, 0))
+        ns_ = Fs.shape[0]
+        n_s = nx + na + ns_
+        F = np.zeros((n_s, n_s))
+        F[:nx, :nx] = mdl.Ad
+        F[:nx, nx:nx + na] = mdl.Bd @ G @ self._Ca
+        F[nx:nx + na, nx:nx + na] = self._Fa
+        F[nx + na:, nx + na:] = Fs
+        cols, owners, Jc, Jdc = [], {}, [], []
+        gain = mdl.out_gain[:, None]
+        CyBc = mdl.Cy @ mdl.Bc
+        start = 0
+
+        def add(eid, col_block, j_block, jd_block):
+            nonlocal start
+            k = col_block.shape[1]
+            owners[eid] = np.arange(start, start + k)
+            start += k
+            cols.append(col_block)
+            Jc.append(j_block)
+            Jdc.append(jd_block)
+
+        a0 = 0
+        for e, Ga, Da in zip(self._act_src, self._Ga, self._Da):
+            k, ka = Da.shape[1], Ga.shape[0]
+            col = np.zeros((n_s, k))
+            col[:nx] = mdl.Bd @ G @ Da
+            col[nx + a0:nx + a0 + ka] = Ga
+            a0 += ka
+            add(e.id, col, gain * (mdl.Dy @ G @ Da), gain * (CyBc @ G @ Da))
+        if "process.white" in mdl.effects and mdl.S_proc.shape[1]:
+            col = np.zeros((n_s, mdl.S_proc.shape[1]))
+            col[:nx] = mdl.S_proc
+            z = np.zeros((mdl.p, col.shape[1]))
+            add("process.white", col, z, z)
+        s0 = 0
+        for e, (Fi, Gi, Hi) in zip(self._sen_lin, sen):
+            col = np.zeros((n_s, Gi.shape[1]))
+            col[nx + na + s0:nx + na + s0 + Gi.shape[0]] = Gi
+            s0 += Gi.shape[0]
+            z = np.zeros((mdl.p, col.shape[1]))
+            add(e.id, col, z, z)
+        Gam = np.hstack(cols) if cols else np.zeros((n_s, 0))
+        H = np.zeros((mdl.p, n_s))
+        H[:, :nx] = gain * mdl.Cy
+        H[:, nx:nx + na] = gain * (mdl.Dy @ G @ self._Ca)
+        H[:, nx + na:] = np.hstack([s[2] for s in sen]) if sen else np.zeros((mdl.p, 0))
+        Hd = np.zeros((mdl.p, n_s))
+        Hd[:, :nx] = gain * (mdl.Cy @ mdl.Ac)
+        Hd[:, nx:nx + na] = gain * (CyBc @ G @ self._Ca)
+        J = np.hstack(Jc) if Jc else np.zeros((mdl.p, 0))
+        Jd = np.hstack(Jdc) if Jdc else np.zeros((mdl.p, 0))
+        return LinearSystem(F, Gam, H, J, Hd, Jd, owners, nx, slice(0, mdl.plant.n))
+
+    # -- primitives (non-state effects) ----------------------------------------------------------------
+    def _primitives(self, mean: MeanResponse | None = None, jitter_ydot2: np.ndarray | None = None):
+        """[(effect id, kind, params)] for white / walk / tone / jitter contributions."""
+        out = []
+        for e in self.model.effects.values():
+            if hasattr(e, "spectral"):
+                for prim in e.spectral():
+                    out.append((e.id,) + tuple(prim))
+        return out
+
+    # -- covariance recursion (seed section 4) -----------------------------------------------------------
+    def covariance(self, n: int, command: np.ndarray | None = None) -> Covariance:
+        """P_k and S_y,k for k = 0..n-1 from P_0 = 0 (all noise states start at zero, as in the
+        simulation); S_y,k includes R_b,k = R_b,0 + k Q_b, the white primitives and the jitter's
+        signal-dependent variance std_s^2 E[ydot_k^2]."""
+        mean = self.mean_response(n, command)
+        n = mean.t.size
+        owners_sys = None
+        P = None
+        parts: dict = {}
+        Ps = []
+        const = not self._nonlin
+        ls = self.linear_system(None if const else mean.gain[0])
+        n_s = ls.F.shape[0]
+        Pj = {eid: np.zeros((n_s, n_s)) for eid in ls.owners}
+        P_hist = np.zeros((n, n_s, n_s))
+        Sy = {eid: np.zeros((n, self.model.p)) for eid in ls.owners}
+        ydot_var = np.zeros((n, self.model.p))
+        for k in range(n):
+            if not const:
+                ls = self.linear_system(mean.gain[k])
+            Ptot = np.zeros((n_s, n_s))
+            for eid, cols in ls.owners.items():
+                Pk = Pj[eid]
+                Ptot += Pk
+                Jj = ls.J[:, cols]
+                Sy[eid][k] = np.einsum("ij,jk,ik->i", ls.H, Pk, ls.H) + np.sum(Jj**2, axis=1)
+                Jdj = ls.Jd[:, cols]
+                ydot_var[k] += np.einsum("ij,jk,ik->i", ls.Hd, Pk, ls.Hd) + np.sum(Jdj**2, axis=1)
+                Gj = ls.Gam[:, cols]
+                # P_{k+1} = F P_k F^T + Gamma Gamma^T   (per source; seed section 4)
+                Pj[eid] = ls.F @ Pk @ ls.F.T + Gj @ Gj.T
+            P_hist[k] = Ptot
+        parts.update(Sy)
+        k_idx = np.arange(n)
+        for eid, kind, *prm in self._primitives():
+            if kind == "white":
+                parts[eid] = np.broadcast_to(prm[0], (n, self.model.p)).copy()
+            elif kind == "walk":
+                q, var0 = prm
+                parts[eid] = var0 + k_idx[:, None] * q       # R_b,k = R_b,0 + k Q_b
+            elif kind == "tone":
+                parts[eid] = np.broadcast_to(prm[0] ** 2 / 2.0, (n, self.model.p)).copy()
+            elif kind == "jitter":
+                parts[eid] = prm[0] * (mean.ydot**2 + ydot_var)
+        total = sum(parts.values(), np.zeros((n, self.model.p)))
+        return Covariance(P=P_hist, Sy=total, parts=parts)
+
+    # -- steady state ------------------------------------------------------------------------------
+    def steady_state(self) -> Steady:
+        """Stationary covariance by the discrete Lyapunov equation P = F P F^T + Gamma Gamma^T,
+        per source. Signal-dependent terms (jitter, nonlinear gains) are averaged over the
+        horizon of the model's own command. The bias walk is reported as a rate, not a variance."""
+        if self._steady_cache is not None:
+            return self._steady_cache
+        mdl = self.model
+        notes = []
+        mean = self.mean_response()
+        g = np.sqrt(np.mean(mean.gain**2, axis=0)) if self._nonlin else None
+        if self._nonlin:
+            notes.append("actuator nonlinearities linearized around the mean drive: rms gain "
+                         + ", ".join(f"{v:.4g}" for v in g) + " (seed section 7)")
+        ls = self.linear_system(g)
+        nx, n_s = ls.n_x, ls.F.shape[0]
+        plant_part = slice(0, nx + self._Fa.shape[0])
+        rad = np.max(np.abs(np.linalg.eigvals(ls.F[plant_part, plant_part])), initial=0.0)
+        stable = bool(rad < 1.0)
+        contributions: dict = {}
+        Ptot = np.zeros((n_s, n_s))
+        ydot_var = np.zeros(mdl.p)
+        self._Pj = {}
+        for eid, cols in ls.owners.items():
+            Gj = ls.Gam[:, cols]
+            drives_plant = bool(np.any(Gj[plant_part] != 0))
+            if drives_plant and not stable:
+                contributions[eid] = None
+                continue
+            Pk = solve_discrete_lyapunov(ls.F, Gj @ Gj.T) if stable else _sensor_lyap(ls, Gj, plant_part)
+            Pk = 0.5 * (Pk + Pk.T)
+            self._Pj[eid] = Pk
+            Ptot += Pk
+            Jj = ls.J[:, cols]
+            contributions[eid] = np.einsum("ij,jk,ik->i", ls.H, Pk, ls.H) + np.sum(Jj**2, axis=1)
+            ydot_var += np.einsum("ij,jk,ik->i", ls.Hd, Pk, ls.Hd) + np.sum(ls.Jd[:, cols] ** 2, axis=1)
+        rate = np.zeros(mdl.p)
+        burn = min(mean.t.size // 2, _settle_samples(mdl))
+        ydot2 = np.mean(mean.ydot[burn:] ** 2, axis=0)
+        for eid, kind, *prm in self._primitives():
+            if kind == "white":
+                contributions[eid] = np.broadcast_to(prm[0], (mdl.p,)).copy()
+            elif kind == "walk":
+                rate = rate + prm[0] / mdl.Ts
+            elif kind == "tone":
+                contributions[eid] = prm[0] ** 2 / 2.0
+            elif kind == "jitter":
+                contributions[eid] = prm[0] * (ydot2 + ydot_var) if stable or not ydot_var.any() else None
+        q = mdl.effects.get("sensor.quantization")
+        if q is not None:
+            from .effects.sensor_quantization import uniform_model_error
+            spread = np.sqrt(np.var(mean.y[burn:], axis=0) + sum(
+                v for k, v in contributions.items() if v is not None and k != q.id))
+            err = uniform_model_error(spread, q.params["step"])
+            if np.any(err > 0.01):
+                notes.append("sensor.quantization: the signal spans few steps (std "
+                             + ", ".join(f"{s:.3g}" for s in spread) + " vs step "
+                             + ", ".join(f"{s:.3g}" for s in q.params["step"])
+                             + "): the uniform Delta^2/12 model may not hold")
+        if "sensor.jitter" in mdl.effects:
+            notes.append("sensor.jitter: first-order Taylor, variance std_s^2 E[ydot^2] averaged over "
+                         f"{mean.t[-1] - mean.t[burn]:.3g} s of the model's command")
+        var_y = None if any(v is None for v in contributions.values()) else \
+            sum(contributions.values(), np.zeros(mdl.p))
+        Pp = Ptot[ls.plant_block, ls.plant_block] if stable else None
+        self._ls = ls
+        self._steady_cache = Steady(var_y=var_y, P=Pp, contributions=contributions,
+                                    bias_var_rate=rate, stable=stable, notes=notes)
+        return self._steady_cache
+
+    # -- spectra -------------------------------------------------------------------------------------
+    def psd(self, f: np.ndarray) -> tuple[dict, list]:
+        """One-sided PSD of the centered measurement per effect at frequencies ``f`` (Hz):
+        {effect id: (len(f), p)} in units^2/Hz, and spectral lines [(effect id, f_hz, power)]."""
+        st = self.steady_state()
+        mdl = self.model
+        ls = self._ls
+        f = np.asarray(f, float)
+        z = np.exp(2j * np.pi * f * mdl.Ts)
+        out: dict = {}
+        lines = []
+        if ls.Gam.shape[1]:
+            n_s = ls.F.shape[0]
+            M = z[:, None, None] * np.eye(n_s) - ls.F               # (nf, n_s, n_s)
+            X = np.linalg.solve(M, np.broadcast_to(ls.Gam, (f.size,) + ls.Gam.shape))
+            T = ls.H @ X + ls.J                                       # (nf, p, n_e)
+            for eid, cols in ls.owners.items():
+                out[eid] = None if st.contributions.get(eid) is None else \
+                    2.0 * mdl.Ts * np.sum(np.abs(T[:, :, cols]) ** 2, axis=2)
+        for eid, kind, *prm in self._primitives():
+            if kind == "white":
+                out[eid] = np.broadcast_to(2.0 * mdl.Ts * prm[0], (f.size, mdl.p)).copy()
+            elif kind == "jitter":
+                c = st.contributions.get(eid)
+                out[eid] = None if c is None else np.broadcast_to(2.0 * mdl.Ts * c, (f.size, mdl.p)).copy()
+            elif kind == "walk":
+                # b_{k+1} = b_k + sqrt(q) eta: S(f) = 2 Ts q / |1 - e^{-i w Ts}|^2
+                with np.errstate(divide="ignore"):
+                    out[eid] = 2.0 * mdl.Ts * prm[0] / (4.0 * np.sin(np.pi * f * mdl.Ts) ** 2)[:, None]
+            elif kind == "tone":
+                out[eid] = np.zeros((f.size, mdl.p))
+                for j in range(mdl.p):
+                    lines.append((eid, float(prm[1][j]), float(prm[0][j] ** 2 / 2.0), j))
+        return out, lines
+
+    def acf(self, lags: int | np.ndarray) -> dict:
+        """Autocovariance R(d) per stationary effect, d = 0..lags-1 (samples): {id: (L, p)}.
+        The bias walk is nonstationary and has no ACF (see :meth:`variogram`)."""
+        L = int(lags) if np.isscalar(lags) else int(np.max(lags)) + 1
+        st = self.steady_state()
+        mdl = self.model
+        ls = self._ls
+        d = np.arange(L)
+        out: dict = {}
+        for eid, cols in ls.owners.items():
+            if eid not in self._Pj:
+                out[eid] = None
+                continue
+            Pk = self._Pj[eid]
+            X = np.concatenate([Pk @ ls.H.T, ls.Gam[:, cols] @ ls.J[:, cols].T], axis=1)   # (n_s, 2p)
+            FX = _powers_apply(ls.F, X, L)                                                  # (L, n_s, 2p)
+            p = mdl.p
+            R = np.einsum("ij,ljk->lik", ls.H, FX[:, :, :p])                               # (L, p, p)
+            Rd = np.diagonal(R, axis1=1, axis2=2).copy()
+            cross = np.diagonal(np.einsum("ij,ljk->lik", ls.H, FX[:, :, p:]), axis1=1, axis2=2)
+            Rd[1:] += cross[:-1]                          # H F^{d-1} Gamma J^T for d >= 1
+            Rd[0] += np.sum(ls.J[:, cols] ** 2, axis=1)  # J J^T at d = 0
+            out[eid] = Rd
+        for eid, kind, *prm in self._primitives():
+            if kind in ("white", "jitter"):
+                v = prm[0] if kind == "white" else st.contributions.get(eid)
+                if v is None:
+                    out[eid] = None
+                    continue
+                R = np.zeros((L, mdl.p))
+                R[0] = v
+                out[eid] = R
+            elif kind == "tone":
+                out[eid] = prm[0] ** 2 / 2.0 * np.cos(2 * np.pi * d[:, None] * prm[1] * mdl.Ts)
+        return out
+
+    def variogram(self, L: int) -> dict:
+        """gamma(d) = E[(y_{k+d} - y_k)^2] / 2, d = 0..L-1, per effect {id: (L, p)}; stationary
+        effects R(0) - R(d), the bias walk d Q_b / 2."""
+        out = {}
+        for eid, R in self.acf(L).items():
+            out[eid] = None if R is None else R[0] - R
+        for eid, kind, *prm in self._primitives():
+            if kind == "walk":
+                out[eid] = np.arange(L)[:, None] * prm[0] / 2.0 * np.ones(self.model.p)
+        return out
+
+    def allan(self, m: np.ndarray) -> dict:
+        """Allan variance per effect at averaging factors ``m`` (tau = m Ts): {id: (len(m), p)},
+        exact for the sampled process (formula in the module docstring)."""
+        m = np.asarray(m, dtype=np.int64)
+        L = int(2 * m.max())
+        out = {}
+        for eid, gam in self.variogram(L).items():
+            out[eid] = None if gam is None else allan_from_variogram(gam, m)
+        return out
+
+
+def allan_from_variogram(gam: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """AVAR(m) = -(1/m^2) sum_{d=1}^{2m-1} c_m(d) gamma(d), O(1) per m with prefix sums."""
+    d = np.arange(gam.shape[0], dtype=float)[:, None]
+    S0 = np.cumsum(gam, axis=0)               # S0[n] = sum_{d<=n} gamma(d) (gamma(0) = 0)
+    S1 = np.cumsum(d * gam, axis=0)
+    mm = m.astype(float)[:, None]
+    a = 2 * mm * S0[m] - 3 * S1[m]
+    b = -2 * mm * (S0[2 * m - 1] - S0[m]) + (S1[2 * m - 1] - S1[m])
+    return -(a + b) / mm**2
+
+
+def _powers_apply(F: np.ndarray, X: np.ndarray, L: int) -> np.ndarray:
+    """F^d X for d = 0..L-1 by doubling: log2(L) batched products."""
+    out = np.empty((L,) + X.shape)
+    out[0] = X
+    size, Fp = 1, F.copy()
+    while size < L:
+        take = min(size, L - size)
+        out[size:size + take] = Fp @ out[:take]
+        Fp = Fp @ Fp
+        size += take
+    return out
+
+
+def _sensor_lyap(ls: LinearSystem, Gj: np.ndarray, plant_part: slice) -> np.ndarray:
+    """Lyapunov on the sensor-state block only (used when the plant itself is not stable)."""
+    n_s = ls.F.shape[0]
+    s = slice(plant_part.stop, n_s)
+    P = np.zeros((n_s, n_s))
+    if s.stop > s.start:
+        P[s, s] = solve_discrete_lyapunov(ls.F[s, s], (Gj @ Gj.T)[s, s])
+    return P
+
+
+def _settle_samples(model) -> int:
+    """Samples for the plant's transient to decay to ~1e-6 (ln 1e6 ~ 14 time constants)."""
+    ev = np.abs(np.linalg.eigvals(model.Ad))
+    r = np.max(ev, initial=0.0)
+    if r >= 1.0 or r == 0.0:
+        return 0
+    return int(min(np.ceil(14.0 / -np.log(r)), 10**7))
