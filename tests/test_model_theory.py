@@ -1,0 +1,173 @@
+"""Closed forms (issue 2): Van Loan, ZOH, sigma_e^2 = (1 - rho^2) sigma_n^2, Var(b_k) = Var(b_0) + k Q_b,
+Delta^2/12 where the uniform model holds and where it does not, exact Allan variance forms."""
+
+import numpy as np
+import pytest
+from scipy import stats
+from scipy.integrate import quad_vec
+from scipy.linalg import expm
+
+from service.model import discretize, parse_model
+from service.model.predict import allan_from_variogram, gauss_pwl
+
+
+def model(body: str, Ts=0.01, disc="zoh", plant="m = 1.0\nc = 0.4\nk = 2.0"):
+    return parse_model(f'name = "t"\n[sampling]\nTs = {Ts}\ndiscretization = "{disc}"\n[plant]\n{plant}\n{body}', "test")
+
+
+DOUBLE_INTEGRATOR = "A = [[0.0, 1.0], [0.0, 0.0]]\nB = [[0.0], [1.0]]\nC = [[1.0, 0.0]]"
+
+
+@pytest.mark.parametrize("Ts", [1e-3, 0.01, 0.5])
+def test_van_loan_double_integrator(Ts):
+    """Q_d = q [[Ts^3/3, Ts^2/2], [Ts^2/2, Ts]] for white acceleration of intensity q."""
+    q = 0.7
+    A = np.array([[0.0, 1.0], [0.0, 0.0]])
+    Qc = q * np.array([[0.0, 0.0], [0.0, 1.0]])
+    expect = q * np.array([[Ts**3 / 3, Ts**2 / 2], [Ts**2 / 2, Ts]])
+    np.testing.assert_allclose(discretize.van_loan(A, Qc, Ts), expect, rtol=1e-12, atol=0)
+    # the same through a model file: [process.white] psd on a general plant
+    mdl = model(f"[process.white]\npsd = {q}", Ts=Ts, plant=DOUBLE_INTEGRATOR)
+    np.testing.assert_allclose(mdl.S_proc @ mdl.S_proc.T, expect, rtol=1e-10, atol=1e-18)
+    assert not np.allclose(expect, Qc), "Q_d = Q_c would be the dimensional mistake of section 8"
+
+
+def test_van_loan_against_quadrature_and_first_order():
+    A = np.array([[0.0, 1.0], [-4.0 / 1.2, -0.35 / 1.2]])
+    L = np.array([[0.0], [1 / 1.2]])
+    Qc = L @ L.T * 0.3
+    Ts = 0.05
+    integ, _ = quad_vec(lambda s: expm(A * s) @ Qc @ expm(A.T * s), 0.0, Ts, epsabs=1e-16, epsrel=1e-13)
+    np.testing.assert_allclose(discretize.van_loan(A, Qc, Ts), integ, rtol=1e-10)
+    # Q_d ~ Q_c Ts to first order: the relative error shrinks linearly with Ts
+    errs = [np.linalg.norm(discretize.van_loan(A, Qc, h) - Qc * h) / np.linalg.norm(Qc * h) for h in (1e-3, 1e-4)]
+    assert errs[1] < errs[0] / 5
+
+
+def test_zoh_closed_form():
+    A = np.array([[0.0, 1.0], [-3.0, -0.5]])
+    B = np.array([[0.0], [2.0]])
+    Ts = 0.02
+    Ad, Bd = discretize.zoh(A, B, Ts)
+    np.testing.assert_allclose(Ad, expm(A * Ts), rtol=1e-13)
+    np.testing.assert_allclose(Bd, np.linalg.solve(A, (Ad - np.eye(2)) @ B), rtol=1e-10)
+    Ae, Be = discretize.euler(A, B, Ts)
+    np.testing.assert_allclose(Ae, np.eye(2) + Ts * A)
+    np.testing.assert_allclose(Be, Ts * B)
+
+
+def test_process_std_held_over_the_sample():
+    """process.white std is a zero-order-held input: G_d = int e^{As} ds L (zoh), Ts L (euler)."""
+    mz = model("[process.white]\nstd = 0.2")
+    _, Gd = discretize.zoh(mz.Ac, mz.L, mz.Ts)
+    np.testing.assert_allclose(mz.S_proc, 0.2 * Gd)
+    me = model("[process.white]\nstd = 0.2", disc="euler")
+    np.testing.assert_allclose(me.S_proc, 0.2 * 0.01 * me.L)
+
+
+def test_ar1_innovation_variance_and_tau():
+    mdl = model("[actuator.ar1]\nstd = 0.08\nrho = 0.97")
+    eff = mdl.effects["actuator.ar1"]
+    assert eff.c[0] ** 2 == pytest.approx((1 - 0.97**2) * 0.08**2, rel=1e-15)   # sigma_e^2 = (1-rho^2) sigma_n^2
+    tau = model("[actuator.ar1]\nstd = 0.08\ntau_s = 0.25").effects["actuator.ar1"]
+    assert tau.rho[0] == pytest.approx(np.exp(-0.01 / 0.25), rel=1e-15)
+    # the stationary variance of the simulated noise is std^2: drive = u_c + n with u_c = 0
+    rec = mdl.simulate(400_000, seed=5)
+    n = rec.drive[20_000:, 0]
+    # AR(1): Var of the sample variance ~ 2 s^4 (1 + rho^2) / (N (1 - rho^2))
+    N = n.size
+    sd = 0.08**2 * np.sqrt(2 * (1 + 0.97**2) / (N * (1 - 0.97**2)))
+    assert abs(np.var(n) - 0.08**2) < 4 * sd
+    # and the lag-1 correlation is rho (std of the estimate ~ sqrt((1 - rho^2) / N))
+    r1 = np.corrcoef(n[:-1], n[1:])[0, 1]
+    assert abs(r1 - 0.97) < 4 * np.sqrt((1 - 0.97**2) / N * (1 + 0.97**2) / (1 - 0.97**2))
+
+
+def test_bias_walk_variance_grows_linearly_monte_carlo():
+    """Var(b_k) = Var(b_0) + k Q_b (seed section 6.2), Q_b = std^2 Ts, checked on an ensemble."""
+    std, init, Ts = 0.002, 0.003, 0.01
+    mdl = model(f"[sensor.bias_walk]\nstd = {std}\ninitial_std = {init}", plant="m = 1.0\nc = 1.0\nk = 1.0")
+    trials = 4000
+    rec = mdl.simulate(1000, seed=11, trials=trials)
+    b = rec.y[:, :, 0]          # no other noise, no command: y = b
+    ks = np.array([0, 1, 10, 100, 500, 999])
+    pred = init**2 + ks * std**2 * Ts
+    emp = np.var(b[:, ks], axis=0, ddof=1)
+    # (n-1) s^2 / sigma^2 ~ chi2(n-1); two-sided 99.9 % per k, Bonferroni over the k's
+    a = 1e-3 / ks.size
+    lo = pred * stats.chi2.ppf(a / 2, trials - 1) / (trials - 1)
+    hi = pred * stats.chi2.ppf(1 - a / 2, trials - 1) / (trials - 1)
+    assert np.all((emp > lo) & (emp < hi)), (emp, lo, hi)
+    cov = mdl.predictor().covariance(1000)
+    np.testing.assert_allclose(cov.Sy[ks, 0], pred, rtol=1e-12)
+
+
+def test_quantization_uniform_model_holds_for_a_busy_signal():
+    """Delta^2/12 when the signal spans many steps: the error y_q - y has that variance, zero mean,
+    and is uncorrelated with the signal."""
+    step = 0.001
+    base = "[sensor.white]\nstd = 0.02\n"
+    m_q = model(base + f"[sensor.quantization]\nstep = {step}")
+    m_a = model(base)
+    n = 200_000
+    yq = m_q.simulate(n, seed=3).y[:, 0]
+    ya = m_a.simulate(n, seed=3).y[:, 0]
+    e = yq - ya
+    assert np.all(np.abs(e) <= step / 2 + 1e-15)
+    var = step**2 / 12
+    # the variance of a uniform's sample variance: (Delta^4/80 - Delta^4/144) / n
+    sd = np.sqrt((step**4 / 80 - step**4 / 144) / n)
+    assert abs(np.var(e) - var) < 4 * sd
+    assert abs(np.mean(e)) < 4 * np.sqrt(var / n)
+    assert abs(np.corrcoef(e, ya)[0, 1]) < 4 / np.sqrt(n)
+    st = m_q.predictor().steady_state()
+    assert st.contributions["sensor.quantization"][0] == pytest.approx(var)
+    assert not any("quantization" in note for note in st.notes)
+
+
+def test_quantization_uniform_model_fails_for_a_slow_signal_locked_to_the_grid():
+    """A slow, noise-free signal smaller than a step: the quantizer outputs 0 for most samples, the
+    error is minus the signal, signal dependent, and its variance is not Delta^2/12. The predictor
+    says the uniform model may not hold."""
+    step = 0.01
+    mdl = model(f'[command]\nkind = "sine"\namplitude = 0.002\nfrequency_hz = 0.05\n'
+                f"[sensor.quantization]\nstep = {step}", plant="m = 1.0\nc = 2.0\nk = 1.0")
+    rec = mdl.simulate(100_000, seed=1)
+    exact = mdl.predictor().mean_response(100_000).y[:, 0]
+    e = rec.y[:, 0] - exact
+    assert np.all(rec.y[:, 0] == 0.0)                 # locked: every sample rounds to the same level
+    np.testing.assert_allclose(e, -exact, atol=1e-15)  # the error is the signal, not independent noise
+    assert abs(np.var(e) / (step**2 / 12) - 1) > 0.5
+    notes = mdl.predictor().steady_state().notes
+    assert any("quantization" in note and "may not hold" in note for note in notes)
+
+
+def test_allan_variance_closed_forms():
+    """White: var/m. Walk of increment variance q: q (2 m^2 + 1)/(6 m) (the discrete form of
+    K^2 tau / 3, NIST SP 1065 Table 6)."""
+    m = np.array([1, 2, 3, 10, 100, 1000])
+    L = 2 * m.max() + 1
+    white = np.full((L, 1), 2.5)
+    white[0] = 0
+    np.testing.assert_allclose(allan_from_variogram(white, m)[:, 0], 2.5 / m, rtol=1e-12)
+    q = 0.3
+    walk = (np.arange(L) * q / 2)[:, None]
+    np.testing.assert_allclose(allan_from_variogram(walk, m)[:, 0], q * (2 * m**2 + 1) / (6 * m), rtol=1e-10)
+
+
+def test_gaussian_expectation_of_saturation_closed_form():
+    """E[sat(U)] and E[sat'(U)] = P(|U| < L) for U ~ N(mu, s^2) against numerical integration."""
+    lim = 1.0
+    fn = lambda u: np.clip(u, -lim, lim)
+    mu = np.array([-2.0, -0.3, 0.0, 0.8, 1.5])
+    s = np.array([0.5, 1.0, 0.2, 2.0, 0.0])
+    mean, gain = gauss_pwl(fn, np.array([-lim, lim]), mu, s)
+    z = np.linspace(-12, 12, 200_001)
+    w = stats.norm.pdf(z)
+    for i in range(mu.size):
+        if s[i] == 0:
+            assert mean[i] == fn(mu[i]) and gain[i] == float(abs(mu[i]) < lim)
+            continue
+        u = mu[i] + s[i] * z
+        assert mean[i] == pytest.approx(np.trapezoid(fn(u) * w, z), abs=1e-9)
+        assert gain[i] == pytest.approx(stats.norm.cdf((lim - mu[i]) / s[i]) - stats.norm.cdf((-lim - mu[i]) / s[i]), abs=1e-12)
