@@ -171,3 +171,17 @@ def test_gaussian_expectation_of_saturation_closed_form():
         u = mu[i] + s[i] * z
         assert mean[i] == pytest.approx(np.trapezoid(fn(u) * w, z), abs=1e-9)
         assert gain[i] == pytest.approx(stats.norm.cdf((lim - mu[i]) / s[i]) - stats.norm.cdf((-lim - mu[i]) / s[i]), abs=1e-12)
+
+
+def test_van_loan_stiff_model_is_exact_not_overflowing():
+    """A fast actuator lag (tau = 1 us) with Ts = 10 ms: |A| Ts = 1e4 overflows the plain Van Loan
+    exponential; scaled and squared, the lag state's Q_d matches its closed form
+    q/tau^2 * tau/2 (1 - e^{-2 Ts/tau}) for the input intensity q."""
+    tau, Ts, q = 1e-6, 0.01, 3.0
+    A = np.array([[0.0, 1.0, 0.0], [-4.0, -0.3, 1.0], [0.0, 0.0, -1.0 / tau]])
+    Qc = np.diag([0.0, 0.0, q / tau**2])
+    Qd = discretize.van_loan(A, Qc, Ts)
+    assert np.all(np.isfinite(Qd))
+    assert Qd[2, 2] == pytest.approx(q / tau**2 * tau / 2 * (1 - np.exp(-2 * Ts / tau)), rel=1e-12)
+    mdl = model("[process.white]\npsd = 0.1\n[actuator.lag]\ntau_s = 1e-6")
+    assert np.all(np.isfinite(mdl.S_proc)) and mdl.predictor().steady_state().var_y[0] > 0

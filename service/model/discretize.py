@@ -45,16 +45,25 @@ def van_loan(Ac: np.ndarray, Qc: np.ndarray, Ts: float) -> np.ndarray:
     """Exact Q_d = int_0^Ts e^{A_c s} Q_c e^{A_c^T s} ds (seed eq. in section 8).
 
     Van Loan (1978), "Computing integrals involving the matrix exponential", Theorem 1:
-    expm([[-A_c, Q_c], [0, A_c^T]] Ts) = [[., F12], [0, F22]], A_d = F22^T, Q_d = A_d F12.
+    expm([[-A_c, Q_c], [0, A_c^T]] h) = [[., F12], [0, F22]], A_d(h) = F22^T, Q_d(h) = A_d(h) F12.
+    The block -A_c makes the exponential overflow for stiff models (|A_c| Ts >> 1, e.g. a fast
+    actuator lag), so it is evaluated on h = Ts / 2^j with |A_c| h <= 1 and doubled j times:
+    Q_d(2h) = Q_d(h) + A_d(h) Q_d(h) A_d(h)^T, A_d(2h) = A_d(h)^2 (the integral split at h).
     """
     n = Ac.shape[0]
+    norm = np.linalg.norm(Ac, 1) * Ts
+    j = int(max(0, np.ceil(np.log2(norm)))) if norm > 1 else 0
+    h = Ts / 2.0**j
     M = np.zeros((2 * n, 2 * n))
     M[:n, :n] = -Ac
     M[:n, n:] = Qc
     M[n:, n:] = Ac.T
-    E = expm(M * Ts)
+    E = expm(M * h)
     Ad = E[n:, n:].T
     Qd = Ad @ E[:n, n:]
+    for _ in range(j):
+        Qd = Qd + Ad @ Qd @ Ad.T
+        Ad = Ad @ Ad
     return 0.5 * (Qd + Qd.T)
 
 

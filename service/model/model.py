@@ -68,10 +68,14 @@ def load_model(spec: str | Path) -> "Model":
 def parse_model(text: str, source: str = "<model>") -> "Model":
     try:
         data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
+    except RecursionError:
+        raise ModelError(f"{source}: invalid TOML: arrays or inline tables nested too deeply")
+    except ValueError as exc:
+        # TOMLDecodeError, or tomllib's bare ValueError for an integer literal of more than
+        # sys.get_int_max_str_digits() digits
         raise ModelError(f"{source}: invalid TOML: {exc}")
     top = Table(data, "", source)
-    name = top.string("name", pattern=lambda s: bool(NAME_RE.match(s)),
+    name = top.string("name", pattern=lambda s: bool(NAME_RE.fullmatch(s)),
                       expect="a device name of letters, digits, '_' or '-'")
     description = top.string("description", "")
     top._absent("sampling", None)
@@ -133,16 +137,23 @@ class Model:
             if hasattr(eff, "augment"):
                 Ac, Bc, Cy, Dy, L = eff.augment(Ac, Bc, Cy, Dy, L)
         self.Ac, self.Bc, self.Cy, self.Dy, self.L = Ac, Bc, Cy, Dy, L
-        if self.discretization == "euler":
-            self.Ad, self.Bd = discretize.euler(Ac, Bc, self.Ts)
-        else:
-            self.Ad, self.Bd = discretize.zoh(Ac, Bc, self.Ts)
-        proc = self.effects.get("process.white")
-        if proc is not None:
-            proc.bind(Ac, L)
-            self.S_proc = proc._S
-        else:
-            self.S_proc = np.zeros((Ac.shape[0], 0))
+        # overflow in the matrix exponentials is not warned about but checked: a non-finite
+        # result is a ModelError (here and in process.white), one line on the CLI
+        with np.errstate(over="ignore", invalid="ignore"):
+            if self.discretization == "euler":
+                self.Ad, self.Bd = discretize.euler(Ac, Bc, self.Ts)
+            else:
+                self.Ad, self.Bd = discretize.zoh(Ac, Bc, self.Ts)
+            if not (np.all(np.isfinite(self.Ad)) and np.all(np.isfinite(self.Bd))):
+                raise ModelError(f"{self.source}: [plant] with [sampling] Ts = {self.Ts:g}: expected a plant whose "
+                                 f"{self.discretization} discretization over Ts is finite, got an overflow "
+                                 "(A Ts too large for float64)")
+            proc = self.effects.get("process.white")
+            if proc is not None:
+                proc.bind(Ac, L)
+                self.S_proc = proc._S
+            else:
+                self.S_proc = np.zeros((Ac.shape[0], 0))
         gain = np.ones(p.p)
         for eff in self.effects.values():
             if hasattr(eff, "output_gain"):
@@ -199,12 +210,14 @@ class Model:
         return dumps_toml(self.to_dict())
 
     def with_effect(self, eid: str, params: dict) -> "Model":
+        _check_effect_id(eid)
         d = self.to_dict()
         g, s = eid.split(".")
         d.setdefault(g, {})[s] = params
         return parse_model(dumps_toml(d), f"{self.source} + [{eid}]")
 
     def without_effect(self, eid: str) -> "Model":
+        _check_effect_id(eid)
         d = self.to_dict()
         g, s = eid.split(".")
         d.get(g, {}).pop(s, None)
@@ -232,6 +245,11 @@ class Model:
         return Predictor(self)
 
 
+def _check_effect_id(eid: str) -> None:
+    if eid not in CATALOGUE:
+        raise ModelError(f"{eid!r}: unknown effect id (known: {', '.join(CATALOGUE)})")
+
+
 def _plant_dict(plant: Plant, text: str, source: str) -> dict:
     try:
         raw = tomllib.loads(text).get("plant") if text else None
@@ -255,6 +273,17 @@ def _command_dict(cmd: Command) -> dict:
 
 
 # -- a small TOML writer for the model schema (tables of scalars, strings and numeric arrays) ----
+_ESCAPE = {"\\": "\\\\", '"': '\\"', "\n": "\\n", "\t": "\\t", "\r": "\\r"}
+
+
+def _escape(ch: str) -> str:
+    """One character of a TOML basic string: backslash, quote and the control characters TOML
+    forbids there (U+0000..U+001F, U+007F) are escaped."""
+    if ch in _ESCAPE:
+        return _ESCAPE[ch]
+    return f"\\u{ord(ch):04x}" if ord(ch) < 0x20 or ord(ch) == 0x7F else ch
+
+
 def _fmt(v) -> str:
     if isinstance(v, bool):
         return "true" if v else "false"
@@ -265,7 +294,7 @@ def _fmt(v) -> str:
             raise ModelError(f"cannot write a non-finite value {v!r} to a model file")
         return repr(v)
     if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+        return '"' + "".join(_escape(ch) for ch in v) + '"'
     if isinstance(v, (list, tuple, np.ndarray)):
         return "[" + ", ".join(_fmt(x.item() if isinstance(x, np.generic) else x) for x in v) + "]"
     if isinstance(v, np.generic):
@@ -279,11 +308,13 @@ def dumps_toml(d: dict) -> str:
     def emit(prefix: str, table: dict) -> None:
         scalars = {k: v for k, v in table.items() if not isinstance(v, dict)}
         subs = {k: v for k, v in table.items() if isinstance(v, dict)}
-        if prefix and scalars:
+        # an empty table is written too: a table's presence is meaningful (an effect is in the model)
+        header = bool(prefix) and (bool(scalars) or not subs)
+        if header:
             lines.append(f"[{prefix}]")
         for k, v in scalars.items():
             lines.append(f"{k} = {_fmt(v)}")
-        if scalars:
+        if header or scalars:
             lines.append("")
         for k, v in subs.items():
             emit(f"{prefix}.{k}" if prefix else k, v)

@@ -449,6 +449,36 @@ class Predictor:
                 out[eid] = prm[0] ** 2 / 2.0 * np.cos(2 * np.pi * d[:, None] * prm[1] * mdl.Ts)
         return out
 
+    def expected_welch(self, nperseg: int, window: str = "hann") -> dict:
+        """E[Welch estimate] of the centered measurement per stationary effect: {id: (nperseg//2+1, p)}
+        at f_j = j / (nperseg Ts), units^2/Hz, one-sided as scipy.signal.welch (scaling "density").
+
+        The predicted spectrum seen through the estimator's window, exact for the sampled process:
+        E|sum_n w_n x_n e^{-i w n}|^2 = sum_d R(d) c_w(d) e^{-i w d}, c_w(d) = sum_n w_n w_{n+d}
+        (Percival & Walden 1993, eq. 186e), divided by fs sum w^2 and doubled except at DC and
+        Nyquist. Leakage at resonances and tones is thus in the prediction, not in the error.
+        Segment-mean removal (detrend "constant") biases only the lowest two or three bins.
+        The bias walk (nonstationary) has no entry.
+        """
+        from scipy.signal import get_window
+
+        L = int(nperseg)
+        w = get_window(window, L)
+        c = np.correlate(w, w, mode="full")[L - 1:]          # c_w(d), d = 0..L-1
+        out = {}
+        for eid, R in self.acf(L).items():
+            if R is None:
+                out[eid] = None
+                continue
+            g = R * c[:, None]
+            E = 2.0 * np.fft.rfft(g, axis=0).real - g[0]
+            E *= self.model.Ts / np.sum(w**2)
+            E[1:] *= 2.0
+            if L % 2 == 0:
+                E[-1] /= 2.0
+            out[eid] = E
+        return out
+
     def variogram(self, L: int) -> dict:
         """gamma(d) = E[(y_{k+d} - y_k)^2] / 2, d = 0..L-1, per effect {id: (L, p)}; stationary
         effects R(0) - R(d), the bias walk d Q_b / 2."""

@@ -9,6 +9,7 @@ got ...``.
 from __future__ import annotations
 
 import math
+import sys
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -16,6 +17,7 @@ import numpy as np
 from .errors import ModelError
 
 _MISSING = object()
+_FLOAT_MAX = sys.float_info.max
 
 
 def _show(value: Any) -> str:
@@ -24,7 +26,11 @@ def _show(value: Any) -> str:
 
 
 def _is_number(v: Any) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool)
+    # TOML integers are unbounded; one beyond float64's range is not a usable number (float() of
+    # it would raise OverflowError instead of a ModelError).
+    if isinstance(v, int) and not isinstance(v, bool):
+        return abs(v) <= _FLOAT_MAX
+    return isinstance(v, float)
 
 
 class Table:
@@ -57,7 +63,9 @@ class Table:
         if key in self.data:
             return False
         if default is _MISSING:
-            raise self.error(key, "missing required key")
+            extra = [k for k in self.data if k not in self._used and isinstance(k, str)]
+            hint = f" (found unknown key {extra[0]!r}: misspelled?)" if extra else ""
+            raise self.error(key, "missing required key" + hint)
         return True
 
     # -- scalars ------------------------------------------------------------------------------

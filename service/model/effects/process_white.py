@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import discretize
+from ..errors import ModelError
 from ..schema import nonnegative
 from .base import Effect
 
@@ -29,6 +30,7 @@ class ProcessWhite(Effect):
         self.mode = key
         self.params[key] = t.vector(key, self.dims.nw, check=nonnegative, expect="values >= 0")
         self._S = None
+        self._source = t.source
 
     def process_factor(self, Ac: np.ndarray, L: np.ndarray) -> np.ndarray:
         """S with x_{k+1} += S e_k, e_k standard normal (n_x, n_e)."""
@@ -38,9 +40,17 @@ class ProcessWhite(Effect):
                 Gd = Ts * L
             else:
                 _, Gd = discretize.zoh(Ac, L, Ts)
-            return Gd * self.params["std"]
+            S = Gd * self.params["std"]
+            if not np.all(np.isfinite(S)):
+                raise ModelError(f"{self._source}: [process.white] std: expected a process-noise input "
+                                 f"G_d std that is finite over Ts = {Ts:g} ({disc}), got an overflow")
+            return S
         Qc = L @ np.diag(self.params["psd"]) @ L.T
         Qd = discretize.euler_noise(Qc, Ts) if disc == "euler" else discretize.van_loan(Ac, Qc, Ts)
+        if not np.all(np.isfinite(Qd)):   # psd_sqrt (eigh) would fail with LinAlgError
+            raise ModelError(f"{self._source}: [process.white] psd: expected a process-noise covariance "
+                             f"Q_d that is finite over Ts = {Ts:g} ({disc}), got an overflow "
+                             "(psd or the plant's A Ts too large for float64)")
         return discretize.psd_sqrt(Qd)
 
     def bind(self, Ac: np.ndarray, L: np.ndarray) -> None:
