@@ -44,10 +44,13 @@ _SQRT2PI = np.sqrt(2.0 * np.pi)
 
 
 # -- Gaussian expectations of piecewise-linear maps (statistical linearization) ---------------------
-def gauss_pwl(fn, knots: np.ndarray, mu: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """E[f(U)] and E[f'(U)] for U ~ N(mu, sigma^2), f piecewise linear with kinks at ``knots``.
+def gauss_pwl(fn, knots: np.ndarray, mu: np.ndarray, sigma: np.ndarray, *, second: bool = False):
+    """E[f(U)] and E[f'(U)] (and E[f(U)^2] with ``second``) for U ~ N(mu, sigma^2), f piecewise
+    linear with kinks at ``knots``.
 
-    Exact (closed form with Phi and phi on each linear piece); sigma = 0 gives f(mu), f'(mu).
+    Exact, in closed form on each linear piece a + s u over [lo, hi] (z = (u - mu)/sigma, alpha and
+    beta the standardized ends): int phi = dPhi, int z phi = phi(alpha) - phi(beta),
+    int z^2 phi = dPhi + alpha phi(alpha) - beta phi(beta). sigma = 0 gives f(mu), f'(mu), f(mu)^2.
     """
     b = np.unique(np.asarray(knots, float))
     ext = np.concatenate([[b[0] - 1.0], b, [b[-1] + 1.0]])
@@ -66,7 +69,15 @@ def gauss_pwl(fn, knots: np.ndarray, mu: np.ndarray, sigma: np.ndarray) -> tuple
     dphi = pdf(c) - pdf(a)
     mean = np.sum(icpt * dP + slope * (mu * dP - sg * dphi), axis=-1)
     gain = np.sum(slope * dP, axis=-1)
-    return mean, gain
+    if not second:
+        return mean, gain
+    za = np.where(np.isfinite(a), a, 0.0) * pdf(a)
+    zc = np.where(np.isfinite(c), c, 0.0) * pdf(c)
+    e_z = -dphi                          # int z phi
+    e_z2 = dP + za - zc                  # int z^2 phi
+    lin = icpt + slope * mu              # a + s u = lin + s sigma z on the piece
+    sq = np.sum(lin**2 * dP + 2 * lin * slope * sg * e_z + (slope * sg) ** 2 * e_z2, axis=-1)
+    return mean, gain, sq
 
 
 @dataclass
@@ -89,6 +100,7 @@ class MeanResponse:
     drive: np.ndarray       # (N, m) mean plant input E[N(u_c + n_a)]
     gain: np.ndarray        # (N, m) statistical-linearization gain of the actuator nonlinearities
     drive_var: np.ndarray   # (N, m) variance of the actuator noise before the nonlinearities
+    distortion_var: np.ndarray  # (N, m) variance of the nonlinearities' distortion d (Bussgang)
     ydot: np.ndarray        # (N, p) mean derivative of the plant output
     y: np.ndarray           # (N, p) predicted mean measurement
 
@@ -153,12 +165,15 @@ class Predictor:
             u = e.actuator_batch(u, None, None)
         return u
 
-    def drive_stats(self, u_c: np.ndarray, var: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Mean drive E[N(u_c + n)] and gain E[N'(u_c + n)], n ~ N(0, var), per channel."""
+    def drive_stats(self, u_c: np.ndarray, var: np.ndarray):
+        """Mean drive E[N(u_c + n)], gain g = E[N'(u_c + n)] and distortion variance
+        Var(N) - g^2 var, for n ~ N(0, var), per channel (Bussgang: N(u) = E[N] + g n + d with d
+        uncorrelated with n)."""
         if not self._nonlin:
-            return u_c.copy(), np.ones_like(u_c)
+            return u_c.copy(), np.ones_like(u_c), np.zeros_like(u_c)
         mean = np.empty_like(u_c)
         gain = np.empty_like(u_c)
+        dvar = np.empty_like(u_c)
         sd = np.sqrt(np.broadcast_to(var, u_c.shape))
         for j in range(self.model.m):
             knots = np.concatenate([e.knots()[j] for e in self._nonlin])
@@ -168,8 +183,9 @@ class Predictor:
                 arr[:, j] = v
                 return self._nonlinear(arr)[:, j]
 
-            mean[:, j], gain[:, j] = gauss_pwl(fj, knots, u_c[:, j], sd[:, j])
-        return mean, gain
+            mean[:, j], gain[:, j], sq = gauss_pwl(fj, knots, u_c[:, j], sd[:, j], second=True)
+            dvar[:, j] = np.maximum(sq - mean[:, j] ** 2 - gain[:, j] ** 2 * sd[:, j] ** 2, 0.0)
+        return mean, gain, dvar
 
     # -- mean (seed section 3) ------------------------------------------------------------------------
     def mean_response(self, n: int | None = None, command: np.ndarray | None = None) -> MeanResponse:
@@ -183,14 +199,19 @@ class Predictor:
             u = np.asarray(command, float).reshape(len(command), -1)
             n = u.shape[0]
         var = self.drive_noise_var(n)
-        drive, gain = self.drive_stats(u, var)
+        drive, gain, dvar = self.drive_stats(u, var)
         x = propagate(mdl.Ad, drive @ mdl.Bd.T)
         y = (x @ mdl.Cy.T + drive @ mdl.Dy.T) * mdl.out_gain
         ydot = (x @ (mdl.Cy @ mdl.Ac).T + drive @ (mdl.Cy @ mdl.Bc).T) * mdl.out_gain
-        return MeanResponse(t=np.arange(n) * mdl.Ts, x=x, drive=drive, gain=gain, drive_var=var, ydot=ydot, y=y)
+        return MeanResponse(t=np.arange(n) * mdl.Ts, x=x, drive=drive, gain=gain, drive_var=var,
+                            distortion_var=dvar, ydot=ydot, y=y)
 
     # -- the augmented linear system -------------------------------------------------------------------
-    def linear_system(self, g: np.ndarray | None = None) -> LinearSystem:
+    def linear_system(self, g: np.ndarray | None = None, dstd: np.ndarray | None = None) -> LinearSystem:
+        """The augmented system for nonlinearity gain ``g`` and distortion std ``dstd`` (per input).
+        The distortion d of the static nonlinearities enters the input channel as white noise,
+        owned by the nonlinearity (exact for white actuator noise, whose distortion is iid; an
+        approximation of its spectrum for colored actuator noise)."""
         mdl = self.model
         g = np.ones(mdl.m) if g is None else np.asarray(g, float)
         G = np.diag(g)
@@ -226,6 +247,11 @@ class Predictor:
             col[nx + a0:nx + a0 + ka] = Ga
             a0 += ka
             add(e.id, col, gain * (mdl.Dy @ G @ Da), gain * (CyBc @ G @ Da))
+        if self._nonlin and dstd is not None:
+            Dd = np.diag(np.asarray(dstd, float))
+            col = np.zeros((n_s, mdl.m))
+            col[:nx] = mdl.Bd @ Dd
+            add(self._distortion_owner(), col, gain * (mdl.Dy @ Dd), gain * (CyBc @ Dd))
         if "process.white" in mdl.effects and mdl.S_proc.shape[1]:
             col = np.zeros((n_s, mdl.S_proc.shape[1]))
             col[:nx] = mdl.S_proc
@@ -250,6 +276,10 @@ class Predictor:
         Jd = np.hstack(Jdc) if Jdc else np.zeros((mdl.p, 0))
         return LinearSystem(F, Gam, H, J, Hd, Jd, owners, nx, slice(0, mdl.plant.n))
 
+    def _distortion_owner(self) -> str:
+        """The effect id the distortion is reported under: the (first) nonlinearity."""
+        return self._nonlin[0].id
+
     # -- primitives (non-state effects) ----------------------------------------------------------------
     def _primitives(self, mean: MeanResponse | None = None, jitter_ydot2: np.ndarray | None = None):
         """[(effect id, kind, params)] for white / walk / tone / jitter contributions."""
@@ -272,7 +302,8 @@ class Predictor:
         parts: dict = {}
         Ps = []
         const = not self._nonlin
-        ls = self.linear_system(None if const else mean.gain[0])
+        dstd = np.sqrt(mean.distortion_var)
+        ls = self.linear_system(None if const else mean.gain[0], None if const else dstd[0])
         n_s = ls.F.shape[0]
         Pj = {eid: np.zeros((n_s, n_s)) for eid in ls.owners}
         P_hist = np.zeros((n, n_s, n_s))
@@ -280,7 +311,7 @@ class Predictor:
         ydot_var = np.zeros((n, self.model.p))
         for k in range(n):
             if not const:
-                ls = self.linear_system(mean.gain[k])
+                ls = self.linear_system(mean.gain[k], dstd[k])
             Ptot = np.zeros((n_s, n_s))
             for eid, cols in ls.owners.items():
                 Pk = Pj[eid]
@@ -319,10 +350,12 @@ class Predictor:
         notes = []
         mean = self.mean_response()
         g = np.sqrt(np.mean(mean.gain**2, axis=0)) if self._nonlin else None
+        dstd = np.sqrt(np.mean(mean.distortion_var, axis=0)) if self._nonlin else None
         if self._nonlin:
-            notes.append("actuator nonlinearities linearized around the mean drive: rms gain "
-                         + ", ".join(f"{v:.4g}" for v in g) + " (seed section 7)")
-        ls = self.linear_system(g)
+            notes.append("actuator nonlinearities linearized around the mean drive (seed section 7): "
+                         "rms gain " + ", ".join(f"{v:.4g}" for v in g) + ", distortion std "
+                         + ", ".join(f"{v:.3g}" for v in dstd) + " treated as white")
+        ls = self.linear_system(g, dstd)
         nx, n_s = ls.n_x, ls.F.shape[0]
         plant_part = slice(0, nx + self._Fa.shape[0])
         rad = np.max(np.abs(np.linalg.eigvals(ls.F[plant_part, plant_part])), initial=0.0)
@@ -451,7 +484,8 @@ class Predictor:
 
     def expected_welch(self, nperseg: int, window: str = "hann") -> dict:
         """E[Welch estimate] of the centered measurement per stationary effect: {id: (nperseg//2+1, p)}
-        at f_j = j / (nperseg Ts), units^2/Hz, one-sided as scipy.signal.welch (scaling "density").
+        at f_j = j / (nperseg Ts), units^2/Hz, one-sided with every bin (DC and Nyquist too)
+        doubled, the convention of :func:`service.stats.welch`.
 
         The predicted spectrum seen through the estimator's window, exact for the sampled process:
         E|sum_n w_n x_n e^{-i w n}|^2 = sum_d R(d) c_w(d) e^{-i w d}, c_w(d) = sum_n w_n w_{n+d}
@@ -472,10 +506,7 @@ class Predictor:
                 continue
             g = R * c[:, None]
             E = 2.0 * np.fft.rfft(g, axis=0).real - g[0]
-            E *= self.model.Ts / np.sum(w**2)
-            E[1:] *= 2.0
-            if L % 2 == 0:
-                E[-1] /= 2.0
+            E *= 2.0 * self.model.Ts / np.sum(w**2)
             out[eid] = E
         return out
 
