@@ -162,7 +162,7 @@ class Predictor:
 
     def _nonlinear(self, u: np.ndarray) -> np.ndarray:
         for e in self._nonlin:
-            u = e.actuator_batch(u, None, None)
+            u = e.apply(u)
         return u
 
     def drive_stats(self, u_c: np.ndarray, var: np.ndarray):

@@ -48,19 +48,30 @@ def _rngs(seed):
     return np.random.default_rng(stream), np.random.default_rng(static)
 
 
+def _mul(X: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """X @ M for a small M (k, n) as explicit sums over k: no BLAS call, so no thread pool on
+    these skinny products (measured: multithreaded BLAS made them 3-10x slower on 2 busy cores)."""
+    out = X[..., 0, None] * M[0]
+    for i in range(1, M.shape[0]):
+        out = out + X[..., i, None] * M[i]
+    return out
+
+
 class SchurPropagator:
     """x_{k+1} = A_d x_k + r_k over blocks, carrying the state between calls."""
 
     def __init__(self, Ad: np.ndarray, x0: np.ndarray):
         T, Q = schur(Ad.astype(complex), output="complex")
         self.T, self.Q, self.Qh = T, Q, Q.conj().T
-        self.w = x0.astype(complex) @ self.Qh.T        # (trials, n)
+        self.w = _mul(x0.astype(complex), self.Qh.T)        # (trials, n)
 
     def run(self, r: np.ndarray) -> np.ndarray:
         """r (trials, N, n) -> states x_k (trials, N, n) for the N samples of the block."""
         T = self.T
         n = T.shape[0]
-        v = r @ self.Qh.T
+        if n == 0:
+            return np.zeros(r.shape)
+        v = _mul(r.astype(complex), self.Qh.T)
         w = np.empty_like(v)
         for i in range(n - 1, -1, -1):
             inp = v[..., i]
@@ -68,9 +79,10 @@ class SchurPropagator:
                 if T[i, j] != 0:
                     inp = inp + T[i, j] * w[..., j]
             nxt, _ = lfilter([1.0], [1.0, -T[i, i]], inp, axis=-1, zi=(T[i, i] * self.w[:, i])[:, None])
-            w[..., i] = np.concatenate([self.w[:, i:i + 1], nxt[:, :-1]], axis=1)
+            w[..., 0, i] = self.w[:, i]
+            w[..., 1:, i] = nxt[:, :-1]
             self.w[:, i] = nxt[:, -1]
-        return (w @ self.Q.T).real
+        return _mul(w, self.Q.T).real.copy()
 
 
 def propagate(Ad: np.ndarray, r: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
@@ -89,17 +101,52 @@ def _command_block(model, command, k0, n, trials):
 
 def simulate(model, n: int, *, seed=None, trials: int | None = None, command=None, normals=None,
              block: int = 1 << 16) -> Record:
-    """Simulate ``n`` samples (batch API); ``trials`` independent records when given."""
-    return _concat(list(simulate_blocks(model, n, seed=seed, trials=trials, command=command,
-                                        normals=normals, block=block)), squeeze=trials is None)
+    """Simulate ``n`` samples (batch API); ``trials`` independent records when given. The
+    output arrays are allocated once and filled block by block (memory ~ the outputs)."""
+    tr = 1 if trials is None else int(trials)
+    out = None
+    for blk in simulate_blocks(model, n, seed=seed, trials=trials, command=command, normals=normals, block=block):
+        if out is None:
+            out = {f: np.empty((tr, n) + getattr(blk, f).shape[2:]) for f in ("x", "u", "drive", "y")}
+            k0 = 0
+        nb = blk.t.size
+        for f in out:
+            out[f][:, k0:k0 + nb] = getattr(blk, f)
+        k0 += nb
+    if trials is None:
+        out = {k: v[0] for k, v in out.items()}
+    return Record(t=np.arange(n) * model.Ts, **out)
 
 
-def _concat(parts, squeeze):
-    t = np.concatenate([p.t for p in parts])
-    cat = {f: np.concatenate([getattr(p, f) for p in parts], axis=1) for f in ("x", "u", "drive", "y")}
-    if squeeze:
-        cat = {k: v[0] for k, v in cat.items()}
-    return Record(t=t, **cat)
+class _Chain:
+    """The signal chain of one model, shared by the batch and step paths (same functions, same
+    order of floating-point operations)."""
+
+    def __init__(self, model, static, trials):
+        self.model = model
+        self.states = {eff.id: eff.init_state(static, trials) for eff in model.effects.values()}
+        self.slots = {eff.id: sl for eff, sl in model.normal_layout}
+        eff = model.effects.values()
+        self.act_src = [e for e in eff if hasattr(e, "actuator_terms")]
+        self.act_nl = [e for e in eff if e.stage == "actuator" and hasattr(e, "apply")]
+        self.sen_src = [e for e in eff if hasattr(e, "sensor_terms")]
+        self.jitter = model.effects.get("sensor.jitter")
+        self.quant = model.effects.get("sensor.quantization")
+        self.proc = self.slots.get("process.white")
+
+    def noise_terms(self, eps):
+        """State-independent terms for a block of normals: actuator noises (trials, n, m) each,
+        sensor additive terms (trials, n, p) each, jitter time errors (trials, n, 1)."""
+        n = eps.shape[1]
+        act = [e.actuator_terms(eps[..., self.slots[e.id]], self.states[e.id]) for e in self.act_src]
+        sen = []
+        for e in self.sen_src:
+            if e.id in self.slots:
+                sen.append(e.sensor_terms(eps[..., self.slots[e.id]], self.states[e.id]))
+            else:
+                sen.append(e.sensor_terms(None, self.states[e.id], n))
+        dt = self.jitter.time_errors(eps[..., self.slots[self.jitter.id]]) if self.jitter else None
+        return act, sen, dt
 
 
 def simulate_blocks(model, n: int, *, seed=None, trials: int | None = None, command=None, normals=None,
@@ -121,38 +168,44 @@ def simulate_blocks(model, n: int, *, seed=None, trials: int | None = None, comm
             normals = normals[None]
         if normals.shape[1] < n or normals.shape[2] != model.n_normals or normals.shape[0] != tr:
             raise ModelError(f"normals must have shape ({tr}, {n}, {model.n_normals}), got {normals.shape}")
-    states = {eff.id: eff.init_state(static, tr) for eff in model.effects.values()}
+    chain = _Chain(model, static, tr)
     prop = SchurPropagator(model.Ad, np.zeros((tr, model.n_x)))
-    act = [e for e in model.effects.values() if hasattr(e, "actuator_batch")]
-    sen = [e for e in model.effects.values() if hasattr(e, "sensor_batch")]
-    slots = {eff.id: sl for eff, sl in model.normal_layout}
-    jitter = "sensor.jitter" in model.effects
     CyAc, CyBc = model.Cy @ model.Ac, model.Cy @ model.Bc
     n_plant = model.plant.n
     for k0 in range(0, n, block):
         nb = min(block, n - k0)
         eps = stream.standard_normal((tr, nb, model.n_normals)) if normals is None \
             else normals[:, k0:k0 + nb, :]
+        act, sen, dt = chain.noise_terms(eps)
         u = np.array(_command_block(model, command, k0, nb, tr))
         drive = u
-        for eff in act:
-            drive = eff.actuator_batch(drive, eps[..., slots[eff.id]] if eff.id in slots else None,
-                                       states[eff.id])
-        r = drive @ model.Bd.T
-        if "process.white" in slots:
-            r = r + eps[..., slots["process.white"]] @ model.S_proc.T
+        for term in act:
+            drive = drive + term
+        for e in chain.act_nl:
+            drive = e.apply(drive)
+        r = _mul(drive, model.Bd.T)
+        if chain.proc is not None:
+            r = r + _mul(eps[..., chain.proc], model.S_proc.T)
         x = prop.run(r)
-        y = (x @ model.Cy.T + drive @ model.Dy.T) * model.out_gain
-        ydot = (x @ CyAc.T + drive @ CyBc.T) * model.out_gain if jitter else None
-        for eff in sen:
-            y = eff.sensor_batch(y, eps[..., slots[eff.id]] if eff.id in slots else None, states[eff.id], ydot)
+        y = (_mul(x, model.Cy.T) + _mul(drive, model.Dy.T)) * model.out_gain
+        for term in sen:
+            y = y + term
+        if dt is not None:
+            ydot = (_mul(x, CyAc.T) + _mul(drive, CyBc.T)) * model.out_gain
+            y = y + ydot * dt
+        if chain.quant is not None:
+            y = chain.quant.apply(y)
         t = np.arange(k0, k0 + nb) * model.Ts
         yield Record(t=t, x=x[..., :n_plant], u=u, drive=drive, y=y)
 
 
 class Stepper:
     """One sample per call (the real-time loop). ``step(u)`` returns (t, x, u, y) of sample k and
-    advances to k+1; ``u`` is the command u_c,k (None: the model's own command generator)."""
+    advances to k+1; ``u`` is the command u_c,k (None: the model's own command generator).
+
+    Noise sources depend neither on the plant state nor on the command, so they are computed a
+    buffer at a time with the batch functions (identical floats); per sample only the drive,
+    the nonlinearities, the plant, the jitter and the quantizer remain."""
 
     BUFFER = 4096
 
@@ -161,42 +214,42 @@ class Stepper:
         self.k = 0
         self._stream, static = _rngs(seed)
         self._normals = None if normals is None else np.asarray(normals, float).reshape(-1, model.n_normals)
-        self._buf = np.empty((0, model.n_normals))
-        self._pos = 0
-        self.states = {eff.id: eff.init_state(static, 1) for eff in model.effects.values()}
+        self._chain = _Chain(model, static, 1)
+        self._end = 0                       # buffered samples cover k < self._end
         self.x = np.zeros((1, model.n_x))
         m = model
-        self._act = [(e.actuator_step, m.normal_layout_slot(e), self.states[e.id])
-                     for e in m.effects.values() if hasattr(e, "actuator_step")]
-        self._sen = [(e.sensor_step, m.normal_layout_slot(e), self.states[e.id])
-                     for e in m.effects.values() if hasattr(e, "sensor_step")]
-        self._proc = m.normal_layout_slot(m.effects["process.white"]) if "process.white" in m.effects else None
-        self._jit = "sensor.jitter" in m.effects
+        self._jit = self._chain.jitter is not None
         # one product per sample: [x_k, drive_k, e_proc,k] @ M = [x_{k+1}, y_k (plant part), ydot_k]
         nx, p = m.n_x, m.p
         blocks = [[m.Ad.T, m.Cy.T * m.out_gain, (m.Cy @ m.Ac).T * m.out_gain],
                   [m.Bd.T, m.Dy.T * m.out_gain, (m.Cy @ m.Bc).T * m.out_gain]]
-        if self._proc is not None:
-            blocks.append([m.S_proc.T, np.zeros((m.S_proc.shape[1], p)), np.zeros((m.S_proc.shape[1], p))])
+        if self._chain.proc is not None:
+            k = m.S_proc.shape[1]
+            blocks.append([m.S_proc.T, np.zeros((k, p)), np.zeros((k, p))])
         if not self._jit:
             blocks = [b[:2] for b in blocks]
         self._M = np.block(blocks)
         self._nx, self._p = nx, p
         self._np = m.plant.n
+        self._nl = [e.apply for e in self._chain.act_nl]
+        self._q = self._chain.quant.apply if self._chain.quant is not None else None
         self._cmd_k0, self._cmd = 0, np.empty((0, m.m))
 
-    def _draw(self) -> np.ndarray:
-        if self._pos >= self._buf.shape[0]:
-            if self._normals is not None:
-                self._buf = self._normals[self.k:self.k + self.BUFFER]
-                if self._buf.shape[0] == 0:
-                    raise ModelError("the given normals are exhausted")
-            else:
-                self._buf = self._stream.standard_normal((self.BUFFER, self.model.n_normals))
-            self._pos = 0
-        e = self._buf[self._pos:self._pos + 1]
-        self._pos += 1
-        return e
+    def _refill(self) -> None:
+        m = self.model
+        if self._normals is not None:
+            eps = self._normals[self.k:self.k + self.BUFFER]
+            if eps.shape[0] == 0:
+                raise ModelError("the given normals are exhausted")
+        else:
+            eps = self._stream.standard_normal((self.BUFFER, m.n_normals))
+        act, sen, dt = self._chain.noise_terms(eps[None])
+        self._act = [a[0] for a in act]
+        self._sen = [s_[0] for s_ in sen]
+        self._dt = None if dt is None else dt[0]
+        self._proc = None if self._chain.proc is None else eps[:, self._chain.proc]
+        self._k0 = self.k
+        self._end = self.k + eps.shape[0]
 
     def _command(self) -> np.ndarray:
         # the command generator is elementwise in k, so blocks give the same floats as one call
@@ -209,22 +262,28 @@ class Stepper:
     def step(self, u=None):
         m = self.model
         k = self.k
-        e = self._draw()
+        if k >= self._end:
+            self._refill()
+        i = k - self._k0
         if u is None:
             u = self._command()
         else:
             u = np.asarray(u, float).reshape(1, m.m)
         drive = u
-        for fn, sl, st in self._act:
-            drive = fn(drive, None if sl is None else e[:, sl], st)
+        for a in self._act:
+            drive = drive + a[i]
+        for f in self._nl:
+            drive = f(drive)
         x = self.x
-        z = (x, drive, e[:, self._proc]) if self._proc is not None else (x, drive)
+        z = (x, drive, self._proc[i:i + 1]) if self._proc is not None else (x, drive)
         out = np.concatenate(z, axis=1) @ self._M
-        nxt = out[:, :self._nx]
         y = out[:, self._nx:self._nx + self._p]
-        ydot = out[:, self._nx + self._p:] if self._jit else None
-        for fn, sl, st in self._sen:
-            y = fn(y, None if sl is None else e[:, sl], st, ydot)
-        self.x = nxt
+        for s_ in self._sen:
+            y = y + s_[i]
+        if self._jit:
+            y = y + out[:, self._nx + self._p:] * self._dt[i]
+        if self._q is not None:
+            y = self._q(y)
+        self.x = out[:, :self._nx]
         self.k = k + 1
         return k * m.Ts, x[0, :self._np], u[0], y[0]

@@ -35,20 +35,15 @@ class ActuatorAR1(Effect):
     def init_state(self, static_rng, trials):
         return {"n": np.zeros((trials, self.dims.m))}
 
-    def actuator_batch(self, u, e, state):
-        # n_{k+1} = rho n_k + c e_k per channel; lfilter computes c*e + rho*n with the same
-        # two products and one sum as actuator_step, so both paths give identical floats.
+    def actuator_terms(self, e, state):
+        """n_{k+1} = rho n_k + c e_k per channel, for a block of normals e (trials, n, m); the
+        input at sample k carries n_{k+1}. The state n is carried between blocks."""
         out = np.empty_like(e)
         for j in range(self.dims.m):
             out[..., j], zf = lfilter([self.c[j]], [1.0, -self.rho[j]], e[..., j], axis=-1,
                                       zi=(self.rho[j] * state["n"][:, j])[:, None])
         state["n"] = out[:, -1, :].copy()
-        return u + out
-
-    def actuator_step(self, u, e, state):
-        n = self.c * e + self.rho * state["n"]
-        state["n"] = n
-        return u + n
+        return out
 
     def drive_linear(self):
         return np.diag(self.rho), np.diag(self.c), np.diag(self.rho), np.diag(self.c)

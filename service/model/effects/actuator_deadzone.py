@@ -23,11 +23,9 @@ class ActuatorDeadzone(Effect):
     def parse(self, t):
         self.params["width"] = t.vector("width", self.dims.m, check=positive, expect="widths > 0")
 
-    def actuator_batch(self, u, e, state):
+    def apply(self, u):
         w = self.params["width"]
         return np.sign(u) * np.maximum(np.abs(u) - w, 0.0)
-
-    actuator_step = actuator_batch
 
     def knots(self):
         return [np.array([-w, w]) for w in self.params["width"]]

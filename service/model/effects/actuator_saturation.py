@@ -25,11 +25,9 @@ class ActuatorSaturation(Effect):
     def parse(self, t):
         self.params["limit"] = t.vector("limit", self.dims.m, check=positive, expect="limits > 0")
 
-    def actuator_batch(self, u, e, state):
+    def apply(self, u):
         lim = self.params["limit"]
-        return np.clip(u, -lim, lim)
-
-    actuator_step = actuator_batch
+        return np.minimum(np.maximum(u, -lim), lim)
 
     def knots(self):
         lim = self.params["limit"]

@@ -21,11 +21,9 @@ class ActuatorWhite(Effect):
     def n_normals(self):
         return self.dims.m
 
-    def actuator_batch(self, u, e, state):
-        return u + self.params["std"] * e
-
-    def actuator_step(self, u, e, state):
-        return u + self.params["std"] * e
+    def actuator_terms(self, e, state):
+        """Noise added to the drive for a block of normals e (trials, n, m)."""
+        return self.params["std"] * e
 
     def drive_linear(self):
         m = self.dims.m

@@ -18,6 +18,13 @@ Signal chain at sample k (discrete time, sample period Ts):
 The AR(1) actuator noise is updated before it is used (seed section 10: u_act,k = u_k + n_{a,k+1})
 and the bias walk is stepped after the measurement it enters, so y_k holds k bias increments.
 
+Simulation hooks (the batch path and the step path call the same functions on blocks, so they
+give identical floats): ``actuator_terms(e, state)`` / ``sensor_terms(e, state[, n])`` return what
+a noise source adds for a block of its normals (trials, n, .); ``apply(u)`` is a static
+nonlinearity (saturation, dead zone on the drive; quantization on y); the jitter gives
+``time_errors(e)``. Sources do not depend on the plant state or the command, so the step path
+computes them a buffer at a time.
+
 Prediction hooks (implemented by the effects they concern; defaults contribute nothing):
 
 * ``drive_linear()``: an actuator-noise source as a discrete linear system driven by its normals

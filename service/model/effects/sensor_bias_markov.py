@@ -33,20 +33,15 @@ class SensorBiasMarkov(Effect):
     def init_state(self, static_rng, trials):
         return {"b": np.zeros((trials, self.dims.p))}
 
-    def sensor_batch(self, y, e, state, ydot):
+    def sensor_terms(self, e, state):
         # beta_k (before the update with xi_k) enters y_k
-        out = np.empty_like(y)
+        out = np.empty_like(e)
         for j in range(self.dims.p):
             nxt, _ = lfilter([self.c[j]], [1.0, -self.phi[j]], e[..., j], axis=-1,
                              zi=(self.phi[j] * state["b"][:, j])[:, None])
             out[..., j] = np.concatenate([state["b"][:, j:j + 1], nxt[:, :-1]], axis=1)
             state["b"][:, j] = nxt[:, -1]
-        return y + out
-
-    def sensor_step(self, y, e, state, ydot):
-        b = state["b"]
-        state["b"] = self.c * e + self.phi * b
-        return y + b
+        return out
 
     def sensor_linear(self):
         return np.diag(self.phi), np.diag(self.c), np.eye(self.dims.p)

@@ -37,18 +37,13 @@ class SensorBiasWalk(Effect):
             else np.zeros((trials, self.dims.p))
         return {"b": b0}
 
-    def sensor_batch(self, y, e, state, ydot):
+    def sensor_terms(self, e, state):
         # b_k = b_{k-1} + q eta_{k-1}: a sequential cumulative sum started from the carried bias,
         # the same additions in the same order as sensor_step (identical floats)
         inc = self.q_step * e
         b = np.cumsum(np.concatenate([state["b"][:, None, :], inc], axis=1), axis=1)
         state["b"] = b[:, -1, :].copy()
-        return y + b[:, :-1, :]
-
-    def sensor_step(self, y, e, state, ydot):
-        b = state["b"]
-        state["b"] = b + self.q_step * e
-        return y + b
+        return b[:, :-1, :]
 
     def spectral(self):
         return [("walk", self.params["std"] ** 2 * self.dims.Ts, self.init_std**2)]

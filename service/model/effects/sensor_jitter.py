@@ -28,10 +28,9 @@ class SensorJitter(Effect):
     def n_normals(self):
         return 1
 
-    def sensor_batch(self, y, e, state, ydot):
-        return y + ydot * (self.params["std_s"] * e)
-
-    sensor_step = sensor_batch
+    def time_errors(self, e):
+        """dt_k = std_s e_k (s) for a block of normals; the error added to y_k is ydot_k dt_k."""
+        return self.params["std_s"] * e
 
     def spectral(self, mean_sq_ydot=None):
         # filled in by the predictor, which knows E[ydot^2]

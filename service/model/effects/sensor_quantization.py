@@ -26,11 +26,9 @@ class SensorQuantization(Effect):
     def parse(self, t):
         self.params["step"] = t.vector("step", self.dims.p, check=positive, expect="steps > 0")
 
-    def sensor_batch(self, y, e, state, ydot):
+    def apply(self, y):
         d = self.params["step"]
         return d * np.rint(y / d)   # round half to even, as np.round and the seed
-
-    sensor_step = sensor_batch
 
     def spectral(self):
         return [("white", self.params["step"] ** 2 / 12.0)]

@@ -33,15 +33,9 @@ class SensorTone(Effect):
         arg = 2.0 * np.pi * t[None, :, None] * self.params["frequency_hz"] + state["phase"][:, None, :]
         return self.params["amplitude"] * np.sin(arg)
 
-    def sensor_batch(self, y, e, state, ydot):
-        n = y.shape[1]
-        out = y + self._tone(state["k"], n, state)
+    def sensor_terms(self, e, state, n):
+        out = self._tone(state["k"], n, state)
         state["k"] += n
-        return out
-
-    def sensor_step(self, y, e, state, ydot):
-        out = y + self._tone(state["k"], 1, state)[:, 0, :]
-        state["k"] += 1
         return out
 
     def spectral(self):

@@ -19,10 +19,8 @@ class SensorWhite(Effect):
     def n_normals(self):
         return self.dims.p
 
-    def sensor_batch(self, y, e, state, ydot):
-        return y + self.params["std"] * e
-
-    sensor_step = sensor_batch
+    def sensor_terms(self, e, state):
+        return self.params["std"] * e
 
     def spectral(self):
         return [("white", self.params["std"] ** 2)]
