@@ -1,0 +1,709 @@
+"""MCAP recordings of noiselab streams: write, read back, salvage an unfinished file.
+
+Conventions (DESIGN.md, "Wire contract (Zenoh and MCAP)"):
+
+- one channel per stream, topic = the Zenoh key without a leading ``/``
+  (``noiselab/<name>/<kind>``), message encoding ``json``, one registered JSON Schema per kind
+  (schema encoding ``jsonschema``, names :data:`wire.SCHEMA_NAMES`);
+- MCAP ``sequence`` = payload ``seq``. MCAP's sequence is a uint32, so past 2**32 - 1 it wraps
+  modulo 2**32; the payload ``seq`` stays exact and is the one the reader returns;
+- ``publish_time`` = sample time ``k * Ts_ns`` in integer ns (:func:`wire.publish_time_ns`);
+  ``log_time`` = receive time in integer ns on whatever clock the recorder uses: readers must
+  not assume it is wall-clock. All times stay Python ints / int64, never float64.
+
+Readers accept topics with or without a leading ``/``, find devices by the ``/measurement``
+suffix, and treat an absent ``truth`` topic as normal (real data has none).
+
+A writer that is killed (SIGKILL, power loss) leaves a file with no footer and no summary.
+:func:`read_recording` still reads every message of every chunk that was fully written, with
+the non-seeking stream reader, and says so in ``Recording.complete`` / ``Recording.note``;
+:func:`recover` rewrites those messages into a finished file.
+"""
+
+from __future__ import annotations
+
+import operator
+import os
+import struct
+from collections import defaultdict
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
+from importlib.metadata import PackageNotFoundError, version
+
+import numpy as np
+from mcap.exceptions import McapError
+from mcap.reader import SeekingReader
+from mcap.records import Channel, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader
+from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
+
+from . import wire
+
+try:  # mcap depends on both; tolerate a stripped-down install all the same
+    import zstandard as _zstd
+except ImportError:  # pragma: no cover
+    _zstd = None
+try:
+    import lz4.frame as _lz4
+except ImportError:  # pragma: no cover
+    _lz4 = None
+
+__all__ = [
+    "COMPRESSIONS",
+    "DEFAULT_COMPRESSION",
+    "CorruptRecordingError",
+    "DeviceData",
+    "McapIoError",
+    "NotMcapError",
+    "RecordingExistsError",
+    "RecordingWriter",
+    "Recording",
+    "RecoverStats",
+    "ScanReport",
+    "TopicData",
+    "gaps",
+    "iter_messages",
+    "read_recording",
+    "recover",
+]
+
+MAGIC = b"\x89MCAP0\r\n"
+"""The 8 bytes that open and close every MCAP file."""
+
+SEQUENCE_MODULUS = 2**32
+"""MCAP message ``sequence`` is a uint32: the writer stores ``seq % SEQUENCE_MODULUS``."""
+
+_U64 = 2**64
+
+_AVAILABLE = {"zstd": _zstd is not None, "lz4": _lz4 is not None, "none": True}
+COMPRESSIONS: tuple[str, ...] = tuple(c for c, ok in _AVAILABLE.items() if ok)
+"""Chunk compressions usable with the installed packages."""
+
+DEFAULT_COMPRESSION: str = COMPRESSIONS[0]
+"""``"zstd"`` when zstandard is installed, else ``"lz4"``, else ``"none"``."""
+
+_COMPRESSION_TYPES = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
+                      "none": CompressionType.NONE}
+
+# What a truncated or damaged record can raise from inside the mcap reader: short reads
+# (EndOfFile is an McapError), struct unpacking of short buffers, CRC mismatch (ValueError),
+# bad UTF-8, zstd/lz4 decompression failures, absurd lengths, ids or offsets that point
+# nowhere (found by flipping single bits of real files).
+_CORRUPTION_ERRORS: tuple[type[BaseException], ...] = (
+    McapError, struct.error, ValueError, EOFError, RuntimeError, MemoryError, OverflowError,
+    KeyError, IndexError,
+) + ((_zstd.ZstdError,) if _zstd is not None else ())
+
+
+class McapIoError(ValueError):
+    """A recording that cannot be written or read as noiselab data (one-line message)."""
+
+
+class NotMcapError(McapIoError):
+    """The file is not an MCAP file at all (no MCAP magic at its start)."""
+
+
+class CorruptRecordingError(McapIoError):
+    """A finished MCAP file whose data section is damaged (try :func:`recover`)."""
+
+
+class RecordingExistsError(FileExistsError):
+    """The output path exists and overwriting was not asked for (``force=True``)."""
+
+    def __str__(self) -> str:
+        return f"{self.filename}: already exists; pass force=True (--force) to overwrite it"
+
+
+def _library() -> str:
+    try:
+        ours = version("noiselab")
+    except PackageNotFoundError:
+        ours = "unknown"
+    return f"noiselab/{ours} {LIBRARY_IDENTIFIER}"
+
+
+def _check_str_dict(data, what: str) -> dict[str, str]:
+    if not isinstance(data, dict):
+        raise McapIoError(f"{what} must be a dict of str to str, got {type(data).__name__}")
+    for k, v in data.items():
+        if not isinstance(k, str) or not isinstance(v, str):
+            raise McapIoError(f"{what}: entry {k!r}: {v!r} is not str to str")
+    return dict(data)
+
+
+def _check_u64(value, what: str) -> int:
+    if isinstance(value, bool):
+        raise McapIoError(f"{what}={value!r} must be an integer")
+    try:
+        value = operator.index(value)
+    except TypeError:
+        raise McapIoError(f"{what}={value!r} must be an integer (ns or count)") from None
+    if not 0 <= value < _U64:
+        raise McapIoError(f"{what}={value} is outside [0, 2**64)")
+    return value
+
+
+def _open_new(path: str, force: bool):
+    """Open ``path`` for binary writing; refuse an existing file unless ``force``."""
+    try:
+        return open(path, "wb" if force else "xb")
+    except FileExistsError:
+        raise RecordingExistsError(17, "File exists", path) from None
+
+
+# ------------------------------------------------------------------------------ writer
+
+
+class RecordingWriter:
+    """Write noiselab streams to a new MCAP file; a context manager that always finishes it.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Output file. An existing file is refused (:class:`RecordingExistsError`) unless
+        ``force``.
+    chunk_size : int
+        Bytes of uncompressed records per chunk (default 64 KiB). A chunk reaches the disk when
+        it is full or on :meth:`flush`; a killed writer loses at most the chunk in progress.
+    compression : str
+        ``"zstd"``, ``"lz4"`` or ``"none"`` (default :data:`DEFAULT_COMPRESSION`).
+    metadata : dict[str, str] or None
+        Written at once as a metadata record named ``"noiselab"`` (e.g. model name, Ts).
+
+    Schemas and channels are registered lazily, on the first message of a topic. On exit, even
+    on an exception, the summary and footer are written, so the file is complete.
+    """
+
+    def __init__(self, path: str | os.PathLike, *, force: bool = False,
+                 chunk_size: int = 64 * 1024, compression: str = DEFAULT_COMPRESSION,
+                 metadata: dict[str, str] | None = None) -> None:
+        self.path = os.fspath(path)
+        if compression not in _COMPRESSION_TYPES:
+            raise McapIoError(f"compression {compression!r} is unknown: use one of "
+                              f"{', '.join(_COMPRESSION_TYPES)}")
+        if not _AVAILABLE[compression]:
+            raise McapIoError(f"compression {compression!r} needs a package that is not "
+                              f"installed; available: {', '.join(COMPRESSIONS)}")
+        if isinstance(chunk_size, bool) or not isinstance(chunk_size, int) or chunk_size < 1:
+            raise McapIoError(f"chunk_size={chunk_size!r} must be an integer >= 1 (bytes)")
+        meta = None if metadata is None else _check_str_dict(metadata, "metadata")
+        self.compression = compression
+        self._file = _open_new(self.path, force)
+        try:
+            self._writer = Writer(self._file, chunk_size=chunk_size,
+                                  compression=_COMPRESSION_TYPES[compression])
+            self._writer.start(profile="", library=_library())
+        except BaseException:
+            self._file.close()
+            os.unlink(self.path)
+            raise
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[str, tuple[int, str]] = {}
+        self._counts: dict[str, int] = defaultdict(int)
+        self._closed = False
+        if meta is not None:
+            self.add_metadata("noiselab", meta)
+
+    # -- context manager
+    def __enter__(self) -> RecordingWriter:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        self.close()
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    @property
+    def counts(self) -> dict[str, int]:
+        """Messages written so far, per topic."""
+        return dict(self._counts)
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise McapIoError(f"{self.path}: recording is already finished")
+
+    def channel(self, topic: str, kind: str) -> int:
+        """Channel id of ``topic`` (registering its schema and channel on first use).
+
+        ``topic`` is a key ``.../<kind>`` (a leading ``/`` is dropped); its last segment must be
+        ``kind`` so readers find it (``/measurement`` suffix).
+        """
+        self._check_open()
+        topic = topic.lstrip("/") if isinstance(topic, str) else topic
+        known = self._channels.get(topic)
+        if known is not None:
+            if known[1] != kind:
+                raise McapIoError(f"topic {topic!r} is registered as {known[1]}, not {kind}")
+            return known[0]
+        wire._check_kind(kind)
+        parts = topic.split("/") if isinstance(topic, str) else []
+        if len(parts) < 2 or parts[-1] != kind or not all(parts):
+            raise McapIoError(f"topic {topic!r} must look like <prefix>/{kind} "
+                              f"(e.g. {wire.key('dev', kind)})")
+        schema_id = self._schemas.get(kind)
+        if schema_id is None:
+            schema_id = self._writer.register_schema(
+                name=wire.SCHEMA_NAMES[kind], encoding=wire.SCHEMA_ENCODING,
+                data=wire.schema_bytes(kind))
+            self._schemas[kind] = schema_id
+        channel_id = self._writer.register_channel(
+            topic=topic, message_encoding=wire.MESSAGE_ENCODING, schema_id=schema_id,
+            metadata={"noiselab.kind": kind})
+        self._channels[topic] = (channel_id, kind)
+        return channel_id
+
+    def write(self, topic: str, kind: str, seq: int, publish_time_ns: int, log_time_ns: int,
+              payload: bytes) -> None:
+        """Append one message: ``seq`` (payload seq), times in integer ns, JSON ``payload``."""
+        channel_id = self.channel(topic, kind)
+        seq = _check_u64(seq, "seq")
+        self._writer.add_message(
+            channel_id=channel_id,
+            log_time=_check_u64(log_time_ns, "log_time_ns"),
+            data=bytes(payload),
+            publish_time=_check_u64(publish_time_ns, "publish_time_ns"),
+            sequence=seq % SEQUENCE_MODULUS,
+        )
+        self._counts[topic.lstrip("/")] += 1
+
+    def write_batch(self, topic: str, kind: str, seq0: int, publish_ns: np.ndarray,
+                    log_ns: np.ndarray, payloads: Sequence[bytes]) -> None:
+        """Append N consecutive messages ``seq0 .. seq0+N-1`` of one topic.
+
+        ``publish_ns`` and ``log_ns`` are integer arrays (N,) in ns (int64 or uint64);
+        ``payloads`` N bytes objects (e.g. from :func:`wire.encode_batch`).
+        """
+        channel_id = self.channel(topic, kind)
+        seq0 = _check_u64(seq0, "seq0")
+        pub = np.asarray(publish_ns)
+        log = np.asarray(log_ns)
+        n = len(payloads)
+        for arr, what in ((pub, "publish_ns"), (log, "log_ns")):
+            if arr.shape != (n,) or arr.dtype.kind not in "iu":
+                raise McapIoError(f"{topic}: {what} must be an integer array of shape ({n},), "
+                                  f"got {arr.dtype} {arr.shape}")
+            if n and arr.dtype.kind == "i" and arr.min() < 0:
+                raise McapIoError(f"{topic}: {what} has negative times")
+        if not all(type(p) is bytes for p in payloads):
+            raise McapIoError(f"{topic}: payloads must all be bytes")
+        add = self._writer.add_message
+        for i, (p, lg, data) in enumerate(zip(pub.tolist(), log.tolist(), payloads)):
+            add(channel_id=channel_id, log_time=lg, data=data, publish_time=p,
+                sequence=(seq0 + i) % SEQUENCE_MODULUS)
+        self._counts[topic.lstrip("/")] += n
+
+    def add_metadata(self, name: str, data: dict[str, str]) -> None:
+        """Write a metadata record ``name`` with string keys and values."""
+        self._check_open()
+        if not isinstance(name, str) or not name:
+            raise McapIoError(f"metadata name {name!r} must be a non-empty str")
+        self._writer.add_metadata(name, _check_str_dict(data, f"metadata {name!r}"))
+
+    def flush(self, *, fsync: bool = False) -> None:
+        """Write the chunk in progress to the file now (bounds what a kill can lose).
+
+        Every flush ends a chunk, so flushing much more often than every ``chunk_size`` bytes
+        worsens compression. ``fsync=True`` also asks the OS to put it on disk.
+        """
+        self._check_open()
+        flush = getattr(self._writer, "flush", None)
+        if flush is None:  # pragma: no cover - older mcap releases lack it
+            raise McapIoError("this mcap version cannot flush a chunk early; upgrade mcap")
+        flush()
+        if fsync:
+            os.fsync(self._file.fileno())
+
+    def close(self) -> None:
+        """Write summary, footer and closing magic, and close the file (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._writer.finish()
+        finally:
+            self._file.close()
+
+
+# --------------------------------------------------------------------------- scanning
+
+
+@dataclass
+class ScanReport:
+    """Filled in by :func:`iter_messages` as it reads.
+
+    ``complete``: the file has a valid footer and summary (None until known). ``note``: empty
+    for a complete file, else what was found and where reading stopped. ``messages``: count
+    of messages yielded. ``intact``: a sequential read went through to the footer without a
+    damaged record (None when the file was read through its index instead).
+    """
+
+    complete: bool | None = None
+    note: str = ""
+    messages: int = 0
+    intact: bool | None = None
+    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+
+
+def _check_magic(path: str) -> int:
+    """Raise NotMcapError unless ``path`` starts with the MCAP magic; return the file size."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(len(MAGIC))
+            size = os.fstat(f.fileno()).st_size
+    except IsADirectoryError:
+        raise NotMcapError(f"{path}: is a directory, not an MCAP file") from None
+    if head != MAGIC:
+        what = "empty file" if not head else "does not start with the MCAP magic"
+        raise NotMcapError(f"{path}: not an MCAP file ({what})")
+    return size
+
+
+def _finished(f, size: int) -> tuple[bool, str]:
+    """Does the open file end with a readable footer (and summary, when it has one)?"""
+    if size < 2 * len(MAGIC) + 1:
+        return False, "file ends before any footer"
+    f.seek(size - len(MAGIC))
+    if f.read(len(MAGIC)) != MAGIC:
+        return False, "no closing magic (file not finished)"
+    try:
+        f.seek(0)
+        SeekingReader(f).get_summary()
+    except (*_CORRUPTION_ERRORS, OSError) as e:  # OSError: a damaged offset seeks before 0
+        return False, f"footer or summary unreadable ({type(e).__name__}: {e})"
+    return True, ""
+
+
+def _norm(topic: str) -> str:
+    return topic.lstrip("/")
+
+
+def _scan(path: str, topics: Iterable[str] | None, report: ScanReport, *, stream: bool = False
+          ) -> Iterator[tuple[Schema | None, Channel, Message]]:
+    """Messages of ``path`` in file order, with metadata collected into ``report``.
+
+    A finished file is read through its index unless ``stream`` (used by :func:`recover`,
+    which must salvage what precedes a damaged chunk even in a finished file).
+    """
+    size = _check_magic(path)
+    wanted = None if topics is None else {_norm(t) for t in ([topics] if isinstance(topics, str)
+                                                              else topics)}
+    with open(path, "rb") as f:
+        ok, why = _finished(f, size)
+        report.complete = ok
+        if ok and not stream:
+            yield from _scan_seeking(path, f, wanted, report)
+        else:
+            yield from _scan_stream(path, f, size, wanted, report, ok, why)
+
+
+def _scan_seeking(path, f, wanted, report):
+    f.seek(0)
+    reader = SeekingReader(f, validate_crcs=True)
+    try:
+        summary = reader.get_summary()
+        mcap_topics = None
+        if wanted is not None and summary is not None:
+            mcap_topics = [c.topic for c in summary.channels.values() if _norm(c.topic) in wanted]
+        for item in reader.iter_messages(topics=mcap_topics, log_time_order=False):
+            if wanted is None or _norm(item[1].topic) in wanted:
+                report.messages += 1
+                yield item
+        for m in reader.iter_metadata():
+            report.metadata[m.name] = dict(m.metadata)
+    except (*_CORRUPTION_ERRORS, OSError) as e:  # OSError: a damaged index seeks nowhere
+        raise CorruptRecordingError(
+            f"{path}: finished file with a damaged record after {report.messages} messages "
+            f"({type(e).__name__}: {e}); recover() salvages what comes before it") from None
+
+
+def _scan_stream(path, f, size, wanted, report, finished, why):
+    f.seek(0)
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    records = StreamReader(f, validate_crcs=True).records
+    stop = "reached the footer"
+    report.intact = True
+    while True:
+        try:
+            record = next(records)
+        except StopIteration:
+            break
+        except _CORRUPTION_ERRORS as e:
+            reason = "file ends mid-record" if isinstance(e, (McapError, EOFError,
+                                                               struct.error)) else "bad record"
+            stop = f"stopped at byte {f.tell()} of {size}: {reason} ({type(e).__name__})"
+            report.intact = False
+            break
+        if isinstance(record, Message):
+            channel = channels.get(record.channel_id)
+            if channel is None:
+                stop = (f"stopped at a message of unknown channel {record.channel_id} "
+                        f"(byte {f.tell()} of {size})")
+                report.intact = False
+                break
+            if wanted is None or _norm(channel.topic) in wanted:
+                report.messages += 1
+                yield schemas.get(channel.schema_id), channel, record
+        elif isinstance(record, Schema):
+            schemas[record.id] = record
+        elif isinstance(record, Channel):
+            channels[record.id] = record
+        elif isinstance(record, Metadata):
+            report.metadata[record.name] = dict(record.metadata)
+    if not finished:
+        report.note = (f"{path}: incomplete MCAP ({why}; unfinished recording, e.g. the writer "
+                       f"was killed): read {report.messages} intact messages, {stop}")
+    elif not report.intact:
+        report.note = (f"{path}: finished MCAP with a damaged record: read {report.messages} "
+                       f"intact messages, {stop}")
+
+
+def iter_messages(path: str | os.PathLike, topics: Iterable[str] | str | None = None, *,
+                  report: ScanReport | None = None
+                  ) -> Iterator[tuple[Schema | None, Channel, Message]]:
+    """Yield ``(schema, channel, message)`` mcap records of ``path`` in file order.
+
+    ``topics`` filters by topic, with or without a leading ``/`` on either side. A finished
+    file is read through its index; an unfinished one (no valid footer/summary) with the
+    non-seeking stream reader, stopping at the first truncated or corrupt record. Pass a
+    :class:`ScanReport` to learn which happened and to collect the metadata records.
+    Raises NotMcapError if the file is not MCAP, CorruptRecordingError if a finished file has
+    a damaged chunk.
+    """
+    yield from _scan(os.fspath(path), topics, report if report is not None else ScanReport())
+
+
+# ---------------------------------------------------------------------------- reading
+
+
+def gaps(seq_array) -> list[tuple[int, int]]:
+    """Sequence gaps: ``[(after_seq, missing_count), ...]`` in order of appearance.
+
+    ``seq_array`` is a 1-D integer sequence in arrival or sorted order. Every step
+    ``s[i+1] - s[i] > 1`` is reported as ``(s[i], s[i+1] - s[i] - 1)``. Repeats and backward
+    steps (duplicates, reordering) are not gaps and are not reported; sort first if the
+    order may be shuffled. A stream that starts after 0 is not reported either: check
+    ``s[0]`` for messages lost before the first one received.
+    """
+    s = np.asarray(seq_array)
+    if s.ndim != 1 or (s.size and s.dtype.kind not in "iu"):
+        raise McapIoError(f"gaps() needs a 1-D integer array, got {s.dtype} {s.shape}")
+    if s.size < 2:
+        return []
+    s = s.astype(np.int64, copy=False)
+    d = np.diff(s)
+    idx = np.flatnonzero(d > 1)
+    return [(int(s[i]), int(d[i]) - 1) for i in idx]
+
+
+@dataclass(frozen=True, eq=False)
+class TopicData:
+    """One stream of a recording, sorted by payload seq (stable; duplicates kept).
+
+    ``seq`` int64 (N,) payload seq; ``t`` float64 (N,) payload sample time in s;
+    ``publish_ns`` int64 (N,) MCAP publish_time (sample time, ns); ``log_ns`` int64 (N,) MCAP
+    log_time (receive time in ns, any clock); ``values`` float64 (N, dim): x, u or y.
+    """
+
+    topic: str
+    kind: str
+    seq: np.ndarray
+    t: np.ndarray
+    publish_ns: np.ndarray
+    log_ns: np.ndarray
+    values: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.seq.shape[0])
+
+    @property
+    def dim(self) -> int:
+        return int(self.values.shape[1])
+
+    def gaps(self) -> list[tuple[int, int]]:
+        """:func:`gaps` of ``seq``."""
+        return gaps(self.seq)
+
+
+@dataclass(frozen=True)
+class DeviceData:
+    """The streams of one device (found by its ``<prefix>/measurement`` topic), per kind."""
+
+    name: str
+    prefix: str
+    streams: dict[str, TopicData]
+
+    @property
+    def measurement(self) -> TopicData:
+        return self.streams["measurement"]
+
+    @property
+    def command(self) -> TopicData | None:
+        return self.streams.get("command")
+
+    @property
+    def truth(self) -> TopicData | None:
+        return self.streams.get("truth")
+
+
+@dataclass(frozen=True)
+class Recording:
+    """What :func:`read_recording` found.
+
+    ``devices`` by device name (``noiselab/<name>/...`` gives ``name``; a foreign prefix such as
+    ``/robot/imu/measurement`` gives ``robot/imu``). ``metadata``: metadata records by name.
+    ``complete``: the file had a valid footer and summary. ``note``: empty if complete, else
+    why not and how far the salvage got.
+    """
+
+    path: str
+    devices: dict[str, DeviceData]
+    metadata: dict[str, dict[str, str]]
+    complete: bool
+    note: str
+
+    def device(self, name: str | None = None) -> DeviceData:
+        """The device ``name``; without a name, the only device (error if there are several)."""
+        if name is None:
+            if len(self.devices) == 1:
+                return next(iter(self.devices.values()))
+            raise McapIoError(f"{self.path}: holds {len(self.devices)} devices "
+                              f"({', '.join(sorted(self.devices)) or 'none'}); name one")
+        try:
+            return self.devices[name]
+        except KeyError:
+            raise McapIoError(f"{self.path}: no device {name!r}; found "
+                              f"{', '.join(sorted(self.devices)) or 'none'}") from None
+
+
+def _as_i64(values: list[int], topic: str, what: str) -> np.ndarray:
+    try:
+        return np.array(values, dtype=np.int64)
+    except OverflowError:
+        raise McapIoError(f"{topic}: {what} beyond 2**63 - 1 ns is not supported") from None
+
+
+def read_recording(path: str | os.PathLike) -> Recording:
+    """Read every noiselab device of an MCAP file into arrays (see :class:`Recording`).
+
+    Devices are found by topics ending in ``/measurement`` (leading ``/`` optional); their
+    ``command`` and ``truth`` topics are read when present. Other topics are ignored. Payloads
+    are validated (:func:`wire.decode_batch`); a device topic whose message encoding is not
+    ``json`` raises McapIoError. Works on unfinished files (``complete=False``).
+    """
+    path = os.fspath(path)
+    report = ScanReport()
+    # per normalised topic: payloads, log_time, publish_time; and its encodings
+    raw: dict[str, tuple[list, list, list]] = {}
+    encodings: dict[str, set[str]] = defaultdict(set)
+    for _schema, channel, msg in iter_messages(path, report=report):
+        topic = _norm(channel.topic)
+        lists = raw.get(topic)
+        if lists is None:
+            lists = raw[topic] = ([], [], [])
+            encodings[topic].add(channel.message_encoding)
+        lists[0].append(msg.data)
+        lists[1].append(msg.log_time)
+        lists[2].append(msg.publish_time)
+
+    devices: dict[str, DeviceData] = {}
+    for topic in sorted(t for t in raw if t.endswith("/measurement")):
+        prefix = topic[: -len("/measurement")]
+        name = prefix[len("noiselab/"):] if prefix.startswith("noiselab/") else prefix
+        if name in devices:  # e.g. both "noiselab/imu" and "imu": keep them apart
+            name = prefix
+        streams = {}
+        for kind in wire.KINDS:
+            ktopic = f"{prefix}/{kind}"
+            if ktopic not in raw:
+                continue
+            bad = encodings[ktopic] - {wire.MESSAGE_ENCODING}
+            if bad:
+                raise McapIoError(f"{path}: topic {ktopic!r} has message encoding "
+                                  f"{sorted(bad)[0]!r}; noiselab reads 'json' only")
+            payloads, log, pub = raw[ktopic]
+            seq, t, values = wire.decode_batch(payloads, kind, topic=ktopic)
+            log_a = _as_i64(log, ktopic, "log_time")
+            pub_a = _as_i64(pub, ktopic, "publish_time")
+            if seq.size > 1 and (np.diff(seq) < 0).any():
+                order = np.argsort(seq, kind="stable")
+                seq, t, values = seq[order], t[order], values[order]
+                log_a, pub_a = log_a[order], pub_a[order]
+            streams[kind] = TopicData(ktopic, kind, seq, t, pub_a, log_a, values)
+        devices[name] = DeviceData(name, prefix, streams)
+    return Recording(path=path, devices=devices, metadata=report.metadata,
+                     complete=bool(report.complete), note=report.note)
+
+
+# --------------------------------------------------------------------------- recovery
+
+
+@dataclass(frozen=True)
+class RecoverStats:
+    """Outcome of :func:`recover`: messages salvaged per topic (as spelled in the file),
+    whether the input was already a finished, undamaged file (then nothing was lost), and
+    the reader's note (empty in that case)."""
+
+    messages: dict[str, int]
+    already_complete: bool
+    note: str
+
+    @property
+    def total(self) -> int:
+        return sum(self.messages.values())
+
+
+def recover(broken_path: str | os.PathLike, out_path: str | os.PathLike, force: bool = False,
+            *, compression: str = DEFAULT_COMPRESSION, chunk_size: int = 1024 * 1024
+            ) -> RecoverStats:
+    """Rewrite every intact message of ``broken_path`` into a new, finished MCAP file.
+
+    The input is read sequentially (non-seeking stream reader) up to its end or its first
+    truncated or damaged record, whether or not it has a footer. Schemas, channels (topic,
+    encodings, metadata), metadata records, sequence, log_time and publish_time (ns) are
+    copied unchanged, in file order. ``out_path`` must differ from the input and must not
+    exist unless ``force``. On failure the partial output is removed.
+    """
+    src = os.fspath(broken_path)
+    dst = os.fspath(out_path)
+    _check_magic(src)
+    if compression not in _COMPRESSION_TYPES or not _AVAILABLE[compression]:
+        raise McapIoError(f"compression {compression!r} is not available; use one of "
+                          f"{', '.join(COMPRESSIONS)}")
+    if os.path.exists(dst) and os.path.samefile(src, dst):
+        raise McapIoError(f"{dst}: output is the input file; write the recovery elsewhere")
+    report = ScanReport()
+    counts: dict[str, int] = defaultdict(int)
+    out = _open_new(dst, force)
+    try:
+        writer = Writer(out, chunk_size=chunk_size, compression=_COMPRESSION_TYPES[compression])
+        writer.start(profile="", library=_library())
+        schema_ids: dict[int, int] = {}
+        channel_ids: dict[int, int] = {}
+        for schema, channel, msg in _scan(src, None, report, stream=True):
+            cid = channel_ids.get(channel.id)
+            if cid is None:
+                sid = 0
+                if schema is not None:
+                    sid = schema_ids.get(schema.id, 0)
+                    if sid == 0:
+                        sid = schema_ids[schema.id] = writer.register_schema(
+                            schema.name, schema.encoding, schema.data)
+                cid = channel_ids[channel.id] = writer.register_channel(
+                    channel.topic, channel.message_encoding, sid, dict(channel.metadata))
+            writer.add_message(channel_id=cid, log_time=msg.log_time, data=msg.data,
+                               publish_time=msg.publish_time, sequence=msg.sequence)
+            counts[channel.topic] += 1
+        for name, data in report.metadata.items():
+            writer.add_metadata(name, data)
+        writer.finish()
+    except BaseException:
+        out.close()
+        os.unlink(dst)
+        raise
+    out.close()
+    return RecoverStats(messages=dict(counts),
+                        already_complete=bool(report.complete and report.intact),
+                        note=report.note)

@@ -1,0 +1,477 @@
+"""MCAP recordings: round trip, registered schemas, foreign files, unfinished files, recovery.
+
+Real files in tmp_path, no mocks. Unfinished files are made the way a SIGKILL makes them:
+by cutting a finished file's bytes (and once by really killing a writer process).
+"""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap.stream_reader import breakup_chunk
+from mcap.records import Chunk, Message
+from mcap.data_stream import ReadDataStream
+from mcap.writer import Writer
+
+from service.nodes import mcapio, wire
+from service.nodes.mcapio import (
+    NotMcapError,
+    RecordingExistsError,
+    RecordingWriter,
+    gaps,
+    iter_messages,
+    read_recording,
+    recover,
+)
+
+REPO = Path(__file__).resolve().parents[1]
+Ts = 0.01
+DIMS = {"truth": 2, "command": 1, "measurement": 2}
+
+
+def same_bits(a, b) -> bool:
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    return a.shape == b.shape and np.array_equal(a.view(np.uint64), b.view(np.uint64))
+
+
+def make_data(n, seed=1):
+    """Per kind: (t, publish_ns, log_ns, values) of n samples, values with awkward floats."""
+    rng = np.random.default_rng(seed)
+    t, pub = wire.sample_times(0, n, Ts)
+    out = {}
+    for i, kind in enumerate(wire.KINDS):
+        vals = rng.standard_normal((n, DIMS[kind])) * 10.0 ** rng.integers(-20, 20, (n, 1))
+        vals[0, 0] = -0.0
+        log = pub + 1_700_000_000_000_000_000 + rng.integers(0, 50_000, n) + i
+        out[kind] = (t, pub, log, vals)
+    return out
+
+
+def write_sample(path, n=200, *, name="dev", chunk_size=64 * 1024, compression=None,
+                 metadata=None):
+    """Write n samples of the 3 topics: the first half message by message, the rest batched.
+
+    Messages interleave truth, command, measurement per sample, as the emulator sends them.
+    """
+    data = make_data(n)
+    kw = {} if compression is None else {"compression": compression}
+    with RecordingWriter(path, chunk_size=chunk_size, metadata=metadata, **kw) as w:
+        half = n // 2
+        for k in range(half):
+            for kind in wire.KINDS:
+                t, pub, log, vals = data[kind]
+                payload = wire.encode(k, t[k], vals[k], kind=kind)
+                w.write(wire.key(name, kind), kind, k, int(pub[k]), int(log[k]), payload)
+        for k0 in range(half, n, 10):
+            for kind in wire.KINDS:
+                t, pub, log, vals = data[kind]
+                sl = slice(k0, min(k0 + 10, n))
+                payloads = wire.encode_batch(kind, k0, t[sl], vals[sl])
+                w.write_batch(wire.key(name, kind), kind, k0, pub[sl], log[sl], payloads)
+    return data
+
+
+def messages(path):
+    """(topic, sequence, log_time, publish_time, data) of every message, in file order."""
+    return [(c.topic, m.sequence, m.log_time, m.publish_time, m.data)
+            for _, c, m in iter_messages(path)]
+
+
+# ------------------------------------------------------------------------- round trip
+
+
+@pytest.mark.parametrize("compression", mcapio.COMPRESSIONS)
+def test_round_trip_is_exact(tmp_path, compression):
+    path = tmp_path / "run.mcap"
+    n = 200
+    data = write_sample(path, n, compression=compression, metadata={"model": "seed", "Ts": "0.01"})
+    rec = read_recording(path)
+    assert rec.complete and rec.note == ""
+    assert list(rec.devices) == ["dev"]
+    assert rec.metadata == {"noiselab": {"model": "seed", "Ts": "0.01"}}
+    dev = rec.device()
+    assert dev.prefix == "noiselab/dev"
+    for kind in wire.KINDS:
+        t, pub, log, vals = data[kind]
+        s = dev.streams[kind]
+        assert s.topic == f"noiselab/dev/{kind}" and len(s) == n and s.dim == DIMS[kind]
+        assert s.seq.dtype == np.int64 and np.array_equal(s.seq, np.arange(n))
+        assert s.publish_ns.dtype == np.int64 and s.publish_ns.tolist() == pub.tolist()
+        assert s.log_ns.dtype == np.int64 and s.log_ns.tolist() == log.tolist()
+        assert same_bits(s.t, t)
+        assert same_bits(s.values, vals)
+        assert s.gaps() == []
+    assert dev.truth is dev.streams["truth"] and dev.command is dev.streams["command"]
+
+
+def test_schemas_channels_and_statistics_as_registered(tmp_path):
+    path = tmp_path / "run.mcap"
+    write_sample(path, 50)
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        header = reader.get_header()
+    assert header.library.startswith("noiselab/")
+    assert summary is not None and summary.statistics.message_count == 150
+    schemas = {s.name: s for s in summary.schemas.values()}
+    assert sorted(schemas) == sorted(wire.SCHEMA_NAMES.values())
+    by_topic = {c.topic: c for c in summary.channels.values()}
+    assert sorted(by_topic) == sorted(wire.key("dev", k) for k in wire.KINDS)
+    for kind in wire.KINDS:
+        ch = by_topic[wire.key("dev", kind)]
+        assert ch.message_encoding == "json"
+        schema = summary.schemas[ch.schema_id]
+        assert schema.encoding == "jsonschema"
+        assert schema.name == wire.SCHEMA_NAMES[kind]
+        assert json.loads(schema.data) == wire.schema(kind)
+        assert summary.statistics.channel_message_counts[ch.id] == 50
+
+
+def test_two_devices_and_metadata_records(tmp_path):
+    path = tmp_path / "two.mcap"
+    with RecordingWriter(path) as w:
+        for name, scale in (("a", 1.0), ("b", 2.0)):
+            payloads = wire.encode_batch("measurement", 0, np.arange(5) * Ts,
+                                         scale * np.ones((5, 1)))
+            w.write_batch(wire.key(name, "measurement"), "measurement", 0,
+                          np.arange(5) * 10, np.arange(5) * 10, payloads)
+        w.add_metadata("run", {"operator": "ci"})
+        assert w.counts == {"noiselab/a/measurement": 5, "noiselab/b/measurement": 5}
+    rec = read_recording(path)
+    assert sorted(rec.devices) == ["a", "b"]
+    assert rec.device("b").measurement.values.tolist() == [[2.0]] * 5
+    assert rec.device("a").truth is None and rec.device("a").command is None
+    assert rec.metadata == {"run": {"operator": "ci"}}
+    with pytest.raises(mcapio.McapIoError, match="2 devices"):
+        rec.device()
+    with pytest.raises(mcapio.McapIoError, match="no device 'c'"):
+        rec.device("c")
+
+
+def test_sequence_past_uint32_wraps_in_mcap_but_payload_seq_is_exact(tmp_path):
+    path = tmp_path / "wrap.mcap"
+    seqs = [2**32 - 2, 2**32 - 1, 2**32, 2**32 + 1]
+    with RecordingWriter(path) as w:
+        for s in seqs:
+            w.write("noiselab/dev/measurement", "measurement", s, s * 10, s * 10,
+                    wire.encode(s, s * Ts, [1.0], kind="measurement"))
+    assert [m[1] for m in messages(path)] == [2**32 - 2, 2**32 - 1, 0, 1]
+    assert read_recording(path).device("dev").measurement.seq.tolist() == seqs
+
+
+def test_exception_inside_with_still_finishes_the_file(tmp_path):
+    path = tmp_path / "boom.mcap"
+    with pytest.raises(RuntimeError, match="boom"):
+        with RecordingWriter(path) as w:
+            w.write("noiselab/dev/measurement", "measurement", 0, 0, 5,
+                    wire.encode(0, 0.0, [3.0], kind="measurement"))
+            raise RuntimeError("boom")
+    assert w.closed
+    rec = read_recording(path)
+    assert rec.complete
+    assert rec.device("dev").measurement.values.tolist() == [[3.0]]
+    with pytest.raises(mcapio.McapIoError, match="already finished"):
+        w.write("noiselab/dev/measurement", "measurement", 1, 1, 6, b"{}")
+
+
+def test_writer_refuses_bad_topics_and_times(tmp_path):
+    with RecordingWriter(tmp_path / "x.mcap") as w:
+        with pytest.raises(mcapio.McapIoError, match="<prefix>/measurement"):
+            w.channel("noiselab/dev/truth", "measurement")
+        w.channel("/noiselab/dev/truth", "truth")  # leading '/' dropped
+        with pytest.raises(mcapio.McapIoError, match="registered as truth"):
+            w.channel("noiselab/dev/truth", "command")
+        with pytest.raises(mcapio.McapIoError, match="publish_time_ns=-1"):
+            w.write("noiselab/dev/truth", "truth", 0, -1, 0, b"{}")
+        with pytest.raises(mcapio.McapIoError, match="log_time_ns=1.5"):
+            w.write("noiselab/dev/truth", "truth", 0, 0, 1.5, b"{}")
+        with pytest.raises(mcapio.McapIoError, match=r"shape \(2,\)"):
+            w.write_batch("noiselab/dev/truth", "truth", 0, np.zeros(3, np.int64),
+                          np.zeros(2, np.int64), [b"{}", b"{}"])
+        with pytest.raises(mcapio.McapIoError, match="must all be bytes"):
+            w.write_batch("noiselab/dev/truth", "truth", 0, np.zeros(1, np.int64),
+                          np.zeros(1, np.int64), ['{"seq":0}'])
+    with pytest.raises(mcapio.McapIoError, match="'gzip'"):
+        RecordingWriter(tmp_path / "y.mcap", compression="gzip")
+    assert not (tmp_path / "y.mcap").exists()
+    assert [c.topic for _, c, _ in iter_messages(tmp_path / "x.mcap")] == []
+
+
+def test_refuses_to_overwrite_unless_forced(tmp_path):
+    path = tmp_path / "run.mcap"
+    path.write_bytes(b"precious")
+    with pytest.raises(RecordingExistsError) as e:
+        RecordingWriter(path)
+    assert isinstance(e.value, FileExistsError)
+    assert str(path) in str(e.value) and "force" in str(e.value) and "\n" not in str(e.value)
+    assert path.read_bytes() == b"precious"
+    with RecordingWriter(path, force=True) as w:
+        w.write("noiselab/d/measurement", "measurement", 0, 0, 0,
+                wire.encode(0, 0.0, [1.0], kind="measurement"))
+    assert read_recording(path).device("d").measurement.values.tolist() == [[1.0]]
+
+
+# --------------------------------------------------------------- foreign topic spellings
+
+
+def raw_file(path, topics, n=5, payload=None, schema=True):
+    """A file written with mcap's own Writer, as another tool would."""
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start()
+        for topic in topics:
+            kind = topic.rsplit("/", 1)[1]
+            sid = (w.register_schema(wire.SCHEMA_NAMES[kind], "jsonschema",
+                                     wire.schema_bytes(kind)) if schema and kind in wire.KINDS
+                   else 0)
+            cid = w.register_channel(topic, "json", sid)
+            for k in range(n):
+                if kind not in wire.KINDS:  # some other topic of the foreign tool
+                    data = b'{"status":"ok"}'
+                else:
+                    data = payload if payload is not None else wire.encode(
+                        k, k * Ts, [float(k), -float(k)], kind=kind)
+                w.add_message(cid, log_time=k * 7, data=data, publish_time=k * 10_000_000,
+                              sequence=k)
+        w.finish()
+
+
+def test_reader_accepts_topics_with_a_leading_slash(tmp_path):
+    path = tmp_path / "slash.mcap"
+    raw_file(path, ["/noiselab/dev/measurement", "/noiselab/dev/command"])
+    rec = read_recording(path)
+    assert list(rec.devices) == ["dev"]
+    dev = rec.device("dev")
+    assert dev.measurement.topic == "noiselab/dev/measurement"
+    assert dev.measurement.values.tolist() == [[k, -k] for k in range(5)]
+    assert dev.command.publish_ns.tolist() == [k * 10_000_000 for k in range(5)]
+    assert dev.truth is None
+    # topic filters match either spelling
+    assert len(list(iter_messages(path, topics=["noiselab/dev/command"]))) == 5
+    assert len(list(iter_messages(path, topics="/noiselab/dev/measurement"))) == 5
+
+
+def test_foreign_file_with_only_measurements_and_no_schema(tmp_path):
+    path = tmp_path / "imu.mcap"
+    raw_file(path, ["/robot/imu/measurement", "/robot/imu/status"], schema=False)
+    rec = read_recording(path)
+    assert list(rec.devices) == ["robot/imu"]
+    dev = rec.device()
+    assert set(dev.streams) == {"measurement"} and dev.truth is None and dev.command is None
+    assert dev.measurement.log_ns.tolist() == [k * 7 for k in range(5)]
+
+
+def test_bad_payload_in_a_recording_names_the_topic(tmp_path):
+    path = tmp_path / "nan.mcap"
+    raw_file(path, ["noiselab/dev/measurement"], payload=b'{"seq":0,"t":0.0,"y":[NaN]}')
+    with pytest.raises(wire.WireError, match="^noiselab/dev/measurement: "):
+        read_recording(path)
+
+
+def test_out_of_order_messages_are_sorted_and_gaps_reported(tmp_path):
+    path = tmp_path / "gaps.mcap"
+    order = [0, 1, 3, 2, 7, 8, 12]
+    with RecordingWriter(path) as w:
+        for s in order:
+            w.write("noiselab/dev/measurement", "measurement", s, s * 10, s,
+                    wire.encode(s, s * Ts, [float(s)], kind="measurement"))
+    m = read_recording(path).device().measurement
+    assert m.seq.tolist() == sorted(order)
+    assert m.values[:, 0].tolist() == sorted(order)
+    assert m.log_ns.tolist() == sorted(order)
+    assert m.gaps() == [(3, 3), (8, 3)]
+
+
+# ---------------------------------------------------------------------------- gaps()
+
+
+@pytest.mark.parametrize("seq, expected", [
+    ([], []),
+    ([5], []),
+    ([0, 1, 2, 3], []),
+    ([0, 1, 2, 5, 6, 9], [(2, 2), (6, 2)]),
+    ([3, 4, 10], [(4, 5)]),          # a late start is not a gap
+    ([0, 1, 1, 2], []),              # duplicate
+    ([0, 1, 5, 2, 3], [(1, 3)]),     # reordering: only forward jumps count
+    (np.array([2**40, 2**40 + 3], dtype=np.uint64), [(2**40, 2)]),
+])
+def test_gaps_on_hand_made_sequences(seq, expected):
+    assert gaps(seq) == expected
+    assert all(type(a) is int and type(b) is int for a, b in gaps(seq))
+
+
+def test_gaps_refuses_non_integer_input():
+    with pytest.raises(mcapio.McapIoError, match="1-D integer"):
+        gaps([0.0, 1.0])
+    with pytest.raises(mcapio.McapIoError, match="1-D integer"):
+        gaps([[0, 1]])
+
+
+# ---------------------------------------------------------------- unfinished recordings
+
+
+def top_level_chunks(path):
+    """[(start, end, [(topic, sequence, log_time, publish_time, data), ...]), ...] per chunk,
+    from the finished file's chunk index (the ground truth of what a cut keeps)."""
+    out = []
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+        topics = {c.id: c.topic for c in summary.channels.values()}
+        for ci in summary.chunk_indexes:
+            f.seek(ci.chunk_start_offset + 1 + 8)
+            chunk = Chunk.read(ReadDataStream(f))
+            msgs = [(topics[r.channel_id], r.sequence, r.log_time, r.publish_time, r.data)
+                    for r in breakup_chunk(chunk) if isinstance(r, Message)]
+            out.append((ci.chunk_start_offset, ci.chunk_start_offset + ci.chunk_length, msgs))
+    return out
+
+
+@pytest.mark.parametrize("compression", mcapio.COMPRESSIONS)
+def test_cut_file_reads_exactly_the_whole_chunks_and_recovers(tmp_path, compression):
+    full = tmp_path / "full.mcap"
+    write_sample(full, 120, chunk_size=1024, compression=compression,
+                 metadata={"model": "seed"})
+    blob = full.read_bytes()
+    chunks = top_level_chunks(full)
+    assert len(chunks) >= 6
+    all_msgs = [m for _, _, ms in chunks for m in ms]
+    assert messages(full) == all_msgs
+    ends = [e for _, e, _ in chunks]
+    cuts = sorted({
+        8,                          # magic only
+        ends[0] - 1,                # inside the first chunk
+        ends[0],                    # exactly after the first chunk
+        ends[0] + 5,                # inside the message index after it
+        (ends[2] + ends[3]) // 2,   # mid-file
+        ends[-1] - 1,               # last chunk lacks one byte
+        ends[-1] + 3,               # all chunks whole, message indexes / data end cut
+        len(blob) - 30,             # inside the summary
+        len(blob) - 1,              # the closing magic lacks one byte
+    })
+    for cut in cuts:
+        cut_path = tmp_path / f"cut{cut}.mcap"
+        cut_path.write_bytes(blob[:cut])
+        expected = [m for _, end, ms in chunks if end <= cut for m in ms]
+        rec = read_recording(cut_path)
+        assert not rec.complete, cut
+        assert "incomplete MCAP" in rec.note and f"read {len(expected)} intact" in rec.note
+        assert messages(cut_path) == expected, cut
+        n_meas = sum(1 for m in expected if m[0].endswith("/measurement"))
+        if n_meas:
+            meas = rec.device("dev").measurement
+            assert meas.seq.tolist() == list(range(n_meas))
+            assert meas.publish_ns.tolist() == [m[3] for m in expected
+                                                if m[0].endswith("/measurement")]
+        # the metadata record is written right after the header, before the first chunk
+        has_meta = cut >= chunks[0][0]
+        assert rec.metadata == ({"noiselab": {"model": "seed"}} if has_meta else {})
+
+        out = tmp_path / f"rec{cut}.mcap"
+        stats = recover(cut_path, out)
+        assert not stats.already_complete and stats.total == len(expected)
+        assert stats.note == rec.note
+        with open(out, "rb") as f:  # the seeking reader accepts it: footer and summary present
+            reader = make_reader(f)
+            summary = reader.get_summary()
+            assert summary is not None
+            assert summary.statistics.message_count == len(expected)
+            got = [(c.topic, m.sequence, m.log_time, m.publish_time, m.data)
+                   for _, c, m in reader.iter_messages(log_time_order=False)]
+            assert {s.name for s in summary.schemas.values()} <= set(wire.SCHEMA_NAMES.values())
+        assert got == expected
+        rec2 = read_recording(out)
+        assert rec2.complete and rec2.metadata == rec.metadata
+
+
+def test_recover_of_a_finished_file_copies_it(tmp_path):
+    src = tmp_path / "ok.mcap"
+    write_sample(src, 30)
+    stats = recover(src, tmp_path / "copy.mcap")
+    assert stats.already_complete and stats.note == ""
+    assert stats.messages == {wire.key("dev", k): 30 for k in wire.KINDS}
+    assert messages(tmp_path / "copy.mcap") == messages(src)
+
+
+def test_damaged_chunk_in_finished_file(tmp_path):
+    """A flipped byte inside chunk 3: reading refuses (CRC), recover keeps chunks 0-2."""
+    src = tmp_path / "ok.mcap"
+    write_sample(src, 120, chunk_size=1024)
+    chunks = top_level_chunks(src)
+    blob = bytearray(src.read_bytes())
+    start, end, _ = chunks[3]
+    blob[(start + end) // 2] ^= 0x10
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(blob))
+    with pytest.raises(mcapio.CorruptRecordingError, match=f"^{bad}: finished file"):
+        read_recording(bad)
+    stats = recover(bad, tmp_path / "salvaged.mcap")
+    expected = [m for _, _, ms in chunks[:3] for m in ms]
+    assert not stats.already_complete and stats.total == len(expected)
+    assert "damaged record" in stats.note
+    assert messages(tmp_path / "salvaged.mcap") == expected
+
+
+def test_recover_refuses_existing_output_and_itself(tmp_path):
+    src = tmp_path / "ok.mcap"
+    write_sample(src, 5)
+    dst = tmp_path / "out.mcap"
+    dst.write_bytes(b"keep")
+    with pytest.raises(RecordingExistsError):
+        recover(src, dst)
+    assert dst.read_bytes() == b"keep"
+    assert recover(src, dst, force=True).total == 15
+    with pytest.raises(mcapio.McapIoError, match="is the input"):
+        recover(src, src, force=True)
+    assert read_recording(src).complete
+
+
+def test_killed_writer_process_keeps_what_was_flushed(tmp_path):
+    """A real SIGKILL: 40 samples flushed, 25 more in the chunk in progress are lost."""
+    path = tmp_path / "killed.mcap"
+    script = textwrap.dedent(f"""
+        import os, signal, sys
+        import numpy as np
+        from service.nodes import mcapio, wire
+        w = mcapio.RecordingWriter({str(path)!r}, chunk_size=1 << 20)
+        t, pub = wire.sample_times(0, 65, 0.01)
+        y = np.arange(65.0).reshape(65, 1)
+        key = wire.key("dev", "measurement")
+        p = wire.encode_batch("measurement", 0, t, y)
+        w.write_batch(key, "measurement", 0, pub[:40], pub[:40], p[:40])
+        w.flush()
+        w.write_batch(key, "measurement", 40, pub[40:], pub[40:], p[40:])
+        os.kill(os.getpid(), signal.SIGKILL)
+    """)
+    proc = subprocess.run([sys.executable, "-c", script], cwd=REPO, timeout=60,
+                          env={**os.environ, "PYTHONPATH": str(REPO)}, capture_output=True)
+    assert proc.returncode == -signal.SIGKILL, proc.stderr.decode()
+    rec = read_recording(path)
+    assert not rec.complete and "read 40 intact messages" in rec.note
+    m = rec.device("dev").measurement
+    assert m.seq.tolist() == list(range(40)) and m.values[:, 0].tolist() == list(range(40))
+
+
+# ------------------------------------------------------------------------- not MCAP
+
+
+@pytest.mark.parametrize("content", [b"", b"\x89MCA", b"hello, this is text\n" * 3,
+                                     b"PAR1" + bytes(100)])
+def test_non_mcap_file_raises_not_mcap_error(tmp_path, content):
+    path = tmp_path / "data.bin"
+    path.write_bytes(content)
+    with pytest.raises(NotMcapError) as e:
+        read_recording(path)
+    msg = str(e.value)
+    assert isinstance(e.value, ValueError)
+    assert str(path) in msg and "not an MCAP file" in msg and "\n" not in msg
+    with pytest.raises(NotMcapError):
+        recover(path, tmp_path / "out.mcap")
+    assert not (tmp_path / "out.mcap").exists()

@@ -1,0 +1,1 @@
+"""Rerun entity layout, blueprints and logging; the text report."""
