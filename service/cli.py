@@ -26,8 +26,10 @@ class UsageError(ValueError):
 
 def _bad_input_types():
     from .nodes.mcapio import McapIoError, RecordingExistsError
+    from .nodes.transport import TransportError
     from .nodes.wire import WireError
-    return (ModelError, UsageError, WireError, McapIoError, RecordingExistsError)
+    return (ModelError, UsageError, WireError, McapIoError, RecordingExistsError, TransportError,
+            FileNotFoundError, IsADirectoryError, PermissionError)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -191,6 +193,141 @@ def cmd_simulate(args) -> int:
     return 0
 
 
+# -- live pipeline -----------------------------------------------------------------------------------
+def _stop_on_signals():
+    """SIGINT/SIGTERM set the returned event (nodes finish cleanly instead of dying)."""
+    import signal
+    import threading
+
+    stop = threading.Event()
+
+    def handler(signum, frame):
+        stop.set()
+
+    signal.signal(signal.SIGINT, handler)
+    signal.signal(signal.SIGTERM, handler)
+    return stop
+
+
+def _emit(args, summary: dict, lines: list[str]) -> None:
+    if args.json:
+        print(json.dumps(summary), flush=True)
+    else:
+        for line in lines:
+            print(line, flush=True)
+
+
+def cmd_emulate(args) -> int:
+    from .nodes import transport
+    from .nodes.emulator import run_emulator
+
+    model = load_model(args.model)
+    stop = _stop_on_signals()
+    with transport.open_session(args, "source") as session:
+        ends = transport.endpoints_of(args, "source")
+        print(f"noiselab emulate: {model.name} at Ts = {model.Ts:g} s on noiselab/{model.name}/* "
+              f"(listen {ends['listen']}, connect {ends['connect']})", file=sys.stderr, flush=True)
+        s = run_emulator(model, session, duration=args.duration, seed=args.seed, stop=stop,
+                         wait_subscribers=args.wait_subscribers, stale_s=args.stale)
+    lat = s.lateness_us
+    _emit(args, s.as_dict(), [f"emulated {s.samples} samples of {s.name} in {s.wall_s:.2f} s; lateness p50 "
+                              f"{lat['p50']:.0f} us, p99 {lat['p99']:.0f} us, max {lat['max']:.0f} us; "
+                              f"{s.overruns} overruns"])
+    return 0
+
+
+def cmd_record(args) -> int:
+    from .nodes import transport
+    from .nodes.recorder import run_recorder
+    from .nodes.runner import READY_MARK
+
+    transport.check_key_expr(args.key)
+    out = Path(args.out)
+    if out.exists() and not args.force:
+        raise UsageError(f"{out}: exists (use --force to overwrite)")
+    if not out.parent.is_dir():
+        raise UsageError(f"{out.parent}: no such directory")
+    stop = _stop_on_signals()
+    import threading
+    ready = threading.Event()
+
+    def announce():
+        ready.wait()
+        print(f"{READY_MARK} to {args.key}, writing {out}", file=sys.stderr, flush=True)
+
+    threading.Thread(target=announce, daemon=True).start()
+    with transport.open_session(args, "sink") as session:
+        s = run_recorder(session, args.key, str(out), duration=args.duration, force=args.force, stop=stop,
+                         ready=ready)
+    _emit(args, s.as_dict(), s.lines())
+    return 0
+
+
+def cmd_recover(args) -> int:
+    from .nodes import mcapio
+
+    st = mcapio.recover(args.broken, args.output, force=args.force)
+    rep = {"node": "recover", "input": args.broken, "output": args.output, "messages": st.messages,
+           "total": st.total, "already_complete": st.already_complete, "note": st.note}
+    lines = [f"recovered {st.total} messages from {args.broken} into {args.output}"
+             + (" (the input was complete)" if st.already_complete else "")]
+    lines += [f"  {topic}: {count}" for topic, count in sorted(st.messages.items())]
+    if st.note:
+        lines.append(f"  {st.note}")
+    _emit(args, rep, lines)
+    return 0
+
+
+def cmd_replay(args) -> int:
+    from .nodes import transport
+    from .nodes.replay import replay_topics, run_replay
+
+    if not Path(args.recording).is_file():
+        raise UsageError(f"{args.recording}: no such file")
+    replay_topics(args.recording)            # a file that is not MCAP fails here, before any I/O
+    if args.prefix:
+        transport.check_key_expr(args.prefix)
+    stop = _stop_on_signals()
+    with transport.open_session(args, "source") as session:
+        s = run_replay(session, args.recording, speed=None if args.fast else args.speed, prefix=args.prefix,
+                       stop=stop, wait_subscribers=args.wait_subscribers)
+    _emit(args, s.as_dict(), [f"replayed {s.messages} messages of {s.path} in {s.wall_s:.2f} s"])
+    return 0
+
+
+def cmd_router(args) -> int:
+    from .nodes import transport
+
+    stop = _stop_on_signals()
+    with transport.open_session(args, "router") as session:
+        ends = transport.endpoints_of(args, "router")
+        print(f"noiselab router: listening on {', '.join(ends['listen']) or 'the config file endpoints'}",
+              file=sys.stderr, flush=True)
+        stop.wait(args.duration)
+    return 0
+
+
+def cmd_run(args) -> int:
+    from .nodes.runner import run_pipeline
+
+    model = load_model(args.model)              # bad input fails here, before any process starts
+    rep = run_pipeline(args.model, model.name, duration=args.duration, seed=args.seed, out_dir=Path(args.out),
+                       force=args.force)
+    emu, rec = rep["emulator"] or {}, rep["recorder"] or {}
+    lines = [f"recording: {rep['recording']}"]
+    for topic, b in sorted((rec.get("topics") or {}).items()):
+        gaps = "no gaps" if not b["gaps"] and not b["missing_at_start"] else \
+            f"{b['missing']} missing in {len(b['gaps'])} gaps, first seq {b['first_seq']}"
+        lines.append(f"  {topic}: {b['count']} messages, {gaps}")
+    if emu:
+        lat = emu["lateness_us"]
+        lines.append(f"loop: {emu['samples']} samples at Ts = {emu['Ts']:g} s, lateness p50 {lat['p50']:.0f} us, "
+                     f"p99 {lat['p99']:.0f} us, max {lat['max']:.0f} us, {emu['overruns']} overruns")
+    lines += rep["emulator_log"]
+    _emit(args, rep, lines)
+    return 0
+
+
 # -- entry point --------------------------------------------------------------------------------------
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="noiselab", description="Live emulator and model checker for noisy sensors and actuators.")
@@ -211,6 +348,62 @@ def build_parser() -> argparse.ArgumentParser:
     ss.add_argument("--progress", action="store_true", help="show the progress bar even when not on a terminal")
     ss.add_argument("--json", action="store_true", help="machine-readable summary")
     ss.set_defaults(func=cmd_simulate)
+
+    from .nodes.transport import add_transport_args
+
+    se = sub.add_parser("emulate", help="real-time emulator: publish truth, command, measurement over Zenoh")
+    se.add_argument("model", help="model file (TOML) or built-in scenario name")
+    se.add_argument("--duration", type=_positive_float("--duration"), help="seconds of samples (default: until stopped)")
+    se.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
+    se.add_argument("--wait-subscribers", type=float, default=0.0, metavar="S",
+                    help="wait up to S seconds for a subscriber before the first sample")
+    se.add_argument("--stale", type=_positive_float("--stale"), default=0.5, metavar="S",
+                    help="closed loop: a control input older than S seconds is stale, zero is applied (default 0.5)")
+    se.add_argument("--json", action="store_true", help="machine-readable summary on stdout")
+    add_transport_args(se)
+    se.set_defaults(func=cmd_emulate)
+
+    sr = sub.add_parser("record", help="record Zenoh streams to MCAP")
+    sr.add_argument("--key", default="noiselab/**", help="key expression to record (default noiselab/**)")
+    sr.add_argument("--out", required=True, help="output .mcap")
+    sr.add_argument("--duration", type=_positive_float("--duration"), help="seconds (default: until SIGINT/SIGTERM)")
+    sr.add_argument("--force", action="store_true", help="overwrite an existing output file")
+    sr.add_argument("--json", action="store_true", help="machine-readable summary on stdout")
+    add_transport_args(sr)
+    sr.set_defaults(func=cmd_record)
+
+    sv = sub.add_parser("recover", help="salvage every intact message of an unfinished MCAP file")
+    sv.add_argument("broken", help="the unfinished (or damaged) .mcap")
+    sv.add_argument("-o", "--output", required=True, help="the repaired .mcap to write")
+    sv.add_argument("--force", action="store_true", help="overwrite an existing output file")
+    sv.add_argument("--json", action="store_true", help="machine-readable summary")
+    sv.set_defaults(func=cmd_recover)
+
+    sp2 = sub.add_parser("replay", help="republish a recording over Zenoh, paced by its publish times")
+    sp2.add_argument("recording", help=".mcap to replay")
+    pace = sp2.add_mutually_exclusive_group()
+    pace.add_argument("--speed", type=_positive_float("--speed"), default=1.0, help="playback speed (default 1)")
+    pace.add_argument("--fast", action="store_true", help="as fast as possible")
+    sp2.add_argument("--prefix", help="publish under PREFIX/<topic> instead of <topic>")
+    sp2.add_argument("--wait-subscribers", type=float, default=0.0, metavar="S",
+                     help="wait up to S seconds for subscribers before the first message")
+    sp2.add_argument("--json", action="store_true", help="machine-readable summary on stdout")
+    add_transport_args(sp2)
+    sp2.set_defaults(func=cmd_replay)
+
+    so = sub.add_parser("router", help="a Zenoh router in this process")
+    so.add_argument("--duration", type=_positive_float("--duration"), help="seconds (default: until stopped)")
+    add_transport_args(so)
+    so.set_defaults(func=cmd_router)
+
+    sn = sub.add_parser("run", help="emulator and recorder as separate processes on loopback")
+    sn.add_argument("model", help="model file (TOML) or built-in scenario name")
+    sn.add_argument("--duration", type=_positive_float("--duration"), required=True, help="seconds of samples")
+    sn.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
+    sn.add_argument("--out", default="recordings", help="output directory (default recordings/)")
+    sn.add_argument("--force", action="store_true", help="overwrite an existing output file")
+    sn.add_argument("--json", action="store_true", help="machine-readable summary")
+    sn.set_defaults(func=cmd_run)
     return p
 
 

@@ -122,7 +122,7 @@ def test_schemas_channels_and_statistics_as_registered(tmp_path):
     assert header.library.startswith("noiselab/")
     assert summary is not None and summary.statistics.message_count == 150
     schemas = {s.name: s for s in summary.schemas.values()}
-    assert sorted(schemas) == sorted(wire.SCHEMA_NAMES.values())
+    assert sorted(schemas) == sorted(wire.SCHEMA_NAMES[k] for k in wire.KINDS)
     by_topic = {c.topic: c for c in summary.channels.values()}
     assert sorted(by_topic) == sorted(wire.key("dev", k) for k in wire.KINDS)
     for kind in wire.KINDS:

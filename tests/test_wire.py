@@ -77,8 +77,10 @@ def test_schema_describes_the_payload(kind):
 
 def test_schema_names_are_the_contract():
     assert wire.SCHEMA_NAMES == {"truth": "noiselab.Truth", "command": "noiselab.Command",
-                                 "measurement": "noiselab.Measurement"}
-    assert wire.VECTOR_FIELD == {"truth": "x", "command": "u", "measurement": "y"}
+                                 "measurement": "noiselab.Measurement",
+                                 # extensions for the live pipeline (README "Live pipeline")
+                                 "control": "noiselab.Control", "health": "noiselab.Health"}
+    assert wire.VECTOR_FIELD == {"truth": "x", "command": "u", "measurement": "y", "control": "u"}
 
 
 # ------------------------------------------------------------------------ encoding
@@ -238,3 +240,25 @@ def test_sample_times_match_the_scalar_functions():
 def test_period_ns_rejects_bad_periods(Ts):
     with pytest.raises(WireError, match="Ts="):
         wire.period_ns(Ts)
+
+
+def test_health_payload_round_trip_and_validation():
+    stats = {name: 1.5 for name in wire.HEALTH_FIELDS}
+    stats["k"] = 1000
+    data = wire.encode_health(3, 1.0, stats)
+    obj = wire.decode_health(data)
+    assert obj["seq"] == 3 and obj["k"] == 1000 and obj["lateness_p99_us"] == 1.5
+    assert wire.schema("health")["required"] == ["seq", "t", *wire.HEALTH_FIELDS]
+    assert wire.key("dev", "health") == "noiselab/dev/health"
+    with pytest.raises(wire.WireError):
+        wire.encode_health(0, 0.0, {**stats, "overruns": float("nan")})
+    with pytest.raises(wire.WireError):
+        wire.encode(0, 0.0, [1.0], kind="health")
+    with pytest.raises(wire.WireError):
+        wire.decode_health(b'{"seq":0,"t":0.0}')
+
+
+def test_control_is_a_vector_kind():
+    data = wire.encode(7, 0.07, [0.25], kind="control")
+    assert wire.decode(data, "control") == {"seq": 7, "t": 0.07, "u": [0.25]}
+    assert wire.key("dev", "control") == "noiselab/dev/control"

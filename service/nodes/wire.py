@@ -10,6 +10,7 @@ Keys
 
 Payload (UTF-8 JSON object, compact, key order ``seq``, ``t``, vector)
     ``seq``  int >= 0, per topic, from 0, consecutive (a missing number is a lost message).
+    (``health`` payloads carry ``seq``, ``t`` and the loop statistics of :func:`health_schema`.)
     ``t``    float, seconds: the nominal sample time ``k * Ts`` since the stream started.
     vector   list of float: ``x`` (truth state) for ``truth``, ``u`` (applied command) for
              ``command``, ``y`` (measurement) for ``measurement``; see :data:`VECTOR_FIELD`.
@@ -37,6 +38,10 @@ from numbers import Real
 import numpy as np
 
 __all__ = [
+    "ALL_KINDS",
+    "CONTROL",
+    "HEALTH",
+    "HEALTH_FIELDS",
     "KINDS",
     "SCHEMA_ENCODING",
     "MESSAGE_ENCODING",
@@ -45,6 +50,9 @@ __all__ = [
     "WireError",
     "check_name",
     "decode",
+    "decode_health",
+    "encode_health",
+    "health_schema",
     "decode_batch",
     "encode",
     "encode_batch",
@@ -62,15 +70,26 @@ PREFIX = "noiselab"
 """First segment of every noiselab key."""
 
 KINDS: tuple[str, ...] = ("truth", "command", "measurement")
-"""Topic kinds, in the order a sample is produced."""
+"""Topic kinds of a device's data streams, in the order a sample is produced."""
 
-VECTOR_FIELD: dict[str, str] = {"truth": "x", "command": "u", "measurement": "y"}
-"""Payload field holding the vector, per kind."""
+CONTROL = "control"
+"""Closed loop: a controller publishes the command it wants on ``noiselab/<name>/control``
+(vector ``u``); the emulator applies the latest one (zero-order hold)."""
+
+HEALTH = "health"
+"""The emulator's loop timing at a low rate on ``noiselab/<name>/health`` (not a vector)."""
+
+ALL_KINDS: tuple[str, ...] = KINDS + (CONTROL, HEALTH)
+
+VECTOR_FIELD: dict[str, str] = {"truth": "x", "command": "u", "measurement": "y", "control": "u"}
+"""Payload field holding the vector, per vector kind."""
 
 SCHEMA_NAMES: dict[str, str] = {
     "truth": "noiselab.Truth",
     "command": "noiselab.Command",
     "measurement": "noiselab.Measurement",
+    "control": "noiselab.Control",
+    "health": "noiselab.Health",
 }
 """MCAP schema name per kind."""
 
@@ -85,6 +104,7 @@ _VECTOR_DESCRIPTION = {
     "truth": "true plant state x_k (units of the model's states)",
     "command": "applied command u_k (units of the plant input)",
     "measurement": "measurement y_k (units of the model's outputs)",
+    "control": "command requested by a controller (units of the plant input)",
 }
 
 
@@ -103,9 +123,17 @@ def check_name(name: str) -> str:
 
 
 def _check_kind(kind: str) -> str:
-    if kind not in VECTOR_FIELD:
-        raise WireError(f"topic kind {kind!r} is unknown: expected one of {', '.join(KINDS)}")
+    """A known topic kind (vector kinds and ``health``)."""
+    if kind not in ALL_KINDS:
+        raise WireError(f"topic kind {kind!r} is unknown: expected one of {', '.join(ALL_KINDS)}")
     return kind
+
+
+def _vector_field(kind: str) -> str:
+    """The vector field of a vector kind (``health`` is not one)."""
+    if _check_kind(kind) == HEALTH:
+        raise WireError("health payloads are not vectors: use encode_health/decode_health")
+    return VECTOR_FIELD[kind]
 
 
 def key(name: str, kind: str) -> str:
@@ -126,7 +154,9 @@ def parse_key(key_expr: str) -> tuple[str, str]:
 
 def schema(kind: str) -> dict:
     """JSON Schema (draft 2020-12) of a payload of ``kind``, as a fresh dict."""
-    field = VECTOR_FIELD[_check_kind(kind)]
+    if _check_kind(kind) == HEALTH:
+        return health_schema()
+    field = VECTOR_FIELD[kind]
     return {
         "$schema": "https://json-schema.org/draft/2020-12/schema",
         "title": SCHEMA_NAMES[kind],
@@ -151,6 +181,61 @@ def schema(kind: str) -> dict:
         "required": ["seq", "t", field],
         "additionalProperties": False,
     }
+
+
+HEALTH_FIELDS: dict[str, str] = {
+    "k": "samples stepped so far",
+    "lateness_p50_us": "median wake-up lateness behind the absolute deadline k*Ts, us, over the last report period",
+    "lateness_p99_us": "99th percentile of that lateness, us",
+    "lateness_max_us": "largest lateness, us",
+    "overruns": "samples (since start) whose work finished after the next deadline",
+    "late_control": "1 when the last control input is older than the stale timeout (zero is applied), else 0",
+}
+
+
+def health_schema() -> dict:
+    """JSON Schema of the emulator's health payload (``seq``, ``t`` and :data:`HEALTH_FIELDS`)."""
+    props = {"seq": {"type": "integer", "minimum": 0, "description": "per-topic counter"},
+             "t": {"type": "number", "description": "nominal time k*Ts of the report, s"}}
+    for name, desc in HEALTH_FIELDS.items():
+        props[name] = {"type": "number", "description": desc}
+    return {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": SCHEMA_NAMES[HEALTH],
+        "description": "noiselab emulator loop health; see README 'Live pipeline'",
+        "type": "object",
+        "properties": props,
+        "required": ["seq", "t", *HEALTH_FIELDS],
+        "additionalProperties": False,
+    }
+
+
+def encode_health(seq: int, t: float, stats: dict) -> bytes:
+    """Compact JSON health payload; ``stats`` holds exactly :data:`HEALTH_FIELDS` (finite)."""
+    if set(stats) != set(HEALTH_FIELDS):
+        raise WireError(f"health payload needs exactly {sorted(HEALTH_FIELDS)}, got {sorted(stats)}")
+    obj = {"seq": _check_seq(seq), "t": float(t)}
+    for name in HEALTH_FIELDS:
+        v = stats[name]
+        if isinstance(v, bool) or not isinstance(v, Real) or not math.isfinite(v):
+            raise WireError(f"health field {name}={v!r} is not a finite number")
+        obj[name] = v if isinstance(v, int) else float(v)
+    return json.dumps(obj, separators=(",", ":")).encode()
+
+
+def decode_health(data: bytes | bytearray | memoryview | str, *, topic: str | None = None) -> dict:
+    """Parse and validate a health payload."""
+    where = topic or "health topic"
+    obj = _loads(data, where)
+    if not isinstance(obj, dict) or set(obj) != {"seq", "t", *HEALTH_FIELDS}:
+        raise WireError(f"{where}: health payload must have keys seq, t, {', '.join(HEALTH_FIELDS)}")
+    if type(obj["seq"]) is not int or obj["seq"] < 0:
+        raise WireError(f"{where}: seq={obj['seq']!r} is not an integer >= 0")
+    for name in ("t", *HEALTH_FIELDS):
+        v = obj[name]
+        if type(v) not in (int, float) or not math.isfinite(v):
+            raise WireError(f"{where}: {name}={v!r} is not a finite number")
+    return obj
 
 
 def schema_bytes(kind: str) -> bytes:
@@ -241,7 +326,7 @@ def encode(seq: int, t: float, vec: Sequence[float] | np.ndarray, *, kind: str,
     with every number of ``vec`` converted to float. ``topic`` (the key) only names the culprit
     in errors. Raises WireError for a bad seq, a non-number, or NaN/inf anywhere.
     """
-    field = VECTOR_FIELD[_check_kind(kind)]
+    field = _vector_field(kind)
     seq = _check_seq(seq)
     if isinstance(t, bool) or not isinstance(t, Real):
         raise WireError(f"{_where(kind, topic)}: t={t!r} is not a number (seq {seq})")
@@ -273,7 +358,7 @@ def encode_batch(kind: str, seq0: int, t_array, mat, *,
     the remaining cost is ``float.__repr__`` itself). Raises WireError (naming ``topic``, the
     seq and the element) if anything is NaN/inf or the shapes disagree.
     """
-    field = VECTOR_FIELD[_check_kind(kind)]
+    field = _vector_field(kind)
     seq0 = _check_seq(seq0, "seq0")
     t_arr = np.asarray(t_array)
     m = np.asarray(mat)
@@ -316,7 +401,8 @@ def _loads(data: bytes | bytearray | memoryview | str, where: str):
 
 def _kind_of(obj: dict, kind: str | None, where: str) -> str:
     if kind is not None:
-        return _check_kind(kind)
+        _vector_field(kind)
+        return kind
     found = [k for k in KINDS if VECTOR_FIELD[k] in obj]
     if len(found) != 1:
         raise WireError(f"{where}: payload must hold exactly one of x, u, y; keys are "
@@ -372,7 +458,7 @@ def decode_batch(payloads: Sequence[bytes], kind: str, *, topic: str | None = No
     path parses the whole batch with one ``json.loads`` and checks it with numpy; when anything
     looks off it falls back to :func:`decode` per message to name the first culprit.
     """
-    field = VECTOR_FIELD[_check_kind(kind)]
+    field = _vector_field(kind)
     where = topic if topic is not None else f"{kind} topic"
     n = len(payloads)
     if n == 0:

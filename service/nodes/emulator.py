@@ -1,0 +1,168 @@
+"""The emulator node: steps a model in real time at Ts and publishes truth, command and
+measurement over Zenoh (DESIGN.md wire contract), plus its loop health at 1 Hz.
+
+Timing: absolute deadlines d_k = t_0 + k Ts_ns on the monotonic clock (integer ns), so errors do
+not accumulate; the loop sleeps until ``spin`` before the deadline and spins the rest. It never
+skips a sample: when it falls behind it catches up and counts an *overrun* (work for sample k
+finished after d_{k+1}). Lateness is the wake-up time minus the deadline.
+
+Data streams are published with congestion control BLOCK (a slow subscriber slows the loop,
+which the health shows, instead of losing recorded data) and ``express`` (no batching delay).
+
+Closed loop (``[command] kind = "external"``): the emulator subscribes to
+``noiselab/<name>/control`` and applies the latest command it has received (zero-order hold).
+Until the first one arrives, and whenever the last is older than ``stale_s``, it applies zero and
+says so (stderr, and ``late_control`` in the health). The applied command is published on the
+``command`` topic, so `noiselab simulate` with that command and the same seed reproduces the
+measurement exactly: the live path is the step API's path.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import zenoh
+
+from . import wire
+
+SPIN_NS = 300_000          # spin the last 0.3 ms before a deadline (sleep overshoots ~0.1 ms)
+
+
+@dataclass
+class EmulatorSummary:
+    name: str
+    samples: int
+    Ts: float
+    seed: int
+    lateness_us: dict
+    overruns: int
+    wall_s: float
+    stale_control_events: int = 0
+    keys: dict = field(default_factory=dict)
+
+    def as_dict(self) -> dict:
+        return {"node": "emulate", "name": self.name, "samples": self.samples, "Ts": self.Ts, "seed": self.seed,
+                "lateness_us": self.lateness_us, "overruns": self.overruns, "wall_s": self.wall_s,
+                "stale_control_events": self.stale_control_events, "keys": self.keys}
+
+
+class _Control:
+    """Latest control input (zero-order hold), written by the Zenoh thread, read by the loop."""
+
+    def __init__(self, m: int):
+        self.lock = threading.Lock()
+        self.u = np.zeros(m)
+        self.rx_ns = None
+        self.count = 0
+        self.bad = 0
+
+    def on_sample(self, sample) -> None:
+        try:
+            obj = wire.decode(sample.payload.to_bytes(), "control")
+            u = np.asarray(obj["u"], float)
+            if u.shape != self.u.shape:
+                raise wire.WireError(f"control vector has {u.size} elements, the model {self.u.size}")
+        except wire.WireError:
+            self.bad += 1
+            return
+        with self.lock:
+            self.u = u
+            self.rx_ns = time.monotonic_ns()
+            self.count += 1
+
+
+def _percentiles(values_ns: list[int]) -> tuple[float, float, float]:
+    if not values_ns:
+        return 0.0, 0.0, 0.0
+    a = np.asarray(values_ns, dtype=np.float64) / 1e3
+    return float(np.percentile(a, 50)), float(np.percentile(a, 99)), float(a.max())
+
+
+def run_emulator(model, session: "zenoh.Session", *, duration: float | None, seed: int = 0,
+                 stop: threading.Event | None = None, wait_subscribers: float = 0.0,
+                 stale_s: float = 0.5, log=sys.stderr) -> EmulatorSummary:
+    """Run the real-time loop until ``duration`` seconds of samples are out or ``stop`` is set.
+
+    ``wait_subscribers`` > 0: wait up to that many seconds for a subscriber of the measurement
+    before the first sample (so a recorder started alongside gets sample 0)."""
+    stop = stop or threading.Event()
+    name, Ts = model.name, model.Ts
+    Ts_ns = wire.period_ns(Ts)
+    n_total = None if duration is None else max(1, int(round(duration / Ts)))
+    keys = {kind: wire.key(name, kind) for kind in (*wire.KINDS, wire.HEALTH, wire.CONTROL)}
+    opts = dict(congestion_control=zenoh.CongestionControl.BLOCK, express=True)
+    pubs = {kind: session.declare_publisher(keys[kind], **opts) for kind in wire.KINDS}
+    health_pub = session.declare_publisher(keys[wire.HEALTH], congestion_control=zenoh.CongestionControl.DROP)
+    external = model.command.kind == "external"
+    control = _Control(model.m) if external else None
+    sub = session.declare_subscriber(keys[wire.CONTROL], control.on_sample) if external else None
+    if wait_subscribers > 0:
+        t_end = time.monotonic() + wait_subscribers
+        while not all(p.matching_status for p in pubs.values()) and time.monotonic() < t_end and not stop.is_set():
+            time.sleep(0.002)
+    stepper = model.stepper(seed=seed)
+    lat_all: list[int] = []
+    lat_period: list[int] = []
+    overruns = 0
+    stale_events = 0
+    stale = False
+    health_every = max(1, int(round(1.0 / Ts)))
+    health_seq = 0
+    t0 = time.monotonic_ns() + 2_000_000          # first deadline 2 ms from now
+    start_ns = t0
+    k = 0
+    mono = time.monotonic_ns
+    try:
+        while not stop.is_set() and (n_total is None or k < n_total):
+            deadline = t0 + k * Ts_ns
+            now = mono()
+            if deadline - now > SPIN_NS:
+                time.sleep((deadline - now - SPIN_NS) / 1e9)
+            while mono() < deadline:
+                pass
+            late = mono() - deadline
+            lat_all.append(late)
+            lat_period.append(late)
+            u = None
+            if external:
+                with control.lock:
+                    rx, u_last = control.rx_ns, control.u
+                now_ctl = mono()
+                is_stale = (rx is None and now_ctl - start_ns > stale_s * 1e9) or \
+                    (rx is not None and now_ctl - rx > stale_s * 1e9)
+                if is_stale and not stale:
+                    stale_events += 1
+                    age = "no control received yet" if rx is None else f"last control {(now_ctl - rx) / 1e9:.3f} s old"
+                    print(f"noiselab emulate: {name}: control input stale ({age}, timeout {stale_s:g} s): "
+                          f"applying zero from sample {k}", file=log, flush=True)
+                elif stale and not is_stale:
+                    print(f"noiselab emulate: {name}: control input back at sample {k}", file=log, flush=True)
+                stale = is_stale
+                u = np.zeros(model.m) if (is_stale or rx is None) else u_last
+            t, x, u_applied, y = stepper.step(u)
+            tk = wire.sample_time(k, Ts)
+            pubs["truth"].put(wire.encode(k, tk, x, kind="truth"))
+            pubs["command"].put(wire.encode(k, tk, u_applied, kind="command"))
+            pubs["measurement"].put(wire.encode(k, tk, y, kind="measurement"))
+            if mono() > deadline + Ts_ns:
+                overruns += 1
+            k += 1
+            if k % health_every == 0:
+                p50, p99, mx = _percentiles(lat_period)
+                lat_period = []
+                stats = {"k": k, "lateness_p50_us": p50, "lateness_p99_us": p99, "lateness_max_us": mx,
+                         "overruns": overruns, "late_control": int(stale)}
+                health_pub.put(wire.encode_health(health_seq, tk, stats))
+                health_seq += 1
+    finally:
+        if sub is not None:
+            sub.undeclare()
+    p50, p99, mx = _percentiles(lat_all)
+    return EmulatorSummary(name=name, samples=k, Ts=Ts, seed=seed,
+                           lateness_us={"p50": p50, "p99": p99, "max": mx}, overruns=overruns,
+                           wall_s=(mono() - start_ns) / 1e9, stale_control_events=stale_events,
+                           keys={k_: v for k_, v in keys.items()})

@@ -1,0 +1,83 @@
+"""The replay node: republishes a recording's messages under their keys (topic without a leading
+'/', or ``prefix/topic``), paced by publish_time (``speed`` x real time) or as fast as possible,
+with congestion control BLOCK, so everything downstream works on recorded data as on live data.
+Messages go out in file order (the order they were recorded)."""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from dataclasses import dataclass
+
+import zenoh
+
+from . import mcapio
+
+
+@dataclass
+class ReplaySummary:
+    path: str
+    messages: int
+    topics: dict
+    wall_s: float
+    complete: bool
+
+    def as_dict(self) -> dict:
+        return {"node": "replay", "path": self.path, "messages": self.messages, "topics": self.topics,
+                "wall_s": self.wall_s, "complete": self.complete}
+
+
+def replay_topics(path: str) -> list[str]:
+    """The topics of a recording (raises NotMcapError for a file that is not MCAP)."""
+    rec = mcapio.read_recording(path)
+    return sorted({td.topic for dev in rec.devices.values() for td in dev.streams.values()})
+
+
+def run_replay(session: "zenoh.Session", path: str, *, speed: float | None = 1.0, prefix: str | None = None,
+               stop: threading.Event | None = None, wait_subscribers: float = 0.0,
+               log=sys.stderr) -> ReplaySummary:
+    """Publish every message of ``path``; ``speed`` None = as fast as possible."""
+    stop = stop or threading.Event()
+    report = mcapio.ScanReport()
+    pubs: dict[str, "zenoh.Publisher"] = {}
+    counts: dict[str, int] = {}
+    opts = dict(congestion_control=zenoh.CongestionControl.BLOCK, express=True)
+
+    def publisher(topic: str):
+        pub = pubs.get(topic)
+        if pub is None:
+            key = topic.lstrip("/")
+            if prefix:
+                key = f"{prefix.rstrip('/')}/{key}"
+            pub = pubs[topic] = session.declare_publisher(key, **opts)
+        return pub
+
+    # declare every publisher first, so a subscriber can match them all before the first put
+    for topic in replay_topics(path):
+        publisher(topic)
+    if wait_subscribers > 0:
+        t_end = time.monotonic() + wait_subscribers
+        while not all(p.matching_status for p in pubs.values()) and time.monotonic() < t_end and not stop.is_set():
+            time.sleep(0.002)
+    t_wall0 = None
+    pub0 = None
+    n = 0
+    start = time.monotonic()
+    for schema, channel, message in mcapio.iter_messages(path, report=report):
+        if stop.is_set():
+            break
+        if speed is not None:
+            if t_wall0 is None:
+                t_wall0, pub0 = time.monotonic_ns(), message.publish_time
+            due = t_wall0 + int((message.publish_time - pub0) / speed)
+            delay = due - time.monotonic_ns()
+            if delay > 0:
+                time.sleep(delay / 1e9)
+        publisher(channel.topic).put(message.data)
+        counts[channel.topic] = counts.get(channel.topic, 0) + 1
+        n += 1
+    if not report.complete:
+        print(f"noiselab replay: {path}: {report.note}", file=log, flush=True)
+    return ReplaySummary(path=str(path), messages=n, topics=counts, wall_s=time.monotonic() - start,
+                         complete=report.complete)

@@ -1,0 +1,126 @@
+"""Zenoh sessions for every node, configured in one place (STYLE 11: shared transport flags).
+
+Defaults are safe (DESIGN.md): endpoints on 127.0.0.1 only, multicast scouting off. A data
+*source* (emulator, replay) listens on :data:`DEFAULT_ENDPOINT`; a *sink* (recorder, analyzer,
+controller) connects to it; a router listens. Reaching other hosts takes an explicit
+``--connect``/``--listen`` or a Zenoh config file (``--config``; command-line endpoints still
+override its endpoints). An endpoint that cannot be bound or reached at start is a one-line
+:class:`TransportError` (exit 2): connect attempts time out after ``--connect-timeout`` seconds
+instead of retrying forever (Zenoh's default for peers); once connected, Zenoh reconnects by
+itself if the other side restarts.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+from pathlib import Path
+
+import zenoh
+
+DEFAULT_PORT = 7447
+DEFAULT_ENDPOINT = f"tcp/127.0.0.1:{DEFAULT_PORT}"
+ROLES = ("source", "sink", "router")
+
+
+class TransportError(ValueError):
+    """A Zenoh endpoint, key expression or config that does not work (one-line message)."""
+
+
+def add_transport_args(parser: argparse.ArgumentParser) -> None:
+    g = parser.add_argument_group("transport (Zenoh)")
+    g.add_argument("--connect", action="append", metavar="ENDPOINT",
+                   help=f"endpoint to connect to, e.g. {DEFAULT_ENDPOINT} (repeatable)")
+    g.add_argument("--listen", action="append", metavar="ENDPOINT",
+                   help="endpoint to listen on, e.g. tcp/127.0.0.1:7448 (repeatable)")
+    g.add_argument("--config", metavar="FILE", help="Zenoh JSON5 configuration file")
+    g.add_argument("--mode", choices=("peer", "client"), default=None,
+                   help="Zenoh session mode (default peer; a router is always 'router')")
+    g.add_argument("--connect-timeout", type=float, default=5.0, metavar="S",
+                   help="seconds to reach --connect endpoints before giving up (default 5)")
+
+
+def _one_line(exc: Exception) -> str:
+    text = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+    m = re.search(r'msg: "([^"]*)', text)               # Json5Err(Message { msg: "..." })
+    if m:
+        text = m.group(1)
+    text = re.sub(r"\s+at /\S+$", "", text)          # drop the Rust source location
+    text = re.sub(r"\s+at /root/\S+.*$", "", text)
+    return text.rstrip(". !")
+
+
+def _insert(conf: "zenoh.Config", key: str, value) -> None:
+    try:
+        conf.insert_json5(key, json.dumps(value))
+    except zenoh.ZError as exc:
+        raise TransportError(f"zenoh config {key} = {value!r}: {_one_line(exc)}") from None
+
+
+def build_config(args: argparse.Namespace, role: str) -> "zenoh.Config":
+    """The session configuration of a node of ``role`` from the shared transport flags."""
+    if role not in ROLES:
+        raise ValueError(role)
+    if getattr(args, "config", None):
+        path = Path(args.config)
+        if not path.is_file():
+            raise TransportError(f"--config {args.config}: no such file")
+        try:
+            conf = zenoh.Config.from_file(str(path))
+        except zenoh.ZError as exc:
+            raise TransportError(f"--config {args.config}: {_one_line(exc)}") from None
+        from_file = True
+    else:
+        conf = zenoh.Config()
+        from_file = False
+    mode = "router" if role == "router" else (getattr(args, "mode", None) or "peer")
+    _insert(conf, "mode", mode)
+    if not from_file:
+        _insert(conf, "scouting/multicast/enabled", False)
+    connect = list(getattr(args, "connect", None) or [])
+    listen = list(getattr(args, "listen", None) or [])
+    if not from_file and not connect and not listen:
+        if role == "sink":
+            connect = [DEFAULT_ENDPOINT]
+        else:
+            listen = [DEFAULT_ENDPOINT]
+    if listen or not from_file:
+        _insert(conf, "listen/endpoints", listen)
+    if connect or not from_file:
+        _insert(conf, "connect/endpoints", connect)
+    if connect:
+        timeout_ms = int(max(0.0, float(getattr(args, "connect_timeout", 5.0))) * 1000)
+        _insert(conf, "connect/timeout_ms", timeout_ms)
+        _insert(conf, "connect/exit_on_failure", True)
+    if listen:
+        _insert(conf, "listen/exit_on_failure", True)
+    return conf
+
+
+def open_session(args: argparse.Namespace, role: str) -> "zenoh.Session":
+    """Open the node's Zenoh session (use it as a context manager: an unclosed session hangs the
+    process at exit). A bind or connect failure becomes a one-line TransportError."""
+    conf = build_config(args, role)
+    try:
+        return zenoh.open(conf)
+    except zenoh.ZError as exc:
+        raise TransportError(_one_line(exc)) from None
+
+
+def check_key_expr(text: str) -> str:
+    """A valid Zenoh key expression, or a one-line TransportError."""
+    try:
+        zenoh.KeyExpr(text)
+    except zenoh.ZError as exc:
+        raise TransportError(f"invalid key expression {text!r}: {_one_line(exc)}") from None
+    return text
+
+
+def endpoints_of(args: argparse.Namespace, role: str) -> dict:
+    """Listen/connect endpoints as they will be used (for messages and summaries)."""
+    connect = list(getattr(args, "connect", None) or [])
+    listen = list(getattr(args, "listen", None) or [])
+    if not getattr(args, "config", None) and not connect and not listen:
+        (connect if role == "sink" else listen).append(DEFAULT_ENDPOINT)
+    return {"listen": listen, "connect": connect}
