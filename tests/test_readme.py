@@ -61,7 +61,8 @@ def test_main_command_steps(scratch):
     for cmd in main_command_steps():
         res = run_noiselab(cmd, scratch)
         assert res.returncode == 0, (cmd, res.stderr)
-    assert (scratch / "recordings" / "seed.mcap").stat().st_size > 0
+    made = list((scratch / "recordings").glob("seed-*.mcap"))
+    assert len(made) == 1 and made[0].stat().st_size > 0
 
 
 def test_python_example(scratch):
@@ -69,3 +70,41 @@ def test_python_example(scratch):
     res = subprocess.run([sys.executable, "-c", code], cwd=scratch, env=dict(os.environ, PYTHONPATH=str(ROOT)),
                          capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr
+
+
+def _port_free(port: int) -> bool:
+    import socket
+    with socket.socket() as s:
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
+
+
+def test_three_terminal_example(scratch):
+    """The by-hand example, as written, on the default endpoint: the recorder is started first and
+    waits for the emulator; Ctrl-C (SIGINT) finishes its file; the replay republishes it."""
+    import signal
+    if not _port_free(7447):
+        pytest.skip("the example uses the default endpoint tcp/127.0.0.1:7447, which is in use here")
+    lines = [ln.split("#")[0].strip() for ln in blocks("sh")[2].strip().splitlines()]
+    assert [ln.split()[1] for ln in lines] == ["record", "emulate", "replay"]
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    (scratch / "recordings").mkdir()
+    rec = subprocess.Popen([sys.executable, "-m", "service.cli", *lines[0].split()[1:]], cwd=scratch, env=env,
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        res = run_noiselab(lines[1], scratch)
+        assert res.returncode == 0, res.stderr
+        rec.send_signal(signal.SIGINT)
+        out, err = rec.communicate(timeout=60)
+        assert rec.returncode == 0, err
+        assert "500 messages" in out and "no gaps" in out, out
+        res = run_noiselab(lines[2], scratch)
+        assert res.returncode == 0, res.stderr
+        assert "replayed" in res.stdout
+    finally:
+        if rec.poll() is None:
+            rec.kill()
+            rec.wait()

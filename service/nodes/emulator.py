@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import zenoh
 
-from . import wire
+from . import transport, wire
 
 SPIN_NS = 300_000          # spin the last 0.3 ms before a deadline (sleep overshoots ~0.1 ms)
 
@@ -100,10 +100,10 @@ def run_emulator(model, session: "zenoh.Session", *, duration: float | None, see
     external = model.command.kind == "external"
     control = _Control(model.m) if external else None
     sub = session.declare_subscriber(keys[wire.CONTROL], control.on_sample) if external else None
-    if wait_subscribers > 0:
-        t_end = time.monotonic() + wait_subscribers
-        while not all(p.matching_status for p in pubs.values()) and time.monotonic() < t_end and not stop.is_set():
-            time.sleep(0.002)
+    if wait_subscribers > 0 and not transport.wait_matching(pubs.values(), wait_subscribers, stop):
+        if not stop.is_set():
+            print(f"noiselab emulate: no subscriber matched within "
+                  f"{wait_subscribers:g} s: starting anyway", file=log, flush=True)
     stepper = model.stepper(seed=seed)
     lat_all: list[int] = []
     lat_period: list[int] = []

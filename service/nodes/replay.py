@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import zenoh
 
-from . import mcapio
+from . import mcapio, transport
 
 
 @dataclass
@@ -56,10 +56,10 @@ def run_replay(session: "zenoh.Session", path: str, *, speed: float | None = 1.0
     # declare every publisher first, so a subscriber can match them all before the first put
     for topic in replay_topics(path):
         publisher(topic)
-    if wait_subscribers > 0:
-        t_end = time.monotonic() + wait_subscribers
-        while not all(p.matching_status for p in pubs.values()) and time.monotonic() < t_end and not stop.is_set():
-            time.sleep(0.002)
+    if wait_subscribers > 0 and not transport.wait_matching(pubs.values(), wait_subscribers, stop):
+        if not stop.is_set():
+            print(f"noiselab replay: no subscriber matched within "
+                  f"{wait_subscribers:g} s: starting anyway", file=log, flush=True)
     t_wall0 = None
     pub0 = None
     n = 0

@@ -4,10 +4,11 @@ Defaults are safe (DESIGN.md): endpoints on 127.0.0.1 only, multicast scouting o
 *source* (emulator, replay) listens on :data:`DEFAULT_ENDPOINT`; a *sink* (recorder, analyzer,
 controller) connects to it; a router listens. Reaching other hosts takes an explicit
 ``--connect``/``--listen`` or a Zenoh config file (``--config``; command-line endpoints still
-override its endpoints). An endpoint that cannot be bound or reached at start is a one-line
-:class:`TransportError` (exit 2): connect attempts time out after ``--connect-timeout`` seconds
-instead of retrying forever (Zenoh's default for peers); once connected, Zenoh reconnects by
-itself if the other side restarts.
+override its endpoints). An endpoint that cannot be bound, or an explicit ``--connect`` that
+cannot be reached at start, is a one-line :class:`TransportError` (exit 2): explicit connects
+give up after ``--connect-timeout`` seconds instead of retrying forever (Zenoh's default for
+peers). A sink on the *default* endpoint waits for its source instead (start the recorder first,
+then the emulator). Once connected, Zenoh reconnects by itself if the other side restarts.
 """
 
 from __future__ import annotations
@@ -80,16 +81,19 @@ def build_config(args: argparse.Namespace, role: str) -> "zenoh.Config":
         _insert(conf, "scouting/multicast/enabled", False)
     connect = list(getattr(args, "connect", None) or [])
     listen = list(getattr(args, "listen", None) or [])
+    explicit_connect = bool(connect)
     if not from_file and not connect and not listen:
         if role == "sink":
-            connect = [DEFAULT_ENDPOINT]
+            connect = [DEFAULT_ENDPOINT]      # default: wait for the source to appear
+            _insert(conf, "connect/retry", {"period_init_ms": 100, "period_max_ms": 1000,
+                                            "period_increase_factor": 2})
         else:
             listen = [DEFAULT_ENDPOINT]
     if listen or not from_file:
         _insert(conf, "listen/endpoints", listen)
     if connect or not from_file:
         _insert(conf, "connect/endpoints", connect)
-    if connect:
+    if explicit_connect:
         timeout_ms = int(max(0.0, float(getattr(args, "connect_timeout", 5.0))) * 1000)
         _insert(conf, "connect/timeout_ms", timeout_ms)
         _insert(conf, "connect/exit_on_failure", True)
@@ -106,6 +110,19 @@ def open_session(args: argparse.Namespace, role: str) -> "zenoh.Session":
         return zenoh.open(conf)
     except zenoh.ZError as exc:
         raise TransportError(_one_line(exc)) from None
+
+
+def wait_matching(publishers, timeout: float, stop=None) -> bool:
+    """Wait up to ``timeout`` seconds until every publisher has a matching subscriber (or ``stop``
+    is set); True when all matched. (``Publisher.matching_status`` is an object: use .matching.)"""
+    import time
+
+    t_end = time.monotonic() + timeout
+    while not all(p.matching_status.matching for p in publishers):
+        if time.monotonic() >= t_end or (stop is not None and stop.is_set()):
+            return False
+        time.sleep(0.002)
+    return True
 
 
 def check_key_expr(text: str) -> str:
