@@ -26,9 +26,12 @@ class UsageError(ValueError):
 
 def _bad_input_types():
     from .nodes.mcapio import McapIoError, RecordingExistsError
+    from .diagnose.compare import AnalysisError
     from .nodes.transport import TransportError
     from .nodes.wire import WireError
+    from .stats.errors import StatsError
     return (ModelError, UsageError, WireError, McapIoError, RecordingExistsError, TransportError,
+            AnalysisError, StatsError,
             FileNotFoundError, IsADirectoryError, PermissionError)
 
 
@@ -328,6 +331,102 @@ def cmd_run(args) -> int:
     return 0
 
 
+# -- analysis -----------------------------------------------------------------------------------------
+def analysis_report(cmp, series, extra: dict | None = None) -> dict:
+    """The scriptable analysis result (``noiselab analyze --json``)."""
+    views = {}
+    for v in cmp.views:
+        views.setdefault(v.name, []).append({"output": v.output, "error": v.error, "points": int(v.x.size),
+                                             "flagged": int(np.sum(v.flagged)), "x_label": v.x_label})
+    rep = {"recording": series.source, "model": cmp.model_name, "model_source": cmp.model_source,
+           "samples": int(cmp.t.size), "Ts": cmp.Ts, "error": cmp.error, "error_per_view": cmp.error_per_view,
+           "views": views,
+           "regions": [{"view": r.view, "output": r.output, "from": r.x_lo, "to": r.x_hi, "points": r.points,
+                        "max_abs_z": r.max_abs_z, "direction": r.direction} for r in cmp.regions],
+           "notes": series.notes + cmp.notes}
+    rep.update(extra or {})
+    return rep
+
+
+UNITS = {"variance": "s", "acf": "s", "psd": "Hz", "allan": "s"}
+
+
+def report_lines(cmp, series) -> list[str]:
+    lines = [f"{series.source}: {cmp.t.size} samples against model {cmp.model_name} ({cmp.model_source})",
+             f"model error {cmp.error:.3g} (about 1 when the model explains the data; per view: "
+             + ", ".join(f"{k} {v:.3g}" for k, v in cmp.error_per_view.items()) + ")"]
+    if cmp.regions:
+        lines.append("where the data leave the model:")
+        for r in sorted(cmp.regions, key=lambda r: -r.max_abs_z)[:12]:
+            lines.append("  " + r.describe(UNITS[r.view]))
+        if len(cmp.regions) > 12:
+            lines.append(f"  (+{len(cmp.regions) - 12} more regions)")
+    else:
+        lines.append("no region leaves the model's confidence band")
+    for note in series.notes + cmp.notes:
+        lines.append(f"note: {note}")
+    return lines
+
+
+def load_series(args, model):
+    from .diagnose import load as dload
+
+    path = args.recording
+    if not Path(path).is_file():
+        raise UsageError(f"{path}: no such file")
+    if args.measurement:
+        return dload.load_foreign(path, args.measurement, args.time, model.Ts)
+    return dload.load_noiselab(path, args.device)
+
+
+def _check_out(path: str | None, force: bool):
+    if path and Path(path).exists() and not force:
+        raise UsageError(f"{path}: exists (use --force to overwrite)")
+
+
+def cmd_analyze(args) -> int:
+    from .diagnose.compare import compare
+
+    if args.live:
+        from .nodes.analyzer import cmd_analyze_live
+        return cmd_analyze_live(args)
+    if not args.recording:
+        raise UsageError("give a RECORDING.mcap (or --live)")
+    model = load_model(args.model)
+    png = args.png or (str(Path(args.rrd).with_suffix(".png")) if args.rrd else None)
+    _check_out(args.rrd, args.force)
+    _check_out(png, args.force)
+    series = load_series(args, model)
+    burn = None if (args.burn == "auto" and series.starts_at_rest) else \
+        (0 if args.burn == "auto" else int(round(float(args.burn) / model.Ts)))
+    cmp = compare(model, series.t, series.y, series.u, truth=series.truth, burn=burn)
+    extra = {}
+    if args.rrd:
+        from viewers.rerun_log import log_comparisons
+        log_comparisons([cmp], args.rrd)
+        extra["rrd"] = args.rrd
+    if png:
+        from viewers.summary_png import write_summary_png
+        write_summary_png([cmp], png)
+        extra["png"] = png
+    rep = analysis_report(cmp, series, extra)
+    lines = report_lines(cmp, series) + [f"wrote {extra[k]}" for k in ("rrd", "png") if k in extra]
+    _emit(args, rep, lines)
+    return 0
+
+
+def _burn(text):
+    if text == "auto":
+        return text
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--burn must be 'auto' or seconds >= 0, got {text!r}")
+    if not math.isfinite(v) or v < 0:
+        raise argparse.ArgumentTypeError(f"--burn must be 'auto' or seconds >= 0, got {text!r}")
+    return text
+
+
 # -- entry point --------------------------------------------------------------------------------------
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="noiselab", description="Live emulator and model checker for noisy sensors and actuators.")
@@ -395,6 +494,23 @@ def build_parser() -> argparse.ArgumentParser:
     so.add_argument("--duration", type=_positive_float("--duration"), help="seconds (default: until stopped)")
     add_transport_args(so)
     so.set_defaults(func=cmd_router)
+
+    sa = sub.add_parser("analyze", help="compare a recording (or a live stream) with a model")
+    sa.add_argument("recording", nargs="?", help="the .mcap to analyse (omit with --live)")
+    sa.add_argument("--model", required=True, help="model file (TOML) or built-in scenario name")
+    sa.add_argument("--rrd", help="write the Rerun recording here (and a PNG summary next to it)")
+    sa.add_argument("--png", help="write the PNG summary here (default: next to --rrd)")
+    sa.add_argument("--device", help="device name in a noiselab recording with several devices")
+    sa.add_argument("--measurement", metavar="TOPIC:FIELD",
+                    help="foreign recordings: topic and JSON field(s) of the measurement, e.g. /imu:linear_acceleration.x")
+    sa.add_argument("--time", metavar="FIELD", help="foreign recordings: time field in s (or ns if it ends in _ns); default publish_time")
+    sa.add_argument("--burn", type=_burn, default="auto",
+                    help="seconds to skip at the start ('auto': the model's transient when the stream starts at rest)")
+    sa.add_argument("--force", action="store_true", help="overwrite existing output files")
+    sa.add_argument("--json", action="store_true", help="machine-readable report")
+    sa.add_argument("--live", action="store_true", help="analyse a live Zenoh stream instead of a file")
+    add_transport_args(sa)
+    sa.set_defaults(func=cmd_analyze)
 
     sn = sub.add_parser("run", help="emulator and recorder as separate processes on loopback")
     sn.add_argument("model", help="model file (TOML) or built-in scenario name")

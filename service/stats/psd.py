@@ -46,7 +46,7 @@ from scipy import stats as _sps
 
 from .errors import StatsError, as_series, choice, positive_float, positive_int, probability
 
-__all__ = ["PsdEstimate", "welch", "psd_log_bins", "psd_band"]
+__all__ = ["PsdEstimate", "welch", "psd_log_bins", "psd_band", "log_bin_groups"]
 
 _DETRENDS = ("constant", "linear", "none")
 
@@ -191,12 +191,18 @@ def psd_log_bins(est: PsdEstimate, bins_per_decade: int) -> PsdEstimate:
     The DC bin is dropped.
     """
     _require_raw(est, "est")
+    return _average_groups(est, log_bin_groups(est.f, bins_per_decade))
+
+
+def log_bin_groups(f, bins_per_decade: int) -> list[np.ndarray]:
+    """Indices of the raw bins (f > 0) in each log band of :func:`psd_log_bins`, so a model's
+    expected values can be averaged over exactly the same bins."""
     bpd = positive_int(bins_per_decade, "bins_per_decade")
-    idx = np.flatnonzero(est.f > 0)
-    key = np.ceil(bpd * np.log10(est.f[idx]) - 1e-9).astype(np.int64)
+    f = np.asarray(f, dtype=np.float64)
+    idx = np.flatnonzero(f > 0)
+    key = np.ceil(bpd * np.log10(f[idx]) - 1e-9).astype(np.int64)
     edges = np.flatnonzero(np.diff(key)) + 1
-    groups = np.split(idx, edges)
-    return _average_groups(est, groups)
+    return np.split(idx, edges)
 
 
 def psd_band(est: PsdEstimate, f_lo: float, f_hi: float) -> tuple[float, float]:

@@ -1,0 +1,361 @@
+"""Compare a recording with a model: residual, four views, the model error, where it fails.
+
+Residual: r_k = y_k - E[y_k], the measurement minus the model's predicted mean response to the
+*recorded* command (seed section 3), so a recording that holds the command needs no truth.
+
+Every prediction is the expectation of the very estimator applied to the data, computed exactly
+from the model's per-effect variogram gamma(d) = E[(r_{k+d} - r_k)^2] / 2. For any process with
+stationary increments (the linear part, tones, white noises and the bias walk alike) and any
+estimator that is a quadratic form x^T A x with A annihilating constants (every estimator below
+removes a mean), E[x^T A x] = -sum_{i,j} A_ij gamma(|i - j|). So the bias walk and the per-segment
+mean removal are inside the predictions instead of being excluded:
+
+* ``variance``: sample variance (mean removed) of consecutive windows of W samples (time windows);
+  E = (1/W^2) sum_{i,j} gamma(|i-j|).
+* ``acf``: autocovariance averaged over segments of M samples, each with its mean removed (lags);
+  E[r(d)] = (1/M) [(M - d)(-gamma(d) - G) + sum_{n<M-d} (g(n) + g(n+d))], g(a) = (1/M) sum_m
+  gamma(|a - m|), G = mean(g).
+* ``psd``: Welch (Hann, 50 % overlap, segment mean removed, one-sided, every bin doubled as
+  :func:`service.stats.welch`), averaged in log bands (frequency bands); per bin
+  E|X_j|^2 = -sum_{n,m} h_n conj(h_m) gamma(|n-m|), h_n = w_n e^{-i w_j n} - W_j / L.
+* ``allan``: overlapping Allan deviation at octave taus (taus), the exact discrete Allan variance
+  of the model (:func:`service.model.predict.allan_from_variogram`), its bounds from the
+  estimator's equivalent degrees of freedom (Greenhall).
+
+Standardized deviations z (about N(0, 1) when the model is right):
+  psd and allan: z = (ln(emp / pred) - E[ln(chi2_nu / nu)]) / sd[ln(chi2_nu / nu)], with
+  E = digamma(nu/2) - ln(nu/2) and Var = trigamma(nu/2), nu the equivalent dof;
+  variance: the same with nu = 2 E^2 / Var (Gaussian approximation of the windowed variance);
+  acf: z = (emp - pred) / se, se from Bartlett's formula with the predicted autocovariance,
+  divided by the number of segments.
+The error of a view is mean(z^2); **the model error** is the mean of the views' errors (outputs
+averaged). Both are about 1 when the model explains the data within the sampling noise of the
+estimators and grow with the mismatch (a factor f in power in a band adds about (ln f)^2 nu / 2).
+Points with |z| beyond the Bonferroni threshold of their view (family-wise 5 %) are flagged;
+contiguous flagged runs are the :class:`Region` s where the data leave the model.
+
+The analysis starts after the model's transient from rest when the recording starts at rest
+(``burn``): noiselab's emulator starts every state at zero, and the predictions are stationary.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+from scipy import stats as sps
+from scipy.signal import get_window
+from scipy.special import digamma, polygamma
+
+from ..model import ModelError
+from ..model.predict import allan_from_variogram
+from ..stats import oadev, welch
+from ..stats.psd import log_bin_groups
+from .results import Comparison, Region, View
+
+FAMILY_ALPHA = 0.05
+
+
+class AnalysisError(ValueError):
+    """Data that cannot be analysed against the model (one-line message)."""
+
+
+# -- settings ----------------------------------------------------------------------------------
+def default_settings(n: int) -> dict:
+    """Estimator sizes for n samples: Welch segment L, ACF segment M and max lag, variance window."""
+    L = int(min(4096, 2 ** np.floor(np.log2(max(n // 8, 16)))))
+    M = int(min(4096, 2 ** np.floor(np.log2(max(n // 4, 16)))))
+    return {"nperseg": L, "acf_segment": M, "max_lag": max(4, M // 8), "window": int(max(16, n // 50)),
+            "bins_per_decade": 10}
+
+
+def transient_samples(model) -> int:
+    """Samples until the covariance of a model started at rest is within 1 % of stationary:
+    ln(0.01) / (2 ln rho), rho the spectral radius of the augmented stationary dynamics."""
+    pr = model.predictor()
+    pr.steady_state()
+    F = pr._ls.F
+    if F.size == 0:
+        return 0
+    rho = float(np.max(np.abs(np.linalg.eigvals(F))))
+    if rho <= 0 or rho >= 1:
+        return 0
+    return int(np.ceil(np.log(0.01) / (2.0 * np.log(rho))))
+
+
+# -- exact expectations from the variogram ---------------------------------------------------------------
+def _gamma_parts(model, L: int) -> dict:
+    """{effect id: (L, p) variogram} of the stationary-increment parts; error if not stable."""
+    vg = model.predictor().variogram(L)
+    bad = [eid for eid, v in vg.items() if v is None]
+    if bad:
+        raise AnalysisError(f"model {model.name}: the plant is not stable, so {', '.join(bad)} has no "
+                            "stationary prediction to compare with")
+    return vg
+
+
+def expected_window_stats(gam: np.ndarray, M: int, max_lag: int) -> np.ndarray:
+    """E[segment autocovariance] (biased, 1/M, segment mean removed) at lags 0..max_lag for each
+    column of ``gam`` (variogram, rows d = 0..>=M-1). Returns (max_lag+1, K)."""
+    g_ = gam[:M]
+    S = np.cumsum(g_, axis=0)
+    a = np.arange(M)
+    g = (S[a] + S[M - 1 - a]) / M                    # g(a) = (1/M) sum_m gamma(|a - m|)
+    G = g.mean(axis=0)
+    Pg = np.concatenate([np.zeros((1,) + g.shape[1:]), np.cumsum(g, axis=0)])   # Pg[n] = sum_{i<n} g(i)
+    d = np.arange(max_lag + 1)
+    head = Pg[M - d]                                  # sum_{n=0}^{M-1-d} g(n)
+    tail = Pg[M] - Pg[d]                              # sum_{n=d}^{M-1} g(n)
+    cnt = (M - d)[:, None]
+    return ((cnt * (-g_[d] - G)) + head + tail) / M
+
+
+@lru_cache(maxsize=8)
+def _welch_kernel(L: int, window: str) -> np.ndarray:
+    """Re C_j(d), d = 0..L-1, of h_j(n) = w_n e^{-i w_j n} - W_j/L for bins j = 0..L/2: (J, L)."""
+    w = get_window(window, L)
+    n = np.arange(L)
+    J = L // 2 + 1
+    out = np.empty((J, L))
+    for j0 in range(0, J, 256):
+        j = np.arange(j0, min(J, j0 + 256))
+        ph = np.exp(-2j * np.pi * np.outer(j, n) / L)
+        h = w * ph
+        h -= h.sum(axis=1, keepdims=True) / L
+        Hf = np.fft.fft(h, 2 * L, axis=1)
+        out[j] = np.fft.ifft(np.abs(Hf) ** 2, axis=1).real[:, :L]
+    return out
+
+
+def expected_welch_detrended(gam: np.ndarray, L: int, Ts: float, window: str = "hann") -> np.ndarray:
+    """E[Welch estimate] (segment mean removed, one-sided, every bin doubled) for each column of
+    the variogram ``gam`` (rows d = 0..>=L-1): (L//2+1, K) in units^2/Hz."""
+    K = _welch_kernel(L, window)
+    w = get_window(window, L)
+    EX2 = -2.0 * K[:, 1:] @ gam[1:L]                  # -sum_{d != 0} gamma(|d|) Re C(d)
+    return 2.0 * EX2 * Ts / np.sum(w**2)
+
+
+# -- statistics of log chi-squared ratios -----------------------------------------------------------------
+def _log_chi2_z(emp, pred, nu):
+    nu = np.asarray(nu, float)
+    bias = digamma(nu / 2) - np.log(nu / 2)
+    sd = np.sqrt(polygamma(1, nu / 2))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return (np.log(emp / pred) - bias) / sd
+
+
+def _chi2_band(pred, nu, alpha):
+    nu = np.asarray(nu, float)
+    return pred * sps.chi2.ppf(alpha / 2, nu) / nu, pred * sps.chi2.ppf(1 - alpha / 2, nu) / nu
+
+
+def _finish(view: View, n_points: int) -> View:
+    zc = sps.norm.ppf(1 - FAMILY_ALPHA / (2 * max(n_points, 1)))
+    view.flagged = np.abs(view.z) > zc
+    view.error = float(np.mean(view.z**2)) if view.z.size else float("nan")
+    view.conf = 1 - FAMILY_ALPHA / max(n_points, 1)
+    return view
+
+
+# -- the four views ------------------------------------------------------------------------------------
+def variance_view(r, t, gam_parts, j, W):
+    n_win = r.size // W
+    if n_win < 2:
+        raise AnalysisError(f"record too short for the variance window of {W} samples")
+    seg = r[: n_win * W].reshape(n_win, W)
+    emp = seg.var(axis=1)
+    centres = t[: n_win * W].reshape(n_win, W).mean(axis=1)
+    parts = {eid: expected_window_stats(g[:, j:j + 1], W, W - 1)[:, 0] for eid, g in gam_parts.items()}
+    R = sum(parts.values())                           # expected autocovariance within a window
+    E = R[0]
+    lags = np.arange(1, W)
+    var = (2.0 / W) * (R[0] ** 2 + 2 * np.sum((1 - lags / W) * R[1:] ** 2))
+    nu = np.full(n_win, 2 * E**2 / var)
+    pred = np.full(n_win, E)
+    alpha = FAMILY_ALPHA / n_win
+    lo, hi = _chi2_band(pred, nu, alpha)
+    v = View("variance", j, centres, "time [s]", "variance of y in the window [units^2]", emp, pred, lo, hi,
+             contributions={eid: np.full(n_win, p[0]) for eid, p in parts.items()},
+             z=_log_chi2_z(emp, pred, nu), notes=[f"windows of {W} samples, mean removed"])
+    return _finish(v, n_win)
+
+
+def acf_view(r, Ts, gam_parts, j, M, max_lag):
+    K = r.size // M
+    if K < 1:
+        raise AnalysisError(f"record too short for the autocorrelation segment of {M} samples")
+    seg = r[: K * M].reshape(K, M)
+    seg = seg - seg.mean(axis=1, keepdims=True)
+    F = np.fft.rfft(seg, 2 * M, axis=1)
+    ac = np.fft.irfft(np.abs(F) ** 2, 2 * M, axis=1)[:, : max_lag + 1] / M
+    emp = ac.mean(axis=0)
+    parts = {eid: expected_window_stats(g[:, j:j + 1], M, M - 1)[:, 0] for eid, g in gam_parts.items()}
+    R = sum(parts.values())
+    # Bartlett: Var(r(d)) ~ (1/M) sum_k [R(k)^2 + R(k+d) R(k-d)], |k| < M, per segment, / K
+    Rs = np.concatenate([R[:0:-1], R])                # R(-(M-1)) .. R(M-1)
+    c = M - 1
+    var = np.empty(max_lag + 1)
+    for d in range(max_lag + 1):
+        k = np.arange(-(M - 1), M)
+        plus = k + d
+        minus = k - d
+        ok = (np.abs(plus) < M) & (np.abs(minus) < M)
+        var[d] = (np.sum(R[np.abs(k)] ** 2) + np.sum(Rs[c + plus[ok]] * Rs[c + minus[ok]])) / M / K
+    se = np.sqrt(var)
+    pred = R[: max_lag + 1]
+    z = (emp - pred) / se
+    zc = sps.norm.ppf(1 - FAMILY_ALPHA / (2 * (max_lag + 1)))
+    v = View("acf", j, np.arange(max_lag + 1) * Ts, "lag [s]", "autocovariance [units^2]", emp, pred,
+             pred - zc * se, pred + zc * se,
+             contributions={eid: p[: max_lag + 1] for eid, p in parts.items()}, z=z,
+             notes=[f"{K} segments of {M} samples, mean removed"])
+    return _finish(v, max_lag + 1)
+
+
+def psd_view(r, Ts, gam_parts, j, L, bpd):
+    if r.size < L:
+        raise AnalysisError(f"record too short for Welch segments of {L} samples")
+    est = welch(r, 1.0 / Ts, nperseg=L)
+    groups = log_bin_groups(est.f, bpd)
+    from ..stats.psd import _average_groups
+    binned = _average_groups(est, groups)
+    parts = {}
+    for eid, g in gam_parts.items():
+        e = expected_welch_detrended(g[:, j:j + 1], L, Ts)[:, 0]
+        parts[eid] = np.array([e[gr].mean() for gr in groups])
+    pred = sum(parts.values())
+    nu = binned.dof
+    alpha = FAMILY_ALPHA / pred.size
+    lo, hi = _chi2_band(pred, nu, alpha)
+    v = View("psd", j, binned.f, "frequency [Hz]", "PSD [units^2/Hz]", binned.psd, pred, lo, hi,
+             contributions=parts, z=_log_chi2_z(binned.psd, pred, nu), log_x=True, log_y=True,
+             notes=[f"Welch, Hann, {L}-sample segments, 50 % overlap, {bpd} bands per decade"])
+    return _finish(v, pred.size)
+
+
+def allan_edf_model(gam: np.ndarray, m: np.ndarray, n: int, corr: int) -> np.ndarray:
+    """Equivalent dof of the overlapping Allan variance estimator *under the model* (Gaussian):
+    z_k = (ybar_{k+m} - ybar_k)/sqrt(2) has Cov_z(d) = -(1/(2 m^2)) sum_e c_m(|e|) gamma(|e - d|)
+    (c_m the Allan filter's autocorrelation), Var(AVAR^) = (2/Na) sum_{|d|<Na} (1 - |d|/Na) Cov_z(d)^2,
+    nu = 2 AVAR^2 / Var. Cov_z vanishes beyond 2m + (the stationary part's correlation length
+    ``corr``), where the sum is cut. ``gam`` (L, ) variogram with L >= n."""
+    from scipy.signal import fftconvolve
+
+    nu = np.empty(m.size)
+    for i, mm in enumerate(m):
+        mm = int(mm)
+        Na = n - 2 * mm + 1
+        D = int(min(Na - 1, 2 * mm + corr))
+        e = np.arange(-(2 * mm - 1), 2 * mm)
+        ae = np.abs(e)
+        c = np.where(ae <= mm, 2 * mm - 3 * ae, -(2 * mm - ae)).astype(float)
+        lags = np.abs(np.arange(-(2 * mm - 1), D + 2 * mm))     # |e - d| for the needed range
+        g = gam[np.minimum(lags, gam.shape[0] - 1)]
+        cov = -fftconvolve(g, c[::-1], mode="valid")[: D + 1] / (2.0 * mm**2)
+        d = np.arange(D + 1)
+        w = np.where(d == 0, 1.0, 2.0) * (1 - d / Na)
+        var = 2.0 / Na * np.sum(w * cov**2)
+        nu[i] = 2 * cov[0] ** 2 / var
+    return nu
+
+
+def allan_view(r, Ts, gam_parts_full, j, corr):
+    res = oadev(r, 1.0 / Ts, taus="octave")
+    m = res.m.astype(np.int64)
+    parts = {eid: allan_from_variogram(g[:, j:j + 1], m)[:, 0] for eid, g in gam_parts_full.items()}
+    avar = sum(parts.values())
+    total_gam = sum(g[:, j] for g in gam_parts_full.values())
+    nu = allan_edf_model(total_gam, m, r.size, corr)
+    alpha = FAMILY_ALPHA / m.size
+    lo2, hi2 = _chi2_band(avar, nu, alpha)
+    v = View("allan", j, res.taus, "tau [s]", "Allan deviation [units]", res.dev, np.sqrt(avar),
+             np.sqrt(lo2), np.sqrt(hi2), contributions={eid: np.sqrt(np.maximum(a, 0)) for eid, a in parts.items()},
+             z=_log_chi2_z(res.dev**2, avar, nu), log_x=True, log_y=True,
+             notes=["overlapping Allan deviation, octave taus; band from the estimator's dof under the "
+                    "model (not Greenhall's power-law edf: the residual is rarely a pure power law); "
+                    "contributions are each effect's own deviation line (they add in variance)"])
+    return _finish(v, m.size)
+
+
+# -- regions -------------------------------------------------------------------------------------------
+def regions_of(view: View) -> list[Region]:
+    out = []
+    f = view.flagged
+    i = 0
+    while i < f.size:
+        if not f[i]:
+            i += 1
+            continue
+        k = i
+        while k + 1 < f.size and f[k + 1]:
+            k += 1
+        zz = view.z[i:k + 1]
+        out.append(Region(view.name, view.output, float(view.x[i]), float(view.x[k]), k - i + 1,
+                          float(np.max(np.abs(zz))), "above" if np.mean(zz) > 0 else "below"))
+        i = k + 1
+    return out
+
+
+# -- entry point -----------------------------------------------------------------------------------------
+def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *, truth=None,
+            burn: int | None = 0, settings: dict | None = None, revision: int = 0,
+            notes: list | None = None) -> Comparison:
+    """Compare samples y (N, p) at times t (N,) (regular, period model.Ts) with ``model``.
+
+    ``u`` (N, m): the recorded command (None: the model's own command generator). ``burn``:
+    samples to skip at the start (None: the model's transient from rest, capped at half the
+    record). ``settings`` override :func:`default_settings`.
+    """
+    y = np.asarray(y, float).reshape(len(y), -1)
+    t = np.asarray(t, float)
+    if y.shape[1] != model.p:
+        raise AnalysisError(f"the recording has {y.shape[1]} measurement components, the model {model.p}")
+    if not np.all(np.isfinite(y)):
+        k = int(np.flatnonzero(~np.all(np.isfinite(y), axis=1))[0])
+        raise AnalysisError(f"the measurement holds NaN or inf (first at sample {k}, t = {t[k]:g} s)")
+    pr = model.predictor()
+    try:
+        mean = pr.mean_response(command=u) if u is not None else pr.mean_response(len(y))
+        cov_tail = None
+    except ModelError as exc:
+        raise AnalysisError(str(exc))
+    n = len(y)
+    if burn is None:
+        burn = min(transient_samples(model), n // 2)
+    r_all = y - mean.y
+    r = r_all[burn:]
+    ta = t[burn:]
+    s = default_settings(r.shape[0])
+    if settings:
+        s.update(settings)
+    L_need = max(s["nperseg"], s["acf_segment"], s["window"])
+    gam = _gamma_parts(model, max(L_need, r.shape[0] + 1))
+    corr = 5 * transient_samples(model) + 10
+    gam_short = {eid: g[:L_need] for eid, g in gam.items()}
+    views = []
+    for j in range(model.p):
+        rj = r[:, j]
+        views.append(variance_view(rj, ta, gam_short, j, s["window"]))
+        views.append(acf_view(rj, model.Ts, gam_short, j, s["acf_segment"], s["max_lag"]))
+        views.append(psd_view(rj, model.Ts, gam_short, j, s["nperseg"], s["bins_per_decade"]))
+        views.append(allan_view(rj, model.Ts, gam, j, corr))
+    per_view = {}
+    for name in ("variance", "acf", "psd", "allan"):
+        errs = [v.error for v in views if v.name == name]
+        per_view[name] = float(np.mean(errs))
+    error = float(np.mean(list(per_view.values())))
+    regions = [rg for v in views for rg in regions_of(v)]
+    # predicted std of y_k: stationary part + the walk's growth (R_b,k = R_b,0 + k Q_b)
+    st = pr.steady_state()
+    walk_rate = st.bias_var_rate * model.Ts
+    walk0 = sum((e.init_std**2 for e in model.effects.values() if e.id == "sensor.bias_walk"), np.zeros(model.p))
+    k = np.arange(n)[:, None]
+    var_stat = st.var_y if st.var_y is not None else np.full(model.p, np.nan)
+    y_sd = np.sqrt(var_stat + walk0 + k * walk_rate)
+    nts = list(notes or [])
+    if burn:
+        nts.append(f"analysis starts at t = {t[burn]:.3g} s, after the model's transient from rest ({burn} samples)")
+    return Comparison(model_name=model.name, model_source=model.source, revision=revision, Ts=model.Ts,
+                      t=t, y=y, y_mean=mean.y, y_sd=y_sd, truth=truth, views=views, error=error,
+                      error_per_view=per_view, regions=regions, notes=nts)

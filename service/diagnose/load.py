@@ -1,0 +1,176 @@
+"""Turn a recording into regularly sampled arrays for the analysis, saying what was wrong with it.
+
+* noiselab recordings: the device's ``measurement`` (and ``command``, ``truth`` when present),
+  aligned by seq; t = the payload's ``t``.
+* foreign recordings: ``--measurement TOPIC:FIELD`` picks a JSON field (dotted path, ``[i]`` for
+  list items, e.g. ``/imu:linear_acceleration.x`` or ``/odom:twist.linear[0]``), time from a field
+  (``--time FIELD``, seconds, or ``FIELD_ns`` style integer ns when the name ends in ``_ns``) or
+  from the MCAP publish_time; several FIELDs may be given comma-separated for a vector.
+
+Gaps (a missing seq, or a time step over 1.5 Ts) are never silently ignored: the analysis uses
+the longest gap-free run and the notes say what was left out. Irregular timing (steps that differ
+from Ts by more than 1 % of Ts) is reported; a recording whose median step differs from the
+model's Ts by more than 1 % is rejected (wrong model or wrong field).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..nodes import mcapio, wire
+from .compare import AnalysisError
+
+
+@dataclass
+class Series:
+    t: np.ndarray                  # (N,) s, from the first kept sample's clock
+    y: np.ndarray                  # (N, p)
+    u: np.ndarray | None           # (N, m) recorded command or None
+    truth: np.ndarray | None       # (N, n) or None
+    source: str
+    notes: list = field(default_factory=list)
+    starts_at_rest: bool = False   # a noiselab stream from seq 0 (the emulator starts at rest)
+
+
+_PATH_RE = re.compile(r"([^.\[\]]+)|\[(\d+)\]")
+
+
+def _field_getter(path: str):
+    parts = []
+    for name, idx in _PATH_RE.findall(path):
+        parts.append(int(idx) if idx else name)
+    if not parts:
+        raise AnalysisError(f"field {path!r}: empty field path")
+
+    def get(obj):
+        for p in parts:
+            obj = obj[p]
+        return obj
+    return get, parts
+
+
+def _split_spec(spec: str) -> tuple[str, list[str]]:
+    if ":" not in spec:
+        raise AnalysisError(f"--measurement {spec!r}: expected TOPIC:FIELD (e.g. /imu:linear_acceleration.x)")
+    topic, fields = spec.rsplit(":", 1)
+    return topic, [f.strip() for f in fields.split(",") if f.strip()]
+
+
+def load_noiselab(path: str, device: str | None = None) -> Series:
+    rec = mcapio.read_recording(path)
+    if not rec.devices:
+        raise AnalysisError(f"{path}: no measurement topic (a topic ending in /measurement); for other "
+                            "recordings give --measurement TOPIC:FIELD")
+    try:
+        dev = rec.device(device)
+    except (KeyError, ValueError, mcapio.McapIoError) as exc:
+        names = ", ".join(sorted(rec.devices))
+        raise AnalysisError(f"{path}: device {device!r} not found or ambiguous (devices: {names})") from None
+    meas = dev.measurement
+    notes = [] if rec.complete else [f"the recording is unfinished: {rec.note}"]
+    seq = meas.seq
+    if seq.size < 2:
+        raise AnalysisError(f"{path}: only {seq.size} measurement samples")
+    keep = _longest_run(seq, notes, "measurement seq")
+    y = meas.values[keep]
+    t = meas.t[keep]
+    u = _aligned(dev.command, seq[keep], notes, "command")
+    x = _aligned(dev.truth, seq[keep], notes, "truth")
+    if u is not None and np.isnan(u).any():
+        raise AnalysisError(f"{path}: the command topic misses samples inside the analysed run")
+    return Series(t=t - t[0], y=y, u=u, truth=x, source=f"{path} [{dev.name}]", notes=notes,
+                  starts_at_rest=bool(seq[keep][0] == 0))
+
+
+def _aligned(td, seq, notes, what):
+    if td is None:
+        return None
+    pos = {int(s): i for i, s in enumerate(td.seq)}
+    idx = np.array([pos.get(int(s), -1) for s in seq])
+    if np.any(idx < 0):
+        notes.append(f"{what}: {int(np.sum(idx < 0))} samples of the analysed run are missing")
+        if what == "truth":
+            return None
+        out = np.full((seq.size, td.values.shape[1]), np.nan)
+        out[idx >= 0] = td.values[idx[idx >= 0]]
+        return out
+    return td.values[idx]
+
+
+def _longest_run(seq: np.ndarray, notes: list, what: str) -> slice:
+    breaks = np.flatnonzero(np.diff(seq) != 1)
+    if breaks.size == 0:
+        return slice(0, seq.size)
+    starts = np.concatenate([[0], breaks + 1])
+    ends = np.concatenate([breaks + 1, [seq.size]])
+    i = int(np.argmax(ends - starts))
+    missing = int(np.sum(np.clip(np.diff(seq)[breaks] - 1, 0, None)))
+    notes.append(f"{what}: {breaks.size} gaps ({missing} samples missing); analysed the longest gap-free run, "
+                 f"samples {starts[i]}..{ends[i] - 1} of {seq.size}")
+    return slice(int(starts[i]), int(ends[i]))
+
+
+def load_foreign(path: str, spec: str, time_field: str | None, Ts: float) -> Series:
+    topic, fields = _split_spec(spec)
+    getters = [_field_getter(f)[0] for f in fields]
+    tget = _field_getter(time_field)[0] if time_field else None
+    want = topic.lstrip("/")
+    ys, ts = [], []
+    found_topic = False
+    report = mcapio.ScanReport()
+    for schema, channel, message in mcapio.iter_messages(path, report=report):
+        if channel.topic.lstrip("/") != want:
+            continue
+        found_topic = True
+        try:
+            obj = json.loads(message.data)
+        except (ValueError, UnicodeDecodeError):
+            raise AnalysisError(f"{path}: {topic}: a message is not JSON (only JSON-encoded topics are supported)")
+        try:
+            ys.append([float(g(obj)) for g in getters])
+            if tget is not None:
+                tv = tget(obj)
+                ts.append(int(tv) * 1e-9 if time_field.endswith("_ns") else float(tv))
+            else:
+                ts.append(message.publish_time * 1e-9)
+        except (KeyError, IndexError, TypeError, ValueError):
+            missing = fields if tget is None else fields + [time_field]
+            raise AnalysisError(f"{path}: {topic}: field {', '.join(missing)} not found in a message "
+                                f"(keys: {', '.join(sorted(obj)) if isinstance(obj, dict) else type(obj).__name__})")
+    if not found_topic:
+        raise AnalysisError(f"{path}: no topic {topic!r} in the recording")
+    notes = [] if report.complete else [f"the recording is unfinished: {report.note}"]
+    y = np.asarray(ys, float)
+    t = np.asarray(ts, float)
+    if y.shape[0] < 2:
+        raise AnalysisError(f"{path}: {topic}: only {y.shape[0]} samples")
+    if not np.all(np.isfinite(y)):
+        k = int(np.flatnonzero(~np.all(np.isfinite(y), axis=1))[0])
+        raise AnalysisError(f"{path}: {topic}: NaN or inf in the measurement (first at sample {k})")
+    order = np.argsort(t, kind="stable")
+    if np.any(order != np.arange(t.size)):
+        notes.append(f"{topic}: timestamps out of order; sorted by time")
+        t, y = t[order], y[order]
+    keep = _regular_run(t, Ts, notes, topic)
+    t, y = t[keep], y[keep]
+    return Series(t=t - t[0], y=y, u=None, truth=None, source=f"{path} [{spec}]", notes=notes)
+
+
+def _regular_run(t: np.ndarray, Ts: float, notes: list, what: str) -> slice:
+    dt = np.diff(t)
+    med = float(np.median(dt))
+    if not np.isclose(med, Ts, rtol=0.01):
+        raise AnalysisError(f"{what}: the median sample step is {med:.6g} s but the model's Ts is {Ts:g} s")
+    gaps = dt > 1.5 * Ts
+    jitter = np.abs(dt[~gaps] - Ts) > 0.01 * Ts
+    if np.any(jitter):
+        notes.append(f"{what}: irregular timing: {int(jitter.sum())} steps differ from Ts by more than 1 % "
+                     f"(std {np.std(dt[~gaps]) / Ts * 100:.2g} % of Ts); analysed as if regular")
+    if not np.any(gaps):
+        return slice(0, t.size)
+    seq = np.concatenate([[0], np.cumsum(np.where(gaps, np.round(dt / Ts), 1))]).astype(np.int64)
+    return _longest_run(seq, notes, f"{what} time")
