@@ -368,7 +368,7 @@ def report_lines(cmp, series) -> list[str]:
     return lines
 
 
-def load_series(args, model):
+def load_series(args, model, truth: bool = True):
     from .diagnose import load as dload
 
     path = args.recording
@@ -376,7 +376,7 @@ def load_series(args, model):
         raise UsageError(f"{path}: no such file")
     if args.measurement:
         return dload.load_foreign(path, args.measurement, args.time, model.Ts)
-    return dload.load_noiselab(path, args.device)
+    return dload.load_noiselab(path, args.device, truth=truth)
 
 
 def _check_out(path: str | None, force: bool):
@@ -396,7 +396,7 @@ def cmd_analyze(args) -> int:
     png = args.png or (str(Path(args.rrd).with_suffix(".png")) if args.rrd else None)
     _check_out(args.rrd, args.force)
     _check_out(png, args.force)
-    series = load_series(args, model)
+    series = load_series(args, model, truth=bool(args.rrd or png))    # truth only for the views
     burn = None if (args.burn == "auto" and series.starts_at_rest) else \
         (0 if args.burn == "auto" else int(round(float(args.burn) / model.Ts)))
     cmp = compare(model, series.t, series.y, series.u, truth=series.truth, burn=burn)

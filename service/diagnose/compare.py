@@ -112,15 +112,37 @@ def expected_window_stats(gam: np.ndarray, M: int, max_lag: int) -> np.ndarray:
 
 @lru_cache(maxsize=8)
 def _welch_kernel(L: int, window: str) -> np.ndarray:
-    """Re C_j(d), d = 0..L-1, of h_j(n) = w_n e^{-i w_j n} - W_j/L for bins j = 0..L/2: (J, L)."""
+    """Re C_j(d), d = 0..L-1, of h_j(n) = w_n e_j(n) - a_j, e_j(n) = e^{-i w_j n}, a_j = W_j / L,
+    for bins j = 0..L/2: (J, L). With c_w(d) = sum_n w_{n+d} w_n, the suffix sums
+    S1(d) = sum_{m>=d} w_m e(m) and prefix sums S2(d) = sum_{n<=L-1-d} w_n conj(e(n)):
+    C(d) = e^{-i w d} c_w(d) - conj(a) S1(d) - a S2(d) + |a|^2 (L - d)."""
+    w = get_window(window, L)
+    n = np.arange(L)
+    d = n
+    cw = np.correlate(w, w, mode="full")[L - 1:]
+    J = L // 2 + 1
+    out = np.empty((J, L))
+    for j0 in range(0, J, 256):
+        j = np.arange(j0, min(J, j0 + 256))[:, None]
+        e = np.exp(-2j * np.pi * j * n / L)
+        we = w * e
+        a = we.sum(axis=1, keepdims=True) / L
+        S1 = np.cumsum(we[:, ::-1], axis=1)[:, ::-1]                 # sum_{m>=d}
+        S2 = np.cumsum(np.conj(we), axis=1)[:, ::-1]                 # sum_{n<=L-1-d}
+        C = e * cw - np.conj(a) * S1 - a * S2 + np.abs(a) ** 2 * (L - d)
+        out[j0:j0 + j.size] = C.real
+    return out
+
+
+def _welch_kernel_fft(L: int, window: str) -> np.ndarray:
+    """The same kernel by FFT autocorrelation of h_j (reference for the tests)."""
     w = get_window(window, L)
     n = np.arange(L)
     J = L // 2 + 1
     out = np.empty((J, L))
     for j0 in range(0, J, 256):
         j = np.arange(j0, min(J, j0 + 256))
-        ph = np.exp(-2j * np.pi * np.outer(j, n) / L)
-        h = w * ph
+        h = w * np.exp(-2j * np.pi * np.outer(j, n) / L)
         h -= h.sum(axis=1, keepdims=True) / L
         Hf = np.fft.fft(h, 2 * L, axis=1)
         out[j] = np.fft.ifft(np.abs(Hf) ** 2, axis=1).real[:, :L]

@@ -60,8 +60,8 @@ def _split_spec(spec: str) -> tuple[str, list[str]]:
     return topic, [f.strip() for f in fields.split(",") if f.strip()]
 
 
-def load_noiselab(path: str, device: str | None = None) -> Series:
-    rec = mcapio.read_recording(path)
+def load_noiselab(path: str, device: str | None = None, truth: bool = True) -> Series:
+    rec = mcapio.read_recording(path, kinds=("measurement", "command", "truth") if truth else ("measurement", "command"))
     if not rec.devices:
         raise AnalysisError(f"{path}: no measurement topic (a topic ending in /measurement); for other "
                             "recordings give --measurement TOPIC:FIELD")
@@ -89,8 +89,10 @@ def load_noiselab(path: str, device: str | None = None) -> Series:
 def _aligned(td, seq, notes, what):
     if td is None:
         return None
-    pos = {int(s): i for i, s in enumerate(td.seq)}
-    idx = np.array([pos.get(int(s), -1) for s in seq])
+    if td.seq.size == seq.size and np.array_equal(td.seq, seq):
+        return td.values
+    j = np.clip(np.searchsorted(td.seq, seq), 0, td.seq.size - 1)    # td.seq is sorted
+    idx = np.where(td.seq[j] == seq, j, -1)
     if np.any(idx < 0):
         notes.append(f"{what}: {int(np.sum(idx < 0))} samples of the analysed run are missing")
         if what == "truth":

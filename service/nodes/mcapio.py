@@ -585,28 +585,125 @@ def _as_i64(values: list[int], topic: str, what: str) -> np.ndarray:
         raise McapIoError(f"{topic}: {what} beyond 2**63 - 1 ns is not supported") from None
 
 
-def read_recording(path: str | os.PathLike) -> Recording:
+def _decompress(compression: str, data: bytes, size: int) -> bytes:
+    if compression == "":
+        return bytes(data)
+    if compression == "zstd":
+        import zstandard
+        return zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
+    if compression == "lz4":
+        import lz4.frame
+        return lz4.frame.decompress(data)
+    raise CorruptRecordingError(f"unknown chunk compression {compression!r}")
+
+
+def _collect_fast(path: str, kinds: tuple[str, ...], report: ScanReport):
+    """Payloads, log and publish times per topic of a *finished* file, read chunk by chunk with
+    a struct-level record walk (mcap's dataclass reader costs ~20 us per message; this ~1 us).
+    Chunk CRCs are checked. Returns (raw, encodings) or None when the fast path does not apply
+    (unfinished file, no chunk index): the caller then uses :func:`iter_messages`."""
+    import zlib
+
+    size = _check_magic(path)
+    with open(path, "rb") as f:
+        ok, _why = _finished(f, size)
+        if not ok:
+            return None
+        f.seek(0)
+        reader = SeekingReader(f, validate_crcs=False)
+        try:
+            summary = reader.get_summary()
+        except (*_CORRUPTION_ERRORS, OSError):
+            return None
+        if summary is None or not summary.chunk_indexes:
+            return None
+        want = {cid: c for cid, c in summary.channels.items()
+                if _norm(c.topic).rsplit("/", 1)[-1] in kinds}
+        raw: dict[str, tuple[list, list, list]] = {}
+        encodings: dict[str, set[str]] = defaultdict(set)
+        lists_of = {}
+        for cid, c in want.items():
+            topic = _norm(c.topic)
+            lists_of[cid] = raw.setdefault(topic, ([], [], []))
+            encodings[topic].add(c.message_encoding)
+        unpack_q, unpack_h, unpack_iqq = struct.Struct("<Q").unpack_from, struct.Struct("<H").unpack_from, \
+            struct.Struct("<IQQ").unpack_from
+        for ci in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
+            f.seek(ci.chunk_start_offset)
+            buf = f.read(ci.chunk_length)
+            try:
+                if buf[0] != 0x06:
+                    raise CorruptRecordingError("not a chunk record")
+                _mst, _met, usize, ucrc = struct.unpack_from("<QQQI", buf, 9)
+                off = 9 + 28
+                (clen,) = struct.unpack_from("<I", buf, off)
+                comp = buf[off + 4: off + 4 + clen].decode()
+                off += 4 + clen
+                (rlen,) = unpack_q(buf, off)
+                dec = _decompress(comp, buf[off + 8: off + 8 + rlen], usize)
+            except (struct.error, IndexError, UnicodeDecodeError, CorruptRecordingError, Exception) as e:
+                raise CorruptRecordingError(f"{path}: finished file with a damaged chunk at byte {ci.chunk_start_offset} "
+                                            f"({type(e).__name__}); recover() salvages what comes before it") from None
+            if ucrc and zlib.crc32(dec) != ucrc:
+                raise CorruptRecordingError(f"{path}: finished file with a chunk at byte {ci.chunk_start_offset} that fails its CRC; "
+                                            "recover() salvages what comes before it")
+            # walk the records; keep (offset, length) of wanted messages, gather the rest in numpy
+            offs: dict[int, list] = {cid: [] for cid in lists_of}
+            pos, n = 0, len(dec)
+            while pos < n:
+                (rl,) = unpack_q(dec, pos + 1)
+                if dec[pos] == 0x05:
+                    got = offs.get(unpack_h(dec, pos + 9)[0])
+                    if got is not None:
+                        got.append((pos + 9, rl))
+                pos += 9 + rl
+            u8 = np.frombuffer(dec, np.uint8)
+            for cid, items in offs.items():
+                if not items:
+                    continue
+                a = np.asarray(items, dtype=np.int64)
+                starts, lens = a[:, 0], a[:, 1]
+                lists = lists_of[cid]
+                lists[0].extend([dec[st + 22: st + ln] for st, ln in items])
+                for k, off in ((1, 6), (2, 14)):            # log_time at +6, publish_time at +14
+                    idx = (starts + off)[:, None] + np.arange(8)
+                    lists[k].extend(u8[idx].copy().view("<u8").ravel().tolist())
+                report.messages += len(items)
+        for m in reader.iter_metadata():
+            report.metadata[m.name] = dict(m.metadata)
+    report.complete = True
+    return raw, encodings
+
+
+def read_recording(path: str | os.PathLike, kinds: Iterable[str] = wire.KINDS) -> Recording:
     """Read every noiselab device of an MCAP file into arrays (see :class:`Recording`).
 
     Devices are found by topics ending in ``/measurement`` (leading ``/`` optional); their
-    ``command`` and ``truth`` topics are read when present. Other topics are ignored. Payloads
-    are validated (:func:`wire.decode_batch`); a device topic whose message encoding is not
-    ``json`` raises McapIoError. Works on unfinished files (``complete=False``).
+    ``command`` and ``truth`` topics are read when present (``kinds`` limits which). Other
+    topics are ignored. Payloads are validated (:func:`wire.decode_batch`); a device topic whose
+    message encoding is not ``json`` raises McapIoError. Works on unfinished files
+    (``complete=False``). Finished files take a fast chunk-level path.
     """
     path = os.fspath(path)
+    kinds = tuple(k for k in wire.KINDS if k in set(kinds) | {"measurement"})
     report = ScanReport()
-    # per normalised topic: payloads, log_time, publish_time; and its encodings
-    raw: dict[str, tuple[list, list, list]] = {}
-    encodings: dict[str, set[str]] = defaultdict(set)
-    for _schema, channel, msg in iter_messages(path, report=report):
-        topic = _norm(channel.topic)
-        lists = raw.get(topic)
-        if lists is None:
-            lists = raw[topic] = ([], [], [])
-            encodings[topic].add(channel.message_encoding)
-        lists[0].append(msg.data)
-        lists[1].append(msg.log_time)
-        lists[2].append(msg.publish_time)
+    fast = _collect_fast(path, kinds, report)
+    if fast is not None:
+        raw, encodings = fast
+    else:
+        report = ScanReport()
+        # per normalised topic: payloads, log_time, publish_time; and its encodings
+        raw = {}
+        encodings = defaultdict(set)
+        for _schema, channel, msg in iter_messages(path, report=report):
+            topic = _norm(channel.topic)
+            lists = raw.get(topic)
+            if lists is None:
+                lists = raw[topic] = ([], [], [])
+                encodings[topic].add(channel.message_encoding)
+            lists[0].append(msg.data)
+            lists[1].append(msg.log_time)
+            lists[2].append(msg.publish_time)
 
     devices: dict[str, DeviceData] = {}
     for topic in sorted(t for t in raw if t.endswith("/measurement")):
@@ -615,7 +712,7 @@ def read_recording(path: str | os.PathLike) -> Recording:
         if name in devices:  # e.g. both "noiselab/imu" and "imu": keep them apart
             name = prefix
         streams = {}
-        for kind in wire.KINDS:
+        for kind in kinds:
             ktopic = f"{prefix}/{kind}"
             if ktopic not in raw:
                 continue
