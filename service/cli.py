@@ -509,6 +509,11 @@ def build_parser() -> argparse.ArgumentParser:
     sa.add_argument("--force", action="store_true", help="overwrite existing output files")
     sa.add_argument("--json", action="store_true", help="machine-readable report")
     sa.add_argument("--live", action="store_true", help="analyse a live Zenoh stream instead of a file")
+    sa.add_argument("--window", type=_positive_float("--window"), default=60.0, metavar="S",
+                    help="live: rolling window in seconds (default 60)")
+    sa.add_argument("--update", type=_positive_float("--update"), default=0.5, metavar="S",
+                    help="live: seconds between updates (default 0.5)")
+    sa.add_argument("--duration", type=_positive_float("--duration"), help="live: stop after S seconds")
     add_transport_args(sa)
     sa.set_defaults(func=cmd_analyze)
 

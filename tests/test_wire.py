@@ -79,7 +79,8 @@ def test_schema_names_are_the_contract():
     assert wire.SCHEMA_NAMES == {"truth": "noiselab.Truth", "command": "noiselab.Command",
                                  "measurement": "noiselab.Measurement",
                                  # extensions for the live pipeline (README "Live pipeline")
-                                 "control": "noiselab.Control", "health": "noiselab.Health"}
+                                 "control": "noiselab.Control", "health": "noiselab.Health",
+                                 "analysis": "noiselab.Analysis"}
     assert wire.VECTOR_FIELD == {"truth": "x", "command": "u", "measurement": "y", "control": "u"}
 
 

@@ -622,7 +622,7 @@ def _rev_path(c: Comparison) -> str:
     return f"/rev{c.revision}"
 
 
-def build_blueprint(comparisons: list):
+def build_blueprint(comparisons: list, history: bool = False):
     """The one-screen blueprint for :func:`log_comparisons`'s entity layout."""
     import rerun.blueprint as rrb
 
@@ -666,7 +666,10 @@ def build_blueprint(comparisons: list):
             blocks.append(rrb.Vertical(*rows, name=f"output {i}"))
         content = blocks[0] if p == 1 else (rrb.Vertical(*blocks) if p == 2 else rrb.Tabs(*blocks))
         tabs.append(rrb.Vertical(content, name=f"rev {c.revision}: {c.model_name} (error {_fmt(c.error)})"))
+    extra = [rrb.TimeSeriesView(origin="/error/history", name="model error over time (live analysis)")] \
+        if history else []
     side = rrb.Vertical(
+        *extra,
         rrb.Spatial2DView(origin="/error/chart", name="model error per revision (overall and per view)",
                           visual_bounds=bounds),
         rrb.TextDocumentView(origin="/report", name="report"),
@@ -677,8 +680,11 @@ def build_blueprint(comparisons: list):
 
 
 # -- entry point ------------------------------------------------------------------------------------------
-def log_comparisons(comparisons: list, path: str, *, app_id: str = "noiselab") -> None:
+def log_comparisons(comparisons: list, path: str, *, app_id: str = "noiselab", history: list | None = None) -> None:
     """Write ``comparisons`` (one per model revision) to the Rerun file ``path`` with the blueprint.
+
+    ``history`` (live analysis): [{"t": s, "revision": int, "error": float, "error_per_view": {...}}]
+    is logged as the model error over time on the ``t`` timeline under ``/error/history``.
 
     The file is complete (footer included) when this returns. Parent directories are created.
     Rerun is put in strict mode for these calls (thread-local), so a bad argument raises instead
@@ -694,7 +700,17 @@ def log_comparisons(comparisons: list, path: str, *, app_id: str = "noiselab") -
     rec = rr.RecordingStream(app_id, recording_id=uuid.uuid4())
     try:
         with catch_and_log_exceptions("noiselab.viewers.log_comparisons", strict=True):
-            rec.save(str(out), default_blueprint=build_blueprint(comps))
+            rec.save(str(out), default_blueprint=build_blueprint(comps, history=bool(history)))
+            if history:
+                th = seconds_to_ns(np.array([h["t"] for h in history], float))
+                rec.send_columns("/error/history/overall", indexes=[rr.TimeColumn("t", duration=th)],
+                                 columns=rr.Scalars.columns(scalars=np.array([h["error"] for h in history], float)))
+                rec.send_columns("/error/history/revision", indexes=[rr.TimeColumn("t", duration=th)],
+                                 columns=rr.Scalars.columns(scalars=np.array([h["revision"] for h in history], float)))
+                for n in VIEW_NAMES:
+                    vals = np.array([h["error_per_view"].get(n, np.nan) for h in history], float)
+                    rec.send_columns(f"/error/history/{n}", indexes=[rr.TimeColumn("t", duration=th)],
+                                     columns=rr.Scalars.columns(scalars=vals))
             rec.send_recording_name(f"{comps[-1].model_name}: {len(comps)} revision(s)")
             rec.log("/report", rr.TextDocument(report_markdown(comps), media_type=rr.MediaType.MARKDOWN),
                     static=True)

@@ -22,10 +22,12 @@ mean removal are inside the predictions instead of being excluded:
   of the model (:func:`service.model.predict.allan_from_variogram`), its bounds from the
   estimator's equivalent degrees of freedom (Greenhall).
 
-Standardized deviations z (about N(0, 1) when the model is right):
-  psd and allan: z = (ln(emp / pred) - E[ln(chi2_nu / nu)]) / sd[ln(chi2_nu / nu)], with
-  E = digamma(nu/2) - ln(nu/2) and Var = trigamma(nu/2), nu the equivalent dof;
-  variance: the same with nu = 2 E^2 / Var (Gaussian approximation of the windowed variance);
+Standardized deviations z (E[z^2] = 1 when the model is right):
+  psd (log bands, nu in the tens to thousands): z = (ln(emp / pred) - E[ln(chi2_nu / nu)]) /
+  sd[ln(chi2_nu / nu)], E = digamma(nu/2) - ln(nu/2), Var = trigamma(nu/2), nu the equivalent dof;
+  variance and allan (few dof at long windows and taus, skewed estimates): z = (emp - pred) / sd
+  with the estimator's exact variance under the Gaussian model, so E[z^2] = 1 holds exactly; their
+  flags come from the chi-squared band with nu = 2 E^2 / Var;
   acf: z = (emp - pred) / se, se from Bartlett's formula with the predicted autocovariance,
   divided by the number of segments.
 The error of a view is mean(z^2); **the model error** is the mean of the views' errors (outputs
@@ -84,8 +86,26 @@ def transient_samples(model) -> int:
 
 
 # -- exact expectations from the variogram ---------------------------------------------------------------
+_CACHE: dict = {}
+
+
+def _cached(model, what: str, key, compute):
+    """Predictions depend on the model and the estimator sizes only, never on the data: cache them
+    per model text (a live analyzer recomputes its views at 2 Hz on a window of constant size)."""
+    k = (model.source, model.text, what, key)
+    if k not in _CACHE:
+        if len(_CACHE) > 64:
+            _CACHE.clear()
+        _CACHE[k] = compute()
+    return _CACHE[k]
+
+
 def _gamma_parts(model, L: int) -> dict:
     """{effect id: (L, p) variogram} of the stationary-increment parts; error if not stable."""
+    return _cached(model, "gamma", L, lambda: _gamma_parts_uncached(model, L))
+
+
+def _gamma_parts_uncached(model, L: int) -> dict:
     vg = model.predictor().variogram(L)
     bad = [eid for eid, v in vg.items() if v is None]
     if bad:
@@ -172,9 +192,11 @@ def _chi2_band(pred, nu, alpha):
     return pred * sps.chi2.ppf(alpha / 2, nu) / nu, pred * sps.chi2.ppf(1 - alpha / 2, nu) / nu
 
 
-def _finish(view: View, n_points: int) -> View:
+def _finish(view: View, n_points: int, by_band: bool = False) -> View:
+    """Flag points outside the band (family-wise 5 % per view) and set the view's error. With
+    ``by_band`` the (skewed) chi-squared band decides the flags, the linear z only the error."""
     zc = sps.norm.ppf(1 - FAMILY_ALPHA / (2 * max(n_points, 1)))
-    view.flagged = np.abs(view.z) > zc
+    view.flagged = ((view.empirical < view.lo) | (view.empirical > view.hi)) if by_band else np.abs(view.z) > zc
     view.error = float(np.mean(view.z**2)) if view.z.size else float("nan")
     view.conf = 1 - FAMILY_ALPHA / max(n_points, 1)
     return view
@@ -191,16 +213,31 @@ def variance_view(r, t, gam_parts, j, W):
     parts = {eid: expected_window_stats(g[:, j:j + 1], W, W - 1)[:, 0] for eid, g in gam_parts.items()}
     R = sum(parts.values())                           # expected autocovariance within a window
     E = R[0]
-    lags = np.arange(1, W)
-    var = (2.0 / W) * (R[0] ** 2 + 2 * np.sum((1 - lags / W) * R[1:] ** 2))
+    var = windowed_variance_var(sum(g[:W, j] for g in gam_parts.values()), W, R)
     nu = np.full(n_win, 2 * E**2 / var)
     pred = np.full(n_win, E)
     alpha = FAMILY_ALPHA / n_win
     lo, hi = _chi2_band(pred, nu, alpha)
     v = View("variance", j, centres, "time [s]", "variance of y in the window [units^2]", emp, pred, lo, hi,
              contributions={eid: np.full(n_win, p[0]) for eid, p in parts.items()},
-             z=_log_chi2_z(emp, pred, nu), notes=[f"windows of {W} samples, mean removed"])
-    return _finish(v, n_win)
+             z=(emp - pred) / np.sqrt(var), notes=[f"windows of {W} samples, mean removed"])
+    return _finish(v, n_win, by_band=True)
+
+
+def windowed_variance_var(gam: np.ndarray, W: int, R: np.ndarray) -> float:
+    """Var of the windowed sample variance (mean removed, 1/W) of a Gaussian process with
+    variogram ``gam``: exactly (2/W^2) sum_ij C_ij^2 with C_ij = -gamma(|i-j|) + g(i) + g(j) - G the
+    covariance of the demeaned window, for W <= 2048; beyond, the stationary approximation
+    (2/W) sum_d (1 - |d|/W) R(d)^2 with R the expected windowed autocovariance."""
+    if W <= 2048:
+        S = np.cumsum(gam[:W])
+        a = np.arange(W)
+        g = (S[a] + S[W - 1 - a]) / W
+        G = g.mean()
+        C = -gam[np.abs(a[:, None] - a[None, :])] + g[:, None] + g[None, :] - G
+        return float(2.0 * np.sum(C**2) / W**2)
+    lags = np.arange(1, W)
+    return float((2.0 / W) * (R[0] ** 2 + 2 * np.sum((1 - lags / W) * R[1:W] ** 2)))
 
 
 def acf_view(r, Ts, gam_parts, j, M, max_lag):
@@ -282,22 +319,29 @@ def allan_edf_model(gam: np.ndarray, m: np.ndarray, n: int, corr: int) -> np.nda
     return nu
 
 
-def allan_view(r, Ts, gam_parts_full, j, corr):
+def allan_z(avar_emp, avar_pred, nu):
+    """Linear standardization (AVAR^ - AVAR) / sd, sd = AVAR sqrt(2 / nu): E[z^2] = 1 exactly under
+    the (Gaussian) model even when nu is small and the estimate skewed."""
+    return (avar_emp - avar_pred) / (avar_pred * np.sqrt(2.0 / nu))
+
+
+def allan_view(r, Ts, gam_parts_full, j, corr, model=None):
     res = oadev(r, 1.0 / Ts, taus="octave")
     m = res.m.astype(np.int64)
     parts = {eid: allan_from_variogram(g[:, j:j + 1], m)[:, 0] for eid, g in gam_parts_full.items()}
     avar = sum(parts.values())
     total_gam = sum(g[:, j] for g in gam_parts_full.values())
-    nu = allan_edf_model(total_gam, m, r.size, corr)
+    nu = allan_edf_model(total_gam, m, r.size, corr) if model is None else \
+        _cached(model, "allan_edf", (j, tuple(m), r.size, corr), lambda: allan_edf_model(total_gam, m, r.size, corr))
     alpha = FAMILY_ALPHA / m.size
     lo2, hi2 = _chi2_band(avar, nu, alpha)
     v = View("allan", j, res.taus, "tau [s]", "Allan deviation [units]", res.dev, np.sqrt(avar),
              np.sqrt(lo2), np.sqrt(hi2), contributions={eid: np.sqrt(np.maximum(a, 0)) for eid, a in parts.items()},
-             z=_log_chi2_z(res.dev**2, avar, nu), log_x=True, log_y=True,
+             z=allan_z(res.dev**2, avar, nu), log_x=True, log_y=True,
              notes=["overlapping Allan deviation, octave taus; band from the estimator's dof under the "
                     "model (not Greenhall's power-law edf: the residual is rarely a pure power law); "
                     "contributions are each effect's own deviation line (they add in variance)"])
-    return _finish(v, m.size)
+    return _finish(v, m.size, by_band=True)
 
 
 # -- regions -------------------------------------------------------------------------------------------
@@ -344,7 +388,7 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
         raise AnalysisError(str(exc))
     n = len(y)
     if burn is None:
-        burn = min(transient_samples(model), n // 2)
+        burn = min(_cached(model, "transient", 0, lambda: transient_samples(model)), n // 2)
     r_all = y - mean.y
     r = r_all[burn:]
     ta = t[burn:]
@@ -353,7 +397,7 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
         s.update(settings)
     L_need = max(s["nperseg"], s["acf_segment"], s["window"])
     gam = _gamma_parts(model, max(L_need, r.shape[0] + 1))
-    corr = 5 * transient_samples(model) + 10
+    corr = 5 * _cached(model, "transient", 0, lambda: transient_samples(model)) + 10
     gam_short = {eid: g[:L_need] for eid, g in gam.items()}
     views = []
     for j in range(model.p):
@@ -361,7 +405,7 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
         views.append(variance_view(rj, ta, gam_short, j, s["window"]))
         views.append(acf_view(rj, model.Ts, gam_short, j, s["acf_segment"], s["max_lag"]))
         views.append(psd_view(rj, model.Ts, gam_short, j, s["nperseg"], s["bins_per_decade"]))
-        views.append(allan_view(rj, model.Ts, gam, j, corr))
+        views.append(allan_view(rj, model.Ts, gam, j, corr, model))
     per_view = {}
     for name in ("variance", "acf", "psd", "allan"):
         errs = [v.error for v in views if v.name == name]

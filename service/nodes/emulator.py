@@ -100,7 +100,7 @@ def run_emulator(model, session: "zenoh.Session", *, duration: float | None, see
     external = model.command.kind == "external"
     control = _Control(model.m) if external else None
     sub = session.declare_subscriber(keys[wire.CONTROL], control.on_sample) if external else None
-    if wait_subscribers > 0 and not transport.wait_matching(pubs.values(), wait_subscribers, stop):
+    if wait_subscribers > 0 and not transport.wait_matching([pubs["measurement"]], wait_subscribers, stop):
         if not stop.is_set():
             print(f"noiselab emulate: no subscriber matched within "
                   f"{wait_subscribers:g} s: starting anyway", file=log, flush=True)

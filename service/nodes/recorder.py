@@ -94,6 +94,9 @@ def _seq_t(payload: bytes, kind: str, key: str) -> tuple[int, float]:
     if kind == wire.HEALTH:
         obj = wire.decode_health(payload, topic=key)
         return obj["seq"], float(obj["t"])
+    if kind == wire.ANALYSIS:
+        obj = wire.decode_analysis(payload, topic=key)
+        return obj["seq"], float(obj["t"])
     obj = wire.decode(payload, kind, topic=key)
     return obj["seq"], obj["t"]
 

@@ -56,7 +56,7 @@ def run_replay(session: "zenoh.Session", path: str, *, speed: float | None = 1.0
     # declare every publisher first, so a subscriber can match them all before the first put
     for topic in replay_topics(path):
         publisher(topic)
-    if wait_subscribers > 0 and not transport.wait_matching(pubs.values(), wait_subscribers, stop):
+    if wait_subscribers > 0 and not transport.wait_matching(pubs.values(), wait_subscribers, stop, every=False):
         if not stop.is_set():
             print(f"noiselab replay: no subscriber matched within "
                   f"{wait_subscribers:g} s: starting anyway", file=log, flush=True)

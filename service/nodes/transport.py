@@ -112,13 +112,16 @@ def open_session(args: argparse.Namespace, role: str) -> "zenoh.Session":
         raise TransportError(_one_line(exc)) from None
 
 
-def wait_matching(publishers, timeout: float, stop=None) -> bool:
-    """Wait up to ``timeout`` seconds until every publisher has a matching subscriber (or ``stop``
-    is set); True when all matched. (``Publisher.matching_status`` is an object: use .matching.)"""
+def wait_matching(publishers, timeout: float, stop=None, *, every: bool = True) -> bool:
+    """Wait up to ``timeout`` seconds until every publisher (``every=False``: any of them) has a
+    matching subscriber, or ``stop`` is set; True when matched. (``Publisher.matching_status`` is
+    an object whose truth value is always True: use .matching.)"""
     import time
 
+    publishers = list(publishers)
+    test = all if every else any
     t_end = time.monotonic() + timeout
-    while not all(p.matching_status.matching for p in publishers):
+    while not test(p.matching_status.matching for p in publishers):
         if time.monotonic() >= t_end or (stop is not None and stop.is_set()):
             return False
         time.sleep(0.002)

@@ -79,7 +79,11 @@ CONTROL = "control"
 HEALTH = "health"
 """The emulator's loop timing at a low rate on ``noiselab/<name>/health`` (not a vector)."""
 
-ALL_KINDS: tuple[str, ...] = KINDS + (CONTROL, HEALTH)
+ANALYSIS = "analysis"
+"""The live analyzer's summary on ``noiselab/<name>/analysis`` (a JSON object with seq, t, the
+model error, per-view errors and regions; see README 'Analysis')."""
+
+ALL_KINDS: tuple[str, ...] = KINDS + (CONTROL, HEALTH, ANALYSIS)
 
 VECTOR_FIELD: dict[str, str] = {"truth": "x", "command": "u", "measurement": "y", "control": "u"}
 """Payload field holding the vector, per vector kind."""
@@ -90,6 +94,7 @@ SCHEMA_NAMES: dict[str, str] = {
     "measurement": "noiselab.Measurement",
     "control": "noiselab.Control",
     "health": "noiselab.Health",
+    "analysis": "noiselab.Analysis",
 }
 """MCAP schema name per kind."""
 
@@ -130,9 +135,9 @@ def _check_kind(kind: str) -> str:
 
 
 def _vector_field(kind: str) -> str:
-    """The vector field of a vector kind (``health`` is not one)."""
-    if _check_kind(kind) == HEALTH:
-        raise WireError("health payloads are not vectors: use encode_health/decode_health")
+    """The vector field of a vector kind (``health`` and ``analysis`` are not)."""
+    if _check_kind(kind) in (HEALTH, ANALYSIS):
+        raise WireError(f"{kind} payloads are not vectors: use encode_{kind}/decode_{kind}")
     return VECTOR_FIELD[kind]
 
 
@@ -156,6 +161,8 @@ def schema(kind: str) -> dict:
     """JSON Schema (draft 2020-12) of a payload of ``kind``, as a fresh dict."""
     if _check_kind(kind) == HEALTH:
         return health_schema()
+    if kind == ANALYSIS:
+        return analysis_schema()
     field = VECTOR_FIELD[kind]
     return {
         "$schema": "https://json-schema.org/draft/2020-12/schema",
@@ -235,6 +242,44 @@ def decode_health(data: bytes | bytearray | memoryview | str, *, topic: str | No
         v = obj[name]
         if type(v) not in (int, float) or not math.isfinite(v):
             raise WireError(f"{where}: {name}={v!r} is not a finite number")
+    return obj
+
+
+def analysis_schema() -> dict:
+    """JSON Schema of the live analyzer's summary (open: more fields may be added)."""
+    return {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": SCHEMA_NAMES[ANALYSIS],
+        "description": "noiselab live analysis summary; see README 'Analysis'",
+        "type": "object",
+        "properties": {
+            "seq": {"type": "integer", "minimum": 0, "description": "per-topic counter"},
+            "t": {"type": "number", "description": "time of the last analysed sample, s"},
+            "revision": {"type": "integer", "description": "model revision (hot reloads)"},
+            "error": {"type": "number", "description": "the model error (about 1: model explains the data)"},
+            "error_per_view": {"type": "object"},
+            "samples": {"type": "integer"},
+            "regions": {"type": "array"},
+        },
+        "required": ["seq", "t", "revision", "error", "error_per_view", "samples", "regions"],
+    }
+
+
+def encode_analysis(seq: int, t: float, summary: dict) -> bytes:
+    obj = {"seq": _check_seq(seq), "t": float(t), **summary}
+    try:
+        return json.dumps(obj, separators=(",", ":"), allow_nan=False).encode()
+    except ValueError as exc:
+        raise WireError(f"analysis summary: {exc}") from None
+
+
+def decode_analysis(data, *, topic: str | None = None) -> dict:
+    where = topic or "analysis topic"
+    obj = _loads(data, where)
+    if not isinstance(obj, dict) or not {"seq", "t", "error"} <= set(obj):
+        raise WireError(f"{where}: analysis payload must be an object with seq, t, error")
+    if type(obj["seq"]) is not int or obj["seq"] < 0 or type(obj["t"]) not in (int, float):
+        raise WireError(f"{where}: bad seq or t in an analysis payload")
     return obj
 
 

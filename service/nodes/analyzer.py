@@ -1,0 +1,234 @@
+"""The live analysis node: subscribes to a device's measurement and command over Zenoh, keeps a
+rolling window, and every ``update`` seconds compares it with the model (the same
+:func:`service.diagnose.compare.compare` as the offline analysis), publishes the summary on
+``noiselab/<name>/analysis`` and prints it. On stop it writes the ``.rrd`` (the latest comparison
+of every model revision plus the error over time) and prints its final report.
+
+Memory is bounded: ring buffers of ``window`` plus a warm-up, indexed by seq. The residual needs
+the mean response, which depends on the command history: while the buffer still holds the
+stream's start (seq 0, the emulator starts at rest) the mean is computed from rest exactly as
+offline (so a replayed file gives the offline numbers); afterwards it is computed from zero over
+a warm-up of 4 transient lengths before the window, where the forgotten initial state has
+decayed below 1e-4 of its size, and the warm-up is not analysed.
+
+Hot reload: when the model file changes, the next update loads it (a broken file is reported and
+the previous model kept) and starts a new revision, so adding an effect shows the error falling.
+"""
+
+from __future__ import annotations
+
+import os
+import queue
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..diagnose.compare import AnalysisError, compare, transient_samples
+from ..model import ModelError, load_model
+from . import transport, wire
+
+
+class _Ring:
+    """Samples by seq modulo capacity, for one vector topic."""
+
+    def __init__(self, capacity: int, dim: int):
+        self.cap = capacity
+        self.seq = np.full(capacity, -1, np.int64)
+        self.t = np.zeros(capacity)
+        self.v = np.zeros((capacity, dim))
+        self.max_seq = -1
+
+    def put(self, seq: int, t: float, v) -> None:
+        i = seq % self.cap
+        self.seq[i], self.t[i], self.v[i] = seq, t, v
+        if seq > self.max_seq:
+            self.max_seq = seq
+
+    def take(self, seqs: np.ndarray):
+        i = seqs % self.cap
+        ok = self.seq[i] == seqs
+        return ok, self.t[i], self.v[i]
+
+
+class LiveAnalyzer:
+    def __init__(self, model_spec: str, *, device: str | None, window_s: float, log=sys.stderr):
+        self.spec = model_spec
+        self.path = Path(model_spec) if Path(model_spec).is_file() else None
+        self.mtime = self.path.stat().st_mtime_ns if self.path else None
+        self.model = load_model(model_spec)
+        self.revision = 0
+        self.device = device or self.model.name
+        self.window = max(64, int(round(window_s / self.model.Ts)))
+        self.warmup = 4 * transient_samples(self.model)
+        cap = self.window + self.warmup
+        self.meas = _Ring(cap, self.model.p)
+        self.cmd = _Ring(cap, self.model.m)
+        self.q: queue.SimpleQueue = queue.SimpleQueue()
+        self.log = log
+        self.latest: dict[int, object] = {}       # revision -> latest Comparison
+        self.history: list[dict] = []
+        self.received = 0
+        self.bad = 0
+
+    # Zenoh callback: only queue
+    def on_sample(self, sample) -> None:
+        self.q.put((str(sample.key_expr), sample.payload.to_bytes()))
+
+    def drain(self) -> None:
+        while True:
+            try:
+                key, payload = self.q.get_nowait()
+            except queue.Empty:
+                return
+            kind = key.rsplit("/", 1)[-1]
+            try:
+                obj = wire.decode(payload, kind, topic=key)
+            except wire.WireError:
+                self.bad += 1
+                continue
+            ring = self.meas if kind == "measurement" else self.cmd
+            vec = obj[wire.VECTOR_FIELD[kind]]
+            if len(vec) != ring.v.shape[1]:
+                self.bad += 1
+                continue
+            ring.put(obj["seq"], obj["t"], vec)
+            self.received += 1
+
+    def maybe_reload(self) -> None:
+        if self.path is None:
+            return
+        try:
+            mtime = self.path.stat().st_mtime_ns
+        except OSError:
+            return
+        if mtime == self.mtime:
+            return
+        self.mtime = mtime
+        try:
+            new = load_model(str(self.path))
+        except ModelError as exc:
+            print(f"noiselab analyze: model file changed but is invalid, keeping revision {self.revision}: {exc}",
+                  file=self.log, flush=True)
+            return
+        if (new.p, new.m, new.Ts) != (self.model.p, self.model.m, self.model.Ts):
+            print("noiselab analyze: the reloaded model changes Ts or the number of inputs/outputs; "
+                  f"keeping revision {self.revision}", file=self.log, flush=True)
+            return
+        self.model = new
+        self.revision += 1
+        print(f"noiselab analyze: reloaded {self.path} as revision {self.revision}", file=self.log, flush=True)
+
+    def analyse(self):
+        """Compare the buffered run ending at the newest measurement; None if too little data."""
+        top = self.meas.max_seq
+        if top < 0:
+            return None
+        lo = max(0, top - self.meas.cap + 1)
+        seqs = np.arange(lo, top + 1)
+        ok, t, y = self.meas.take(seqs)
+        have_cmd = self.cmd.max_seq >= 0
+        if have_cmd:
+            okc, _, u = self.cmd.take(seqs)
+            ok &= okc
+        else:
+            u = None
+        # the newest contiguous run of complete samples
+        bad = np.flatnonzero(~ok)
+        start = bad[-1] + 1 if bad.size else 0
+        t, y = t[start:], y[start:]
+        u = None if u is None else u[start:]
+        first = int(seqs[start]) if start < seqs.size else -1
+        n = t.size
+        if n < 256:
+            return None
+        if first == 0:
+            burn = None                                   # from rest, exactly as offline
+        else:
+            burn = min(self.warmup, n // 2)
+        try:
+            return compare(self.model, t, y, u, burn=burn, revision=self.revision,
+                           notes=[] if not bad.size else [f"analysed seq {first}..{top} (incomplete samples before)"])
+        except AnalysisError as exc:
+            print(f"noiselab analyze: {exc}", file=self.log, flush=True)
+            return None
+
+
+def summary_of(cmp, analyzer: LiveAnalyzer) -> dict:
+    return {"revision": cmp.revision, "model_source": cmp.model_source, "error": cmp.error,
+            "error_per_view": cmp.error_per_view, "samples": int(cmp.t.size),
+            "regions": [{"view": r.view, "output": r.output, "from": r.x_lo, "to": r.x_hi,
+                         "max_abs_z": r.max_abs_z, "direction": r.direction}
+                        for r in sorted(cmp.regions, key=lambda r: -r.max_abs_z)[:10]],
+            "received": analyzer.received, "malformed": analyzer.bad}
+
+
+def run_live(session, model_spec: str, *, device: str | None, window_s: float, update_s: float,
+             duration: float | None, stop: threading.Event, rrd: str | None, quiet: bool = False,
+             log=sys.stderr) -> dict:
+    an = LiveAnalyzer(model_spec, device=device, window_s=window_s, log=log)
+    keys = [wire.key(an.device, k) for k in ("measurement", "command")]
+    subs = [session.declare_subscriber(k, an.on_sample) for k in keys]
+    pub = session.declare_publisher(wire.key(an.device, wire.ANALYSIS))
+    print(f"noiselab analyze: live on noiselab/{an.device}/measurement, window {window_s:g} s, "
+          f"update every {update_s:g} s, model {an.model.source}", file=log, flush=True)
+    t_start = time.monotonic()
+    seq = 0
+    last = None
+    try:
+        while True:
+            done = stop.wait(update_s) or (duration is not None and time.monotonic() - t_start >= duration)
+            an.drain()
+            an.maybe_reload()
+            cmp = an.analyse()
+            if cmp is not None:
+                last = cmp
+                an.latest[cmp.revision] = cmp
+                summ = summary_of(cmp, an)
+                an.history.append({"t": float(cmp.t[-1]), "revision": cmp.revision, "error": cmp.error,
+                                   "error_per_view": dict(cmp.error_per_view)})
+                pub.put(wire.encode_analysis(seq, float(cmp.t[-1]), summ))
+                seq += 1
+                if not quiet:
+                    print(f"noiselab analyze: t = {cmp.t[-1]:.1f} s, revision {cmp.revision}, model error "
+                          f"{cmp.error:.3g} (" + ", ".join(f"{k} {v:.3g}" for k, v in cmp.error_per_view.items())
+                          + ")", file=log, flush=True)
+            if done:
+                break
+    finally:
+        for s in subs:
+            s.undeclare()
+    out = {"node": "analyze", "live": True, "updates": seq, "received": an.received, "malformed": an.bad,
+           "revisions": an.revision + 1}
+    if last is not None:
+        out.update(summary_of(last, an))
+        out["notes"] = last.notes
+        if rrd:
+            from viewers.rerun_log import log_comparisons
+            log_comparisons([an.latest[r] for r in sorted(an.latest)], rrd, history=an.history)
+            out["rrd"] = rrd
+    return out
+
+
+def cmd_analyze_live(args) -> int:
+    import json
+
+    from ..cli import UsageError, _stop_on_signals
+
+    if args.recording:
+        raise UsageError("--live analyses a Zenoh stream: give no RECORDING")
+    if args.rrd and Path(args.rrd).exists() and not args.force:
+        raise UsageError(f"{args.rrd}: exists (use --force to overwrite)")
+    stop = _stop_on_signals()
+    with transport.open_session(args, "sink") as session:
+        rep = run_live(session, args.model, device=args.device, window_s=args.window, update_s=args.update,
+                       duration=args.duration, stop=stop, rrd=args.rrd, quiet=args.json)
+    if args.json:
+        print(json.dumps(rep), flush=True)
+    else:
+        err = rep.get("error")
+        print(f"live analysis: {rep['updates']} updates, {rep['received']} messages, final model error "
+              + ("n/a" if err is None else f"{err:.3g}") + (f"; wrote {rep['rrd']}" if rep.get("rrd") else ""))
+    return 0
