@@ -315,7 +315,7 @@ def cmd_run(args) -> int:
 
     model = load_model(args.model)              # bad input fails here, before any process starts
     rep = run_pipeline(args.model, model.name, duration=args.duration, seed=args.seed, out_dir=Path(args.out),
-                       force=args.force)
+                       force=args.force, analyze=not args.no_analyze)
     emu, rec = rep["emulator"] or {}, rep["recorder"] or {}
     lines = [f"recording: {rep['recording']}"]
     for topic, b in sorted((rec.get("topics") or {}).items()):
@@ -326,6 +326,11 @@ def cmd_run(args) -> int:
         lat = emu["lateness_us"]
         lines.append(f"loop: {emu['samples']} samples at Ts = {emu['Ts']:g} s, lateness p50 {lat['p50']:.0f} us, "
                      f"p99 {lat['p99']:.0f} us, max {lat['max']:.0f} us, {emu['overruns']} overruns")
+    an = rep.get("analysis") or {}
+    if an.get("error") is not None:
+        lines.append(f"analysis: model error {an['error']:.3g} against {args.model} ("
+                     + ", ".join(f"{k} {v:.3g}" for k, v in an["error_per_view"].items()) + ")")
+        lines += [f"wrote {an[k]}" for k in ("rrd", "png") if an.get(k)]
     lines += rep["emulator_log"]
     _emit(args, rep, lines)
     return 0
@@ -523,6 +528,7 @@ def build_parser() -> argparse.ArgumentParser:
     sn.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
     sn.add_argument("--out", default="recordings", help="output directory (default recordings/)")
     sn.add_argument("--force", action="store_true", help="overwrite an existing output file")
+    sn.add_argument("--no-analyze", action="store_true", help="do not start the live analysis node")
     sn.add_argument("--json", action="store_true", help="machine-readable summary")
     sn.set_defaults(func=cmd_run)
     return p

@@ -31,6 +31,9 @@ from ..model import ModelError, load_model
 from . import transport, wire
 
 
+READY_MARK = "noiselab analyze: live on"
+
+
 class _Ring:
     """Samples by seq modulo capacity, for one vector topic."""
 
@@ -172,7 +175,7 @@ def run_live(session, model_spec: str, *, device: str | None, window_s: float, u
     keys = [wire.key(an.device, k) for k in ("measurement", "command")]
     subs = [session.declare_subscriber(k, an.on_sample) for k in keys]
     pub = session.declare_publisher(wire.key(an.device, wire.ANALYSIS))
-    print(f"noiselab analyze: live on noiselab/{an.device}/measurement, window {window_s:g} s, "
+    print(f"{READY_MARK} noiselab/{an.device}/measurement, window {window_s:g} s, "
           f"update every {update_s:g} s, model {an.model.source}", file=log, flush=True)
     t_start = time.monotonic()
     seq = 0
@@ -207,8 +210,12 @@ def run_live(session, model_spec: str, *, device: str | None, window_s: float, u
         out["notes"] = last.notes
         if rrd:
             from viewers.rerun_log import log_comparisons
-            log_comparisons([an.latest[r] for r in sorted(an.latest)], rrd, history=an.history)
-            out["rrd"] = rrd
+            from viewers.summary_png import write_summary_png
+            comps = [an.latest[r] for r in sorted(an.latest)]
+            log_comparisons(comps, rrd, history=an.history)
+            png = str(Path(rrd).with_suffix(".png"))
+            write_summary_png(comps, png)
+            out["rrd"], out["png"] = rrd, png
     return out
 
 

@@ -31,10 +31,10 @@ def _cli(*args: str) -> list[str]:
     return [sys.executable, "-m", "service.cli", *args]
 
 
-def _pump(stream, sink: list, ready: threading.Event | None = None, echo=None):
+def _pump(stream, sink: list, ready: threading.Event | None = None, echo=None, mark: str = READY_MARK):
     for line in stream:
         sink.append(line)
-        if ready is not None and READY_MARK in line:
+        if ready is not None and mark in line:
             ready.set()
         if echo is not None:
             echo.write(line)
@@ -52,42 +52,81 @@ def _last_json(lines: list[str]) -> dict | None:
     return None
 
 
+class _Child:
+    """A node process whose stdout/stderr are pumped into lists; ``ready`` when its mark appears."""
+
+    def __init__(self, argv, mark, env):
+        self.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+        self.out, self.err, self.ready = [], [], threading.Event()
+        self.threads = [threading.Thread(target=_pump, args=(self.proc.stdout, self.out, self.ready, None, mark), daemon=True),
+                        threading.Thread(target=_pump, args=(self.proc.stderr, self.err, self.ready, None, mark), daemon=True)]
+        for t in self.threads:
+            t.start()
+
+    def wait_ready(self, what: str) -> None:
+        while not self.ready.wait(0.05):
+            if self.proc.poll() is not None:
+                for t in self.threads:
+                    t.join(2)
+                raise RuntimeError(f"{what} exited before subscribing: " + "".join(self.err).strip()[-500:])
+
+    def stop(self, what: str, timeout: float = 120) -> None:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+        try:
+            self.proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+        for t in self.threads:
+            t.join(5)
+        if self.proc.returncode != 0:
+            raise RuntimeError(f"{what} failed: " + "".join(self.err).strip()[-500:])
+
+    def kill(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+
+
 def run_pipeline(model_spec: str, model_name: str, *, duration: float, seed: int, out_dir: Path,
-                 force: bool = False, log=sys.stderr) -> dict:
+                 force: bool = False, analyze: bool = True, log=sys.stderr) -> dict:
+    from .analyzer import READY_MARK as ANALYZER_READY
+
     out_dir.mkdir(parents=True, exist_ok=True)
     stamp = time.strftime("%Y%m%d-%H%M%S")
     out = out_dir / f"{model_name}-{stamp}.mcap"
-    port = free_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
+    rrd = out.with_suffix(".rrd")
+    rec_ep = f"tcp/127.0.0.1:{free_port()}"
+    an_ep = f"tcp/127.0.0.1:{free_port()}"
     env = dict(os.environ, PYTHONUNBUFFERED="1")
-    rec = subprocess.Popen(_cli("record", "--key", f"noiselab/{model_name}/**", "--out", str(out),
-                                "--listen", endpoint, "--json", *(["--force"] if force else [])),
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
-    rec_out, rec_err, ready = [], [], threading.Event()
-    threads = [threading.Thread(target=_pump, args=(rec.stdout, rec_out), daemon=True),
-               threading.Thread(target=_pump, args=(rec.stderr, rec_err, ready), daemon=True)]
-    for t in threads:
-        t.start()
-    while not ready.wait(0.05):
-        if rec.poll() is not None:
-            for t in threads:
-                t.join(2)
-            raise RuntimeError("recorder exited before subscribing: " + "".join(rec_err).strip()[-500:])
-    emu = subprocess.run(_cli("emulate", model_spec, "--duration", repr(duration), "--seed", str(seed),
-                              "--connect", endpoint, "--wait-subscribers", "10", "--json"),
-                         capture_output=True, text=True, env=env)
-    rec.send_signal(signal.SIGINT)
+    force_flag = ["--force"] if force else []
+    children = []
     try:
-        rec.wait(timeout=60)
-    except subprocess.TimeoutExpired:
-        rec.kill()
-        rec.wait()
-    for t in threads:
-        t.join(5)
-    if emu.returncode != 0:
-        raise RuntimeError("emulator failed: " + emu.stderr.strip()[-500:])
-    if rec.returncode != 0:
-        raise RuntimeError("recorder failed: " + "".join(rec_err).strip()[-500:])
+        rec = _Child(_cli("record", "--key", f"noiselab/{model_name}/**", "--out", str(out), "--listen", rec_ep,
+                          "--json", *force_flag), READY_MARK, env)
+        children.append(rec)
+        an = None
+        if analyze:
+            an = _Child(_cli("analyze", "--live", "--model", model_spec, "--device", model_name, "--listen", an_ep,
+                             "--window", repr(max(60.0, duration + 5)), "--rrd", str(rrd), "--json", *force_flag),
+                        ANALYZER_READY, env)
+            children.append(an)
+        rec.wait_ready("recorder")
+        if an is not None:
+            an.wait_ready("analyzer")
+        connect = ["--connect", rec_ep] + (["--connect", an_ep] if an is not None else [])
+        emu = subprocess.run(_cli("emulate", model_spec, "--duration", repr(duration), "--seed", str(seed),
+                                  *connect, "--wait-subscribers", "10", "--json"),
+                             capture_output=True, text=True, env=env)
+        if emu.returncode != 0:
+            raise RuntimeError("emulator failed: " + emu.stderr.strip()[-500:])
+        rec.stop("recorder")
+        if an is not None:
+            an.stop("analyzer")
+    finally:
+        for c in children:
+            c.kill()
     return {"recording": str(out), "emulator": _last_json(emu.stdout.splitlines()),
-            "recorder": _last_json(rec_out), "endpoint": endpoint,
-            "emulator_log": emu.stderr.strip().splitlines()}
+            "recorder": _last_json(rec.out), "analysis": _last_json(an.out) if an is not None else None,
+            "endpoint": rec_ep, "emulator_log": emu.stderr.strip().splitlines()}
