@@ -15,7 +15,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .model import ModelError, load_model
+from .model import ModelError
+
+
+def load_model(spec):
+    from .model import load_model as _load   # scipy is loaded here, only by commands that need it
+    return _load(spec)
 
 __version__ = "0.1.0"
 
@@ -24,12 +29,21 @@ class UsageError(ValueError):
     """Bad command-line input; the message is one line."""
 
 
+class _Lazy(Exception):
+    """Stands in for an error class whose module was never imported (so nothing raised it)."""
+
+
+def _loaded(module: str, name: str):
+    mod = sys.modules.get(module)
+    return getattr(mod, name) if mod is not None else _Lazy
+
+
 def _bad_input_types():
     from .nodes.mcapio import McapIoError, RecordingExistsError
-    from .diagnose.compare import AnalysisError
     from .nodes.transport import TransportError
     from .nodes.wire import WireError
-    from .stats.errors import StatsError
+    AnalysisError = _loaded("service.diagnose.compare", "AnalysisError")
+    StatsError = _loaded("service.stats.errors", "StatsError")
     return (ModelError, UsageError, WireError, McapIoError, RecordingExistsError, TransportError,
             AnalysisError, StatsError,
             FileNotFoundError, IsADirectoryError, PermissionError)
@@ -231,7 +245,7 @@ def cmd_emulate(args) -> int:
         print(f"noiselab emulate: {model.name} at Ts = {model.Ts:g} s on noiselab/{model.name}/* "
               f"(listen {ends['listen']}, connect {ends['connect']})", file=sys.stderr, flush=True)
         s = run_emulator(model, session, duration=args.duration, seed=args.seed, stop=stop,
-                         wait_subscribers=args.wait_subscribers, stale_s=args.stale)
+                         wait_subscribers=args.wait_subscribers, stale_s=args.stale, wait_peers=args.wait_peers)
     lat = s.lateness_us
     _emit(args, s.as_dict(), [f"emulated {s.samples} samples of {s.name} in {s.wall_s:.2f} s; lateness p50 "
                               f"{lat['p50']:.0f} us, p99 {lat['p99']:.0f} us, max {lat['max']:.0f} us; "
@@ -461,6 +475,8 @@ def build_parser() -> argparse.ArgumentParser:
     se.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
     se.add_argument("--wait-subscribers", type=float, default=0.0, metavar="S",
                     help="wait up to S seconds for a subscriber before the first sample")
+    se.add_argument("--wait-peers", type=int, default=0, metavar="N",
+                    help="before waiting for subscribers, wait until N peers are connected (several sinks)")
     se.add_argument("--stale", type=_positive_float("--stale"), default=0.5, metavar="S",
                     help="closed loop: a control input older than S seconds is stale, zero is applied (default 0.5)")
     se.add_argument("--json", action="store_true", help="machine-readable summary on stdout")

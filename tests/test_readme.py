@@ -21,6 +21,10 @@ def console_commands():
     return [line.strip() for b in blocks("console") for line in b.splitlines() if line.strip().startswith("noiselab ")]
 
 
+def console_blocks():
+    return [[ln.strip() for ln in b.splitlines() if ln.strip().startswith("noiselab ")] for b in blocks("console")]
+
+
 def main_command_steps():
     first = blocks("sh")[0].strip()
     steps = [s.strip() for s in first.split("&&")]
@@ -48,13 +52,16 @@ def test_readme_has_examples():
     assert test_cmd.split("&&")[-1].strip() in ci, "CI must run the README's test command"
 
 
-@pytest.mark.parametrize("cmd", console_commands())
-def test_console_example(cmd, scratch):
-    res = run_noiselab(cmd, scratch)
-    assert res.returncode == 0, res.stderr
-    assert res.stdout.strip()
-    for out in re.findall(r"--out (\S+)", cmd):
-        assert (scratch / out).stat().st_size > 0
+@pytest.mark.parametrize("block", console_blocks(), ids=lambda b: b[0][:40])
+def test_console_examples(block, scratch):
+    """Each console block runs in order in one directory (later lines use earlier outputs)."""
+    for cmd in block:
+        res = run_noiselab(cmd, scratch)
+        assert res.returncode == 0, (cmd, res.stderr)
+        assert res.stdout.strip()
+        for out in re.findall(r"--(?:out|rrd) (\S+)", cmd):
+            target = scratch / out
+            assert target.exists() and (target.is_dir() or target.stat().st_size > 0), out
 
 
 def test_main_command_steps(scratch):

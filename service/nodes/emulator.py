@@ -84,11 +84,13 @@ def _percentiles(values_ns: list[int]) -> tuple[float, float, float]:
 
 def run_emulator(model, session: "zenoh.Session", *, duration: float | None, seed: int = 0,
                  stop: threading.Event | None = None, wait_subscribers: float = 0.0,
-                 stale_s: float = 0.5, log=sys.stderr) -> EmulatorSummary:
+                 stale_s: float = 0.5, wait_peers: int = 0, log=sys.stderr) -> EmulatorSummary:
     """Run the real-time loop until ``duration`` seconds of samples are out or ``stop`` is set.
 
     ``wait_subscribers`` > 0: wait up to that many seconds for a subscriber of the measurement
-    before the first sample (so a recorder started alongside gets sample 0)."""
+    before the first sample (so a recorder started alongside gets sample 0). ``wait_peers``: first
+    wait until that many peers are connected (several sinks on separate links: a match tells
+    only that one of them has subscribed; their subscriptions come with their session)."""
     stop = stop or threading.Event()
     name, Ts = model.name, model.Ts
     Ts_ns = wire.period_ns(Ts)
@@ -100,6 +102,9 @@ def run_emulator(model, session: "zenoh.Session", *, duration: float | None, see
     external = model.command.kind == "external"
     control = _Control(model.m) if external else None
     sub = session.declare_subscriber(keys[wire.CONTROL], control.on_sample) if external else None
+    if wait_peers > 0 and not transport.wait_peers(session, wait_peers, max(wait_subscribers, 5.0), stop):
+        if not stop.is_set():
+            print(f"noiselab emulate: fewer than {wait_peers} peers connected: starting anyway", file=log, flush=True)
     if wait_subscribers > 0 and not transport.wait_matching([pubs["measurement"]], wait_subscribers, stop):
         if not stop.is_set():
             print(f"noiselab emulate: no subscriber matched within "

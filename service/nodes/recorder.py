@@ -6,7 +6,8 @@ publish_time = the sample time t in ns, log_time = receive time, wall clock ns).
 * The chunk in progress is flushed every ``flush_s`` (default 0.25 s), so a SIGKILLed recorder
   loses at most the last ~0.25 s: the file lacks its footer, and `noiselab recover` (or any
   reader, which says the file is unfinished) gets every message up to the last flushed chunk.
-* SIGINT/SIGTERM, ``duration`` or ``stop`` finish the file (summary, footer) cleanly.
+* SIGINT/SIGTERM, ``duration`` or ``stop`` finish the file (summary, footer) cleanly, after
+  writing what is still arriving (until the stream is quiet for 0.2 s, at most 2 s).
 * Sequence bookkeeping per topic: first and last seq, count, gaps (a forward jump: the seqs
   skipped) and restarts (seq going back, e.g. a restarted emulator). A recorder started
   mid-stream reports the seqs before its first one as missing at start. They are printed on
@@ -25,6 +26,9 @@ from dataclasses import dataclass, field
 import zenoh
 
 from . import mcapio, wire
+
+QUIET_S = 0.2        # on stop: keep writing until no message arrived for this long ...
+DRAIN_MAX_S = 2.0    # ... but at most this long (a live stream never goes quiet)
 
 
 @dataclass
@@ -122,12 +126,19 @@ def run_recorder(session: "zenoh.Session", key_expr: str, out: str, *, duration:
         if ready is not None:
             ready.set()
         last_flush = time.monotonic()
+        stop_at = None
         try:
             while True:
                 now = time.monotonic()
                 done = stop.is_set() or (duration is not None and now - t_start >= duration)
+                if done and stop_at is None:
+                    stop_at = now
+                if done and now - stop_at > DRAIN_MAX_S:
+                    break
                 try:
-                    item = q.get(timeout=0.05) if not done else q.get_nowait()
+                    # once stopping, drain until the stream has been quiet for QUIET_S (what is still
+                    # in flight from a fast sender), at most DRAIN_MAX_S
+                    item = q.get(timeout=0.05 if not done else QUIET_S)
                 except queue.Empty:
                     item = None
                 if item is not None:

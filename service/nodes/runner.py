@@ -117,7 +117,8 @@ def run_pipeline(model_spec: str, model_name: str, *, duration: float, seed: int
             an.wait_ready("analyzer")
         connect = ["--connect", rec_ep] + (["--connect", an_ep] if an is not None else [])
         emu = subprocess.run(_cli("emulate", model_spec, "--duration", repr(duration), "--seed", str(seed),
-                                  *connect, "--wait-subscribers", "10", "--json"),
+                                  *connect, "--wait-peers", str(len(connect) // 2), "--wait-subscribers", "10",
+                                  "--json"),
                              capture_output=True, text=True, env=env)
         if emu.returncode != 0:
             raise RuntimeError("emulator failed: " + emu.stderr.strip()[-500:])

@@ -128,6 +128,18 @@ def wait_matching(publishers, timeout: float, stop=None, *, every: bool = True) 
     return True
 
 
+def wait_peers(session, n: int, timeout: float, stop=None) -> bool:
+    """Wait up to ``timeout`` seconds until ``n`` peers are connected to ``session``."""
+    import time
+
+    t_end = time.monotonic() + timeout
+    while len(list(session.info.peers_zid())) < n:
+        if time.monotonic() >= t_end or (stop is not None and stop.is_set()):
+            return False
+        time.sleep(0.002)
+    return True
+
+
 def check_key_expr(text: str) -> str:
     """A valid Zenoh key expression, or a one-line TransportError."""
     try:

@@ -203,7 +203,7 @@ HEALTH_FIELDS: dict[str, str] = {
 def health_schema() -> dict:
     """JSON Schema of the emulator's health payload (``seq``, ``t`` and :data:`HEALTH_FIELDS`)."""
     props = {"seq": {"type": "integer", "minimum": 0, "description": "per-topic counter"},
-             "t": {"type": "number", "description": "nominal time k*Ts of the report, s"}}
+             "t": {"type": "number", "description": "nominal time (k-1)*Ts of the last sample stepped, s"}}
     for name, desc in HEALTH_FIELDS.items():
         props[name] = {"type": "number", "description": desc}
     return {
