@@ -70,12 +70,22 @@ def _welch_bins(r: np.ndarray, Ts: float, L: int):
 def _expected(model, L: int, j: int, sel, m_long=None) -> dict:
     """Per effect: expected Welch values at the selected bins, then (when ``m_long`` is given) the
     Allan variances at the long averaging factors appended: both are linear in each effect."""
+    from scipy.signal import get_window
+
+    from .compare import _welch_kernel
+
     need = L if m_long is None or not len(m_long) else max(L, int(2 * max(m_long)) + 1)
+    gam = _gamma_parts(model, need)
+    ids = list(gam)
+    G = np.column_stack([gam[e][:L, j] for e in ids])            # (L, effects)
+    K = _welch_kernel(L, "hann")[sel]
+    w = get_window("hann", L)
+    E = (-2.0 * K[:, 1:] @ G[1:L]) * (2.0 * model.Ts / np.sum(w**2))   # expected_welch_detrended, batched
     parts = {}
-    for eid, g in _gamma_parts(model, need).items():
-        e = expected_welch_detrended(g[:L, j:j + 1], L, model.Ts)[sel, 0]
+    for i, eid in enumerate(ids):
+        e = E[:, i]
         if m_long is not None and len(m_long):
-            e = np.concatenate([e, allan_from_variogram(g[:, j:j + 1], np.asarray(m_long))[:, 0]])
+            e = np.concatenate([e, allan_from_variogram(gam[eid][:, j:j + 1], np.asarray(m_long))[:, 0]])
         parts[eid] = e
     return parts
 
