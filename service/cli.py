@@ -395,7 +395,7 @@ def load_series(args, model, truth: bool = True):
         raise UsageError(f"{path}: no such file")
     if args.measurement:
         return dload.load_foreign(path, args.measurement, args.time, model.Ts)
-    return dload.load_noiselab(path, args.device, truth=truth)
+    return dload.load_noiselab(path, args.device, truth=truth, Ts=model.Ts)
 
 
 def _check_out(path: str | None, force: bool):

@@ -1,0 +1,292 @@
+"""The live analysis node against a replayed recording (issue 4 "What it must show", item 6):
+real processes (``noiselab analyze --live``, ``noiselab replay``), real Zenoh sessions on
+127.0.0.1 with multicast scouting off, real MCAP files.
+
+Topology: the replay listens on P; this test's own session listens on Q and subscribes to
+``noiselab/seed/analysis``; the analyzer connects to both (``--connect-timeout`` long enough to
+outlast the replay's start-up: its explicit connect retries until P is up). The replay waits for
+the analyzer's subscribers (``--wait-subscribers``) before its first message.
+
+Synchronisation is by events only: the analysis summaries received by this test's subscriber
+(condition variable), the children's stderr lines, process exit. Every timeout is a failure bound.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zenoh
+
+from service.diagnose.compare import compare
+from service.model import load_model
+from service.nodes import mcapio, wire
+from service.nodes.runner import free_port
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENARIOS = ROOT / "service" / "scenarios"
+T_EVENT = 60.0           # bound for "the next event happens" on a shared 2-core machine; never a pass
+FILE_SEED = 3            # see test_hot_reload for why this seed's numbers are well inside the bounds
+
+
+# ------------------------------------------------------------------------------------ helpers
+class Child:
+    """A ``python -m service.cli ...`` process; stdout/stderr lines collected by threads."""
+
+    def __init__(self, label: str, *args: str):
+        self.label = label
+        self.proc = subprocess.Popen([sys.executable, "-m", "service.cli", *map(str, args)],
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+                                     env=dict(os.environ, PYTHONUNBUFFERED="1"))
+        self.out: list[str] = []
+        self.err: list[str] = []
+        self.cond = threading.Condition()
+        self.err_eof = False
+        self.threads = [threading.Thread(target=self._pump, args=(self.proc.stdout, self.out, False), daemon=True),
+                        threading.Thread(target=self._pump, args=(self.proc.stderr, self.err, True), daemon=True)]
+        for t in self.threads:
+            t.start()
+
+    def _pump(self, stream, sink, is_err):
+        for line in stream:
+            with self.cond:
+                sink.append(line.rstrip("\n"))
+                self.cond.notify_all()
+        with self.cond:
+            self.err_eof = self.err_eof or is_err
+            self.cond.notify_all()
+
+    def wait_line(self, text: str, timeout: float = T_EVENT) -> str:
+        def found():
+            return next((ln for ln in self.err if text in ln), None)
+        with self.cond:
+            self.cond.wait_for(lambda: found() is not None or self.err_eof, timeout)
+            line = found()
+        assert line is not None, f"{self.label}: no stderr line with {text!r}: {self.stderr_text()}"
+        return line
+
+    def finish(self, timeout: float = T_EVENT) -> int:
+        try:
+            rc = self.proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            pytest.fail(f"{self.label} did not exit within {timeout} s: {self.stderr_text()}")
+        for t in self.threads:
+            t.join(T_EVENT)
+        return rc
+
+    def interrupt(self, timeout: float = T_EVENT) -> int:
+        self.proc.send_signal(signal.SIGINT)
+        return self.finish(timeout)
+
+    def json(self) -> dict:
+        for line in reversed(self.out):
+            if line.startswith("{"):
+                return json.loads(line)
+        pytest.fail(f"{self.label}: no JSON on stdout: {self.out} {self.stderr_text()}")
+
+    def stderr_text(self) -> str:
+        with self.cond:
+            return " | ".join(self.err)[-3000:]
+
+    def kill(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+        self.proc.wait()
+        for t in self.threads:
+            t.join(5)
+
+
+@pytest.fixture
+def spawn():
+    children: list[Child] = []
+
+    def start(label: str, *args: str) -> Child:
+        c = Child(label, *args)
+        children.append(c)
+        return c
+
+    yield start
+    for c in children:
+        c.kill()
+
+
+def ep(port: int) -> str:
+    return f"tcp/127.0.0.1:{port}"
+
+
+class Summaries:
+    """Subscriber on the analysis topic: every summary (decoded) with its monotonic arrival time."""
+
+    def __init__(self):
+        self.cond = threading.Condition()
+        self.items: list[tuple[float, dict]] = []
+
+    def __call__(self, sample) -> None:
+        obj = wire.decode_analysis(sample.payload.to_bytes(), topic=str(sample.key_expr))
+        with self.cond:
+            self.items.append((time.monotonic(), obj))
+            self.cond.notify_all()
+
+    def wait(self, pred, what: str, start: int = 0, timeout: float = T_EVENT) -> tuple[int, float, dict]:
+        """The first summary at index >= ``start`` satisfying ``pred``: (index, arrival, summary)."""
+        def find():
+            return next((i for i in range(start, len(self.items)) if pred(self.items[i][1])), None)
+        with self.cond:
+            self.cond.wait_for(lambda: find() is not None, timeout)
+            i = find()
+            last = self.items[-1][1] if self.items else None
+        assert i is not None, f"timeout ({timeout} s) waiting for {what}; last summary: {last}"
+        return i, self.items[i][0], self.items[i][1]
+
+    def __len__(self) -> int:
+        with self.cond:
+            return len(self.items)
+
+
+def listening_session(port: int) -> zenoh.Session:
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("listen/endpoints", json.dumps([ep(port)]))
+    conf.insert_json5("connect/endpoints", "[]")
+    return zenoh.open(conf)
+
+
+def cli(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "service.cli", *map(str, args)], capture_output=True, text=True,
+                          cwd=ROOT, timeout=timeout)
+
+
+def write_interleaved(model, n: int, seed: int, out: Path, block: int = 10) -> None:
+    """The simulated record in the wire contract, written in blocks of ``block`` samples per topic
+    (truth, command, measurement; the emulator's order), so that a paced replay publishes the
+    three topics together. (``noiselab simulate`` writes 65536-sample blocks per topic, and the
+    replay publishes in file order: a paced replay of a 60 s simulate file sends all the truth
+    first, then command and measurement in a burst.)"""
+    rec = model.simulate(n, seed=seed)
+    with mcapio.RecordingWriter(out) as w:
+        for k0 in range(0, n, block):
+            nb = min(block, n - k0)
+            t, pub = wire.sample_times(k0, nb, model.Ts)
+            for kind, arr in (("truth", rec.x), ("command", rec.u), ("measurement", rec.y)):
+                topic = wire.key(model.name, kind)
+                w.write_batch(topic, kind, k0, pub, pub, wire.encode_batch(kind, k0, t, arr[k0:k0 + nb], topic=topic))
+
+
+# ------------------------------------------------------------------------------------ tests
+def test_live_equals_offline_on_a_replay(tmp_path, spawn):
+    """A live analyzer fed a replay of a file, window longer than the file, ends with exactly the
+    offline analysis' numbers (same floats), STYLE 9."""
+    rec_path = tmp_path / "seed60.mcap"
+    r = cli("simulate", "seed", "--duration", "60", "--seed", FILE_SEED, "--out", rec_path)
+    assert r.returncode == 0, r.stderr
+    count = 6000
+    offline = cli("analyze", rec_path, "--model", "seed-nominal", "--json")
+    assert offline.returncode == 0, offline.stderr
+    off = json.loads(offline.stdout)
+    assert off["samples"] == count
+
+    p, q = free_port(), free_port()
+    got = Summaries()
+    with listening_session(q) as session:
+        sub = session.declare_subscriber("noiselab/seed/analysis", got)
+        an = spawn("analyze", "analyze", "--live", "--model", "seed-nominal", "--connect", ep(p), "--connect", ep(q),
+                   "--connect-timeout", "30", "--window", "1000", "--json")
+        rp = spawn("replay", "replay", rec_path, "--fast", "--listen", ep(p), "--wait-subscribers", "20", "--json")
+        assert rp.finish() == 0, rp.stderr_text()
+        assert not any("no subscriber matched" in ln for ln in rp.err), rp.stderr_text()
+        assert rp.json()["messages"] == 3 * count
+        # everything is in when a summary analysed every sample (and counted both topics)
+        _, _, last = got.wait(lambda s: s["samples"] == count and s["received"] == 2 * count,
+                               f"a summary with samples == {count}")
+        assert an.interrupt() == 0, an.stderr_text()
+        sub.undeclare()
+    live = an.json()
+    assert live["live"] and live["received"] == 2 * count and live["malformed"] == 0
+    assert live["samples"] == count and live["revisions"] == 1
+    # exactly the same floats as offline (JSON round-trips floats exactly)
+    assert live["error"] == off["error"], (live["error"], off["error"])
+    assert live["error_per_view"] == off["error_per_view"]
+    assert last["error"] == off["error"] and last["error_per_view"] == off["error_per_view"]
+    assert live["error"] > 10          # seed data against the nominal model: a real mismatch, not 1 == 1
+
+
+def test_hot_reload_changes_the_error_within_one_update(tmp_path, spawn):
+    """The model file edited while the analyzer runs: the next revision's summary arrives within two
+    update periods and shows the right model's error; a broken edit keeps the revision (one line).
+
+    Bound on the right model's error: a correct model's error on one record has mean 1 and a
+    spread of sd ~0.65 on records of 1000-6000 samples (measured: 8 seeds x prefixes of 800..6000
+    samples, mean 1.0, max 4.6), so < 3 is ~3 sd. For this file (seed 3) the right model's error on
+    every prefix of 700..6000 samples (step 10) is <= 1.93, and the nominal model's error first
+    exceeds 10 at 700 samples (offline, same compare()): the bounds hold wherever the reload lands.
+    The check that carries the live machinery is exact: the revision-1 summary equals compare()
+    on the same prefix of the file."""
+    # 1 s, not the default 0.5 s: the reload's latency is the rest of the current wait (the loop
+    # sleeps ``update`` after its work, so up to one period) plus the reload update's own work,
+    # 0.06-0.16 s here, with spikes to ~0.6 s when other processes load the 2 cores. Measured at
+    # 0.5 s: 0.61-0.76 s typically, 3 of 20 runs 1.12-1.17 s (> 2 periods); see the report.
+    update = 1.0
+    seed_model = load_model("seed")
+    n = 6000
+    rec_path = tmp_path / "seed60.mcap"
+    write_interleaved(seed_model, n, FILE_SEED, rec_path)
+    model_file = tmp_path / "model.toml"
+    model_file.write_text((SCENARIOS / "seed-nominal.toml").read_text())
+
+    def replace(text: str) -> None:            # an editor's atomic save
+        tmp = tmp_path / "model.toml.new"
+        tmp.write_text(text)
+        os.replace(tmp, model_file)
+
+    p, q = free_port(), free_port()
+    got = Summaries()
+    with listening_session(q) as session:
+        sub = session.declare_subscriber("noiselab/seed/analysis", got)
+        an = spawn("analyze", "analyze", "--live", "--model", model_file, "--connect", ep(p), "--connect", ep(q),
+                   "--connect-timeout", "30", "--window", "1000", "--update", repr(update), "--json")
+        rp = spawn("replay", "replay", rec_path, "--speed", "4", "--listen", ep(p), "--wait-subscribers", "20")
+        i0, _, s0 = got.wait(lambda s: s["revision"] == 0 and s["error"] > 10, "revision 0 with error > 10")
+
+        replace((SCENARIOS / "seed.toml").read_text())
+        t_change = time.monotonic()
+        i1, t1, s1 = got.wait(lambda s: s["revision"] == 1, "the first revision-1 summary", start=i0 + 1)
+        latency = t1 - t_change
+        an.wait_line("reloaded")
+        assert all(s["revision"] == 0 for _, s in got.items[i0:i1])
+
+        # the broken edit: one line, revision kept, summaries go on
+        replace((SCENARIOS / "seed.toml").read_text() + "\n[sensor.whiet]\nstd = 0.01\n")
+        line = an.wait_line("model file changed but is invalid")
+        k = len(got)
+        _, _, s2 = got.wait(lambda s: True, "a summary after the broken edit", start=k)
+        assert rp.interrupt() == 0, rp.stderr_text()
+        assert an.interrupt() == 0, an.stderr_text()
+        sub.undeclare()
+
+    print(f"\nhot reload: revision 0 error {s0['error']:.3g} at {s0['samples']} samples; revision 1 summary "
+          f"{latency:.3f} s after the file change (bound {2 * update:g} s), error {s1['error']:.3g} at "
+          f"{s1['samples']} samples")
+    assert latency <= 2 * update, f"revision 1 arrived {latency:.3f} s after the change (> 2 x {update} s)"
+    assert s1["error"] < 3, s1
+    # the live number is compare() on the same prefix of the file (the stream starts at rest: burn auto)
+    m = s1["samples"]
+    data = seed_model.simulate(n, seed=FILE_SEED)
+    ref = compare(seed_model, data.t[:m], data.y[:m], data.u[:m], burn=None)
+    assert s1["error"] == ref.error and s1["error_per_view"] == ref.error_per_view
+    assert s1["model_source"] == str(model_file)
+    # broken edit: kept revision 1, one line naming the problem, no traceback
+    assert s2["revision"] == 1
+    assert "keeping revision 1" in line and "sensor.whiet" in line
+    assert sum("model file changed but is invalid" in ln for ln in an.err) == 1
+    assert not any("Traceback" in ln for ln in an.err), an.stderr_text()
+    final = an.json()
+    assert final["revisions"] == 2 and final["revision"] == 1
