@@ -80,7 +80,7 @@ def test_schema_names_are_the_contract():
                                  "measurement": "noiselab.Measurement",
                                  # extensions for the live pipeline (README "Live pipeline")
                                  "control": "noiselab.Control", "health": "noiselab.Health",
-                                 "analysis": "noiselab.Analysis"}
+                                 "analysis": "noiselab.Analysis", "end": "noiselab.End"}
     assert wire.VECTOR_FIELD == {"truth": "x", "command": "u", "measurement": "y", "control": "u"}
 
 
@@ -263,3 +263,48 @@ def test_control_is_a_vector_kind():
     data = wire.encode(7, 0.07, [0.25], kind="control")
     assert wire.decode(data, "control") == {"seq": 7, "t": 0.07, "u": [0.25]}
     assert wire.key("dev", "control") == "noiselab/dev/control"
+
+
+def test_decode_accepts_bytes_bytearray_memoryview_and_str():
+    data = wire.encode(5, 0.005, [1.25, -0.5], kind="measurement")
+    want = {"seq": 5, "t": 0.005, "y": [1.25, -0.5]}
+    for form in (data, bytearray(data), memoryview(data), data.decode()):
+        assert wire.decode(form, "measurement") == want
+    # one shared decoder: a rejected constant does not leave it in a bad state
+    with pytest.raises(WireError, match="NaN"):
+        wire.decode(b'{"seq":0,"t":0.0,"y":[NaN]}')
+    assert wire.decode(data) == want
+
+
+@pytest.mark.parametrize("payload", [b"\xef\xbb\xbf" + wire.encode(0, 0.0, [1.0], kind="truth"),
+                                     '{"seq":0,"t":0.0,"x":[1.0]}'.encode("utf-16")])
+def test_decode_wants_utf8_without_bom(payload):
+    with pytest.raises(WireError, match="not valid JSON"):
+        wire.decode(payload, "truth", topic="noiselab/dev/truth")
+
+
+def test_end_payload_round_trip_and_validation():
+    counts = {"truth": 10, "command": 10, "measurement": 10, "health": 1}
+    data = wire.encode_end(0, 0.009, 10, counts, "duration")
+    assert data == (b'{"seq":0,"t":0.009,"samples":10,"counts":{"truth":10,"command":10,'
+                    b'"measurement":10,"health":1},"reason":"duration"}')
+    assert wire.decode_end(data) == json.loads(data)
+    s = wire.schema("end")
+    assert s["title"] == "noiselab.End" and s["required"] == list(json.loads(data)) == list(s["properties"])
+    assert json.loads(wire.schema_bytes("end")) == s
+    assert wire.key("dev", "end") == "noiselab/dev/end" and wire.parse_key("noiselab/dev/end") == ("dev", "end")
+    with pytest.raises(WireError):
+        wire.encode(0, 0.0, [1.0], kind="end")
+    for bad in [dict(reason="crashed"), dict(counts={"state": 1}), dict(counts={"truth": -1}), dict(t=math.inf),
+                dict(samples=-1)]:
+        args = {"seq": 0, "t": 0.0, "samples": 1, "counts": counts, "reason": "stopped", **bad}
+        with pytest.raises(WireError):
+            wire.encode_end(**args)
+    for bad, match in [(b'{"seq":0,"t":0.0,"samples":1,"counts":{},"reason":"stopped","x":1}', "must have keys"),
+                       (b'{"seq":0,"t":0.0,"samples":1,"counts":{"truth":1.5},"reason":"stopped"}', "counts"),
+                       (b'{"seq":0,"t":0.0,"samples":true,"counts":{},"reason":"stopped"}', "samples=True"),
+                       (b'{"seq":0,"t":0.0,"samples":1,"counts":{},"reason":"over"}', "reason='over'"),
+                       (b'{"seq":0,"t":NaN,"samples":1,"counts":{},"reason":"stopped"}', "NaN")]:
+        with pytest.raises(WireError, match=match) as e:
+            wire.decode_end(bad, topic="noiselab/dev/end")
+        assert str(e.value).startswith("noiselab/dev/end: ")

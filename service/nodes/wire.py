@@ -51,9 +51,14 @@ __all__ = [
     "check_name",
     "decode",
     "decode_health",
+    "decode_end",
+    "encode_end",
+    "end_schema",
+    "END",
     "encode_health",
     "health_schema",
     "decode_batch",
+    "decode_packed",
     "encode",
     "encode_batch",
     "key",
@@ -83,7 +88,12 @@ ANALYSIS = "analysis"
 """The live analyzer's summary on ``noiselab/<name>/analysis`` (a JSON object with seq, t, the
 model error, per-view errors and regions; see README 'Analysis')."""
 
-ALL_KINDS: tuple[str, ...] = KINDS + (CONTROL, HEALTH, ANALYSIS)
+END = "end"
+"""End of stream on ``noiselab/<name>/end``: a source (the emulator) publishes it once, after its
+last sample, with the number of messages it published per topic (see :func:`encode_end`), then
+asks the recorders (a query on the same key) to acknowledge it before it closes its session."""
+
+ALL_KINDS: tuple[str, ...] = KINDS + (CONTROL, HEALTH, ANALYSIS, END)
 
 VECTOR_FIELD: dict[str, str] = {"truth": "x", "command": "u", "measurement": "y", "control": "u"}
 """Payload field holding the vector, per vector kind."""
@@ -95,6 +105,7 @@ SCHEMA_NAMES: dict[str, str] = {
     "control": "noiselab.Control",
     "health": "noiselab.Health",
     "analysis": "noiselab.Analysis",
+    "end": "noiselab.End",
 }
 """MCAP schema name per kind."""
 
@@ -136,7 +147,7 @@ def _check_kind(kind: str) -> str:
 
 def _vector_field(kind: str) -> str:
     """The vector field of a vector kind (``health`` and ``analysis`` are not)."""
-    if _check_kind(kind) in (HEALTH, ANALYSIS):
+    if _check_kind(kind) in (HEALTH, ANALYSIS, END):
         raise WireError(f"{kind} payloads are not vectors: use encode_{kind}/decode_{kind}")
     return VECTOR_FIELD[kind]
 
@@ -163,6 +174,8 @@ def schema(kind: str) -> dict:
         return health_schema()
     if kind == ANALYSIS:
         return analysis_schema()
+    if kind == END:
+        return end_schema()
     field = VECTOR_FIELD[kind]
     return {
         "$schema": "https://json-schema.org/draft/2020-12/schema",
@@ -280,6 +293,63 @@ def decode_analysis(data, *, topic: str | None = None) -> dict:
         raise WireError(f"{where}: analysis payload must be an object with seq, t, error")
     if type(obj["seq"]) is not int or obj["seq"] < 0 or type(obj["t"]) not in (int, float):
         raise WireError(f"{where}: bad seq or t in an analysis payload")
+    return obj
+
+
+END_REASONS = ("duration", "stopped")
+
+
+def end_schema() -> dict:
+    """JSON Schema of the end-of-stream message (README 'Live pipeline', wire extension)."""
+    return {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": SCHEMA_NAMES[END],
+        "description": "noiselab end of stream: what the source published; see README 'Live pipeline'",
+        "type": "object",
+        "properties": {
+            "seq": {"type": "integer", "minimum": 0, "description": "per-topic counter (one per stream)"},
+            "t": {"type": "number", "description": "nominal time of the last sample, s (0 if none)"},
+            "samples": {"type": "integer", "minimum": 0, "description": "samples the source stepped"},
+            "counts": {"type": "object", "additionalProperties": {"type": "integer", "minimum": 0},
+                       "description": "messages published per topic kind (seq 0..count-1 each)"},
+            "reason": {"enum": list(END_REASONS), "description": "duration reached, or stopped"},
+        },
+        "required": ["seq", "t", "samples", "counts", "reason"],
+        "additionalProperties": False,
+    }
+
+
+def encode_end(seq: int, t: float, samples: int, counts: dict, reason: str) -> bytes:
+    """Compact JSON end-of-stream payload; ``counts`` maps topic kinds to messages published."""
+    if reason not in END_REASONS:
+        raise WireError(f"end reason {reason!r} is not one of {', '.join(END_REASONS)}")
+    if not isinstance(counts, dict) or not all(k in ALL_KINDS for k in counts):
+        raise WireError(f"end counts must map topic kinds to counts, got {counts!r}")
+    obj = {"seq": _check_seq(seq), "t": float(t), "samples": _check_seq(samples, "samples"),
+           "counts": {k: _check_seq(v, f"count of {k}") for k, v in counts.items()}, "reason": reason}
+    if not math.isfinite(obj["t"]):
+        raise WireError(f"end t={t!r} is not finite")
+    return json.dumps(obj, separators=(",", ":")).encode()
+
+
+def decode_end(data, *, topic: str | None = None) -> dict:
+    """Parse and validate an end-of-stream payload (:func:`end_schema`)."""
+    where = topic or "end topic"
+    obj = _loads(data, where)
+    if not isinstance(obj, dict) or set(obj) != {"seq", "t", "samples", "counts", "reason"}:
+        raise WireError(f"{where}: end payload must have keys seq, t, samples, counts, reason")
+    for name in ("seq", "samples"):
+        if type(obj[name]) is not int or obj[name] < 0:
+            raise WireError(f"{where}: {name}={obj[name]!r} is not an integer >= 0")
+    if type(obj["t"]) not in (int, float) or not math.isfinite(obj["t"]):
+        raise WireError(f"{where}: t={obj['t']!r} is not a finite number")
+    counts = obj["counts"]
+    if not isinstance(counts, dict) or not all(k in ALL_KINDS and type(v) is int and v >= 0
+                                               for k, v in counts.items()):
+        raise WireError(f"{where}: counts must map topic kinds to integers >= 0, got {counts!r}")
+    if obj["reason"] not in END_REASONS:
+        raise WireError(f"{where}: reason={obj['reason']!r} is not one of {', '.join(END_REASONS)}")
+    obj["t"] = float(obj["t"])
     return obj
 
 
@@ -434,10 +504,16 @@ def _reject_constant(name: str):
     raise WireError(f"payload contains {name}, which is not valid JSON")
 
 
+_DECODER = json.JSONDecoder(parse_constant=_reject_constant)
+"""One decoder for every payload: ``json.loads(..., parse_constant=...)`` builds a new
+JSONDecoder on every call (a keyword argument defeats its cached default decoder), which cost
+more than the parsing itself (8.6 -> 2.3 us per payload; tests/bench/RESULTS.md)."""
+
+
 def _loads(data: bytes | bytearray | memoryview | str, where: str):
     try:
-        return json.loads(bytes(data) if isinstance(data, memoryview) else data,
-                          parse_constant=_reject_constant)
+        # payloads are UTF-8 (the contract); json.loads would also sniff UTF-16/32
+        return _DECODER.decode(data if isinstance(data, str) else bytes(data).decode("utf-8"))
     except WireError as e:
         raise WireError(f"{where}: {e}") from None
     except (ValueError, UnicodeDecodeError) as e:
@@ -494,37 +570,73 @@ def decode(data: bytes | bytearray | memoryview | str, kind: str | None = None, 
     return _validate(_loads(data, where), kind, where)
 
 
-_NUM = rb"-?(?:0|[1-9][0-9]*)(?:\.[0-9]+)?(?:[eE][+-]?[0-9]+)?"
+# A JSON number (RFC 8259), possessive: numbers are followed by "," or "]" so nothing is given back.
+_NUM = rb"-?+(?:0|[1-9][0-9]*+)(?:\.[0-9]++)?+(?:[eE][+-]?+[0-9]++)?+"
+_ROWS: dict[tuple[str, int], re.Pattern] = {}
+_NL_TO_COMMA = bytes.maketrans(b"\n", b",")
 
 
-def _decode_template(payloads: Sequence[bytes], field: str):
-    """Fast path for payloads exactly in noiselab's own layout ``{"seq":S,"t":T,"<field>":[...]}``
-    (the encoder's output): one regex over all payloads checks the exact layout (JSON numbers
-    only, the same vector length everywhere, an integer seq), the template is stripped with
-    bytes.replace and every number parsed in one numpy call (C strtod, correctly rounded: the
-    floats equal json's). Returns None (use the validating path) on any deviation."""
-    n = len(payloads)
-    first = bytes(payloads[0])
+def _rows_pattern(field: str, dim: int) -> re.Pattern:
+    """Any number of rows ``{"seq":S,"t":T,"<field>":[V1,...,Vdim]}\\n`` (compiled once)."""
+    pat = _ROWS.get((field, dim))
+    if pat is None:
+        vec = rb"\[" + rb",".join([_NUM] * dim) + rb"\]"
+        row = rb'\{"seq":(?:0|[1-9][0-9]*+),"t":' + _NUM + rb',"' + field.encode() + rb'":' + vec + rb"\}\n"
+        pat = _ROWS[(field, dim)] = re.compile(rb"(?:" + row + rb")*+")
+    return pat
+
+
+def _decode_template_blob(blob: bytes, n: int, field: str):
+    """Fast path for ``n`` payloads exactly in noiselab's own layout ``{"seq":S,"t":T,"<field>":[...]}``
+    (the encoder's output), each followed by ``\\n`` in ``blob``: one regex match over the whole blob
+    checks the exact layout (JSON numbers only, the same vector length everywhere, an integer
+    seq), the template is stripped (one bytes.replace, one bytes.translate) and every number
+    parsed in one numpy call (C strtod, correctly rounded: the floats equal json's). Returns None
+    (use the validating path) on any deviation."""
+    cut = blob.find(b"\n")
+    if n < 1 or cut < 0 or not blob.endswith(b"\n"):
+        return None
+    first = blob[:cut]
     mid = b',"' + field.encode() + b'":['
     if not first.startswith(b'{"seq":') or mid not in first:
         return None
     dim = first.count(b",") - 1 if not first.endswith(b"[]}") else 0
     if dim < 1:
         return None
-    vec = rb"\[" + rb",".join([_NUM] * dim) + rb"\]"
-    row = rb'\{"seq":(?:0|[1-9][0-9]*),"t":' + _NUM + re.escape(mid[:-1]) + vec + rb"\}"
-    blob = b"\n".join(payloads)
-    if len(re.findall(rb"^" + row + rb"$", blob, flags=re.M)) != n:
+    m = _rows_pattern(field, dim).match(blob)
+    if m is None or m.end() != len(blob):
         return None
-    body = (blob.replace(b'{"seq":', b"").replace(b',"t":', b",").replace(mid, b",")
-            .replace(b"]}\n", b",").replace(b"]}", b""))
-    vals = np.fromstring(body.decode("ascii"), dtype=np.float64, sep=",")
+    # {"seq":S,"t":T,"y":[V1,V2]}\n -> S,T,V1,V2,  (the layout is known: only template bytes go)
+    body = blob.replace(b'{"seq":', b"").translate(_NL_TO_COMMA, b'"t:[]}' + field.encode())
+    vals = np.fromstring(body[:-1].decode("ascii"), dtype=np.float64, sep=",")
     if vals.size != n * (dim + 2):
         return None
     vals = vals.reshape(n, dim + 2)
     if not np.all(np.isfinite(vals)) or np.any(vals[:, 0] > 2**53):
         return None
     return vals[:, 0].astype(np.int64), vals[:, 1].copy(), vals[:, 2:].copy()
+
+
+def _decode_template(payloads: Sequence[bytes], field: str):
+    """:func:`_decode_template_blob` of a list of payloads."""
+    return _decode_template_blob(b"\n".join(payloads) + b"\n", len(payloads), field)
+
+
+def decode_packed(blob: bytes, lens, kind: str, *, topic: str | None = None
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`decode_batch` of payloads packed in one buffer, each followed by ``b"\\n"``:
+    payload i is ``blob[s_i:s_i + lens[i]]``, s_i = sum_{j<i} (lens[j] + 1) (what the MCAP
+    reader collects). Same results and validation as :func:`decode_batch`."""
+    field = _vector_field(kind)
+    lens = np.asarray(lens, np.int64)
+    n = int(lens.size)
+    if n and int(lens.sum()) + n == len(blob):
+        fast = _decode_template_blob(blob, n, field)
+        if fast is not None:
+            return fast
+    ends = np.cumsum(lens + 1) - 1
+    starts = ends - lens
+    return decode_batch([blob[a:b] for a, b in zip(starts.tolist(), ends.tolist())], kind, topic=topic)
 
 
 def decode_batch(payloads: Sequence[bytes], kind: str, *, topic: str | None = None
