@@ -245,7 +245,8 @@ def cmd_emulate(args) -> int:
         print(f"noiselab emulate: {model.name} at Ts = {model.Ts:g} s on noiselab/{model.name}/* "
               f"(listen {ends['listen']}, connect {ends['connect']})", file=sys.stderr, flush=True)
         s = run_emulator(model, session, duration=args.duration, seed=args.seed, stop=stop,
-                         wait_subscribers=args.wait_subscribers, stale_s=args.stale, wait_peers=args.wait_peers)
+                         wait_subscribers=args.wait_subscribers, stale_s=args.stale, wait_peers=args.wait_peers,
+                         end_timeout=args.end_timeout)
     lat = s.lateness_us
     _emit(args, s.as_dict(), [f"emulated {s.samples} samples of {s.name} in {s.wall_s:.2f} s; lateness p50 "
                               f"{lat['p50']:.0f} us, p99 {lat['p99']:.0f} us, max {lat['max']:.0f} us; "
@@ -479,6 +480,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="before waiting for subscribers, wait until N peers are connected (several sinks)")
     se.add_argument("--stale", type=_positive_float("--stale"), default=0.5, metavar="S",
                     help="closed loop: a control input older than S seconds is stale, zero is applied (default 0.5)")
+    se.add_argument("--end-timeout", type=_positive_float("--end-timeout"), default=10.0, metavar="S",
+                    help="at the end, wait up to S seconds for the recorders to acknowledge every message (default 10)")
     se.add_argument("--json", action="store_true", help="machine-readable summary on stdout")
     add_transport_args(se)
     se.set_defaults(func=cmd_emulate)

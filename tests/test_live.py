@@ -33,8 +33,8 @@ import pytest
 import zenoh
 
 from service.model import load_model
-from service.nodes import mcapio, wire
-from service.nodes.recorder import TopicBook
+from service.nodes import mcapio, transport, wire
+from service.nodes.recorder import Ingest, TopicBook
 from service.nodes.runner import READY_MARK, free_port
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -282,11 +282,26 @@ def check_recording(path, model, seed: int, n: int, *, batch: bool = True) -> No
 
 
 def check_summary_topics(topics: dict, name: str, n: int) -> None:
-    """A recorder --json summary: every data topic 0..n-1, no gaps, no restarts."""
+    """A recorder --json summary: every data topic 0..n-1, no gaps, no restarts, and the source's
+    end of stream says it published exactly n."""
     for kind in DATA_KINDS:
         b = topics[wire.key(name, kind)]
         assert (b["first_seq"], b["last_seq"], b["count"]) == (0, n - 1, n), (kind, b)
         assert b["missing_at_start"] == 0 and b["gaps"] == [] and b["missing"] == 0 and b["restarts"] == []
+        assert (b["expected"], b["missing_at_end"]) == (n, 0), (kind, b)
+    assert topics[wire.key(name, "end")]["count"] == 1
+
+
+def check_end_acknowledged(emu_summary: dict, name: str, n: int, recorders: int = 1) -> None:
+    """The emulator's --json summary: its end of stream was acknowledged by ``recorders``
+    recorders holding every message."""
+    end = emu_summary["end"]
+    assert end["timed_out"] is False and end["errors"] == [], end
+    assert len(end["acks"]) == recorders, end
+    for ack in end["acks"]:
+        assert ack["prefix"] == f"noiselab/{name}" and ack["ended"] and ack["complete"], ack
+        for kind in DATA_KINDS:
+            assert ack["topics"][kind] == {"count": n, "last_seq": n - 1, "expected": n, "missing": 0}, ack
 
 
 # ----------------------------------------------------------------------- shared recordings
@@ -349,8 +364,11 @@ def test_run_records_5000_consecutive_messages_equal_to_the_batch_simulation(fas
     assert rep["emulator"]["samples"] == N_FAST and rep["emulator"]["seed"] == SEED_FAST
     assert rep["emulator"]["Ts"] == 0.001
     check_summary_topics(rep["recorder"]["topics"], "fast", N_FAST)
+    check_end_acknowledged(rep["emulator"], "fast", N_FAST)
     health = rep["recorder"]["topics"]["noiselab/fast/health"]
     assert (health["first_seq"], health["last_seq"], health["gaps"]) == (0, 4, [])
+    assert rep["recorder"]["ended"] == {"noiselab/fast": {"truth": N_FAST, "command": N_FAST,
+                                                          "measurement": N_FAST, "health": 5}}
     path = Path(rep["recording"])
     assert path.parent == tmp_path / "rec" and path.is_file()
     check_recording(path, fast_model, SEED_FAST, N_FAST)
@@ -362,6 +380,7 @@ def test_separate_record_and_emulate_processes(separate_recording, fast_model):
     assert emu_summary["samples"] == N_FAST
     assert rec_summary["malformed"] == 0
     check_summary_topics(rec_summary["topics"], "fast", N_FAST)
+    check_end_acknowledged(emu_summary, "fast", N_FAST)
     check_recording(path, fast_model, SEED_FAST, N_FAST)
     meta = mcapio.read_recording(path).metadata["noiselab.recorder"]
     assert json.loads(meta["topics"]) == rec_summary["topics"]
@@ -373,7 +392,7 @@ def test_replay_fast_delivers_every_message_in_order(separate_recording, spawn):
     path, _, _ = separate_recording
     in_file = {topic: [m.data for _, _, m in items] for topic, items in file_messages(path).items()}
     total = sum(len(v) for v in in_file.values())
-    assert total == 3 * N_FAST + 5                      # + 5 health messages
+    assert total == 3 * N_FAST + 5 + 1                  # + 5 health messages, the end of stream
     port = free_port()
     rp = spawn("replay", "replay", path, "--listen", ep(port), "--fast", "--wait-subscribers", "20", "--json")
     got = Collector()
@@ -707,6 +726,7 @@ def test_recorder_restarted_mid_stream(fast_model_file, spawn, tmp_path):
         assert b2["first_seq"] > b1["last_seq"] + 1, (b1, b2)       # a real hole between them
         assert b2["missing_at_start"] == b2["first_seq"]
         assert b2["last_seq"] == end
+        assert (b1["expected"], b2["expected"], b2["missing_at_end"]) == (None, end + 1, 0)   # only 2 saw the end
         seqs = []
         for f, b in ((f1, b1), (f2, b2)):
             s = [json.loads(m.data)["seq"] for _, _, m in file_messages(f)[topic]]
@@ -714,7 +734,9 @@ def test_recorder_restarted_mid_stream(fast_model_file, spawn, tmp_path):
             seqs += s
         assert seqs == [k for k in range(end + 1) if not b1["last_seq"] < k < b2["first_seq"]]
     for topic, b in t2.items():                  # health too, when a report fell in its time
-        assert b["missing_at_start"] == b["first_seq"] > 0, (topic, b)
+        if topic != "noiselab/fast/end":         # the end of stream: one message, seq 0
+            assert b["missing_at_start"] == (b["first_seq"] if b["count"] else b["expected"]) > 0, (topic, b)
+    assert t2["noiselab/fast/end"]["count"] == 1 and "noiselab/fast/end" not in t1
 
 
 def test_topicbook_counts_gaps_and_restarts():
@@ -730,8 +752,147 @@ def test_topicbook_counts_gaps_and_restarts():
     for s in range(5):
         fresh.see(s)
     assert fresh.as_dict() == {"first_seq": 0, "last_seq": 4, "count": 5, "missing_at_start": 0, "gaps": [],
-                               "missing": 0, "restarts": []}
+                               "missing": 0, "restarts": [], "expected": None, "missing_at_end": 0}
+    run = TopicBook()
+    run.see_run(0, 5)
+    assert run.as_dict() == fresh.as_dict()
+    run.see_run(7, 3)                      # 5, 6 skipped
+    assert (run.last_seq, run.count, run.gaps) == (9, 8, [(4, 2)])
+    assert run.end(13) == 3                # the source sent 0..12: 10, 11, 12 never came
+    d = run.as_dict()
+    assert d["gaps"] == [[4, 2], [9, 3]] and d["missing"] == 5 and (d["expected"], d["missing_at_end"]) == (13, 3)
+    assert run.lacks == 5
+    late = TopicBook()                     # a recorder started at seq 3 of a source that sent 0..9
+    for s in range(3, 8):
+        late.see(s)
+    assert late.end(10) == 2 and late.lacks == 3 + 2
+    none = TopicBook()                     # nothing of the topic arrived
+    assert none.end(4) == 0 and none.lacks == 4
+    assert (none.as_dict()["missing_at_start"], none.as_dict()["gaps"], none.as_dict()["missing"]) == (4, [], 0)
     assert TopicBook().as_dict()["missing_at_start"] == 0
+
+
+# ------------------------------------------------------------------ 4b. end of stream
+
+
+def test_end_of_stream_is_answered_after_the_data_and_a_shortfall_is_a_gap(spawn, tmp_path):
+    """A source in this process (a real session, the emulator's publisher options) puts 20,000
+    measurements as fast as it can and 100 commands with one malformed payload among them, then
+    ends its stream the emulator's way (transport.end_stream) claiming 20,005 measurements, 100
+    commands and 3 truths it never sent. The recorder answers only once it has written all
+    20,000 (its answer holds the count), books the 5 + 3 it never got as gaps at the end, says so
+    on stderr and in its summary, skips only the malformed payload, and finishes on SIGINT."""
+    n = 20_000
+    port = free_port()
+    out = tmp_path / "end.mcap"
+    rec = spawn("record", "record", "--listen", ep(port), "--out", out, "--json")
+    rec.wait_line(READY_MARK)
+    meas = wire.encode_batch("measurement", 0, np.arange(n) * 1e-3, np.ones((n, 1)))
+    cmds = wire.encode_batch("command", 0, np.arange(100) * 1e-3, np.zeros((100, 1)))
+    claimed = {"measurement": n + 5, "command": 100, "truth": 3}
+    with zenoh.open(session_config(connect=[ep(port)])) as session:
+        pubs = {kind: session.declare_publisher(wire.key("src", kind), **transport.DATA_QOS)
+                for kind in ("measurement", "command", "end")}
+        assert transport.wait_matching(pubs.values(), T_EVENT), "the recorder did not match"
+        for payload in meas:
+            pubs["measurement"].put(payload)
+        for k, payload in enumerate(cmds):
+            if k == 50:
+                pubs["command"].put(b'{"seq":50,"t":0.05,"u":[NaN]}')
+            pubs["command"].put(payload)
+        end = transport.end_stream(session, pubs["end"], wire.encode_end(0, (n - 1) * 1e-3, n + 5, claimed, "stopped"),
+                                   T_EVENT)
+    assert end["timed_out"] is False and end["errors"] == [] and len(end["acks"]) == 1, end
+    ack = end["acks"][0]
+    assert (ack["out"], ack["prefix"], ack["ended"], ack["complete"]) == (str(out), "noiselab/src", True, False)
+    assert ack["topics"]["measurement"] == {"count": n, "last_seq": n - 1, "expected": n + 5, "missing": 5}
+    assert ack["topics"]["command"] == {"count": 100, "last_seq": 99, "expected": 100, "missing": 0}
+    assert ack["topics"]["truth"] == {"count": 0, "last_seq": None, "expected": 3, "missing": 3}
+    line = rec.wait_line("noiselab record: noiselab/src ended")
+    assert line == ("noiselab record: noiselab/src ended (stopped) after 20005 samples: "
+                    "not recorded: 5 measurement (5 at the end), 3 truth (none arrived)"), line
+    assert rec.interrupt() == 0, rec.stderr_text()
+    summary = rec.json()
+    assert summary["messages"] == n + 100 + 1 and summary["malformed"] == 1
+    assert summary["ended"] == {"noiselab/src": claimed}
+    topics = summary["topics"]
+    m = topics["noiselab/src/measurement"]
+    assert (m["count"], m["gaps"], m["missing"], m["expected"], m["missing_at_end"]) == (n, [[n - 1, 5]], 5, n + 5, 5)
+    t = topics["noiselab/src/truth"]
+    assert (t["count"], t["first_seq"], t["missing_at_start"], t["gaps"], t["missing"]) == (0, None, 3, [], 0)
+    c = topics["noiselab/src/command"]
+    assert (c["count"], c["gaps"], c["missing"], c["restarts"]) == (100, [], 0, [])
+    msgs = file_messages(out)
+    assert [m.data for _, _, m in msgs["noiselab/src/measurement"]] == meas
+    assert [m.data for _, _, m in msgs["noiselab/src/command"]] == cmds
+    assert [m.sequence for _, _, m in msgs["noiselab/src/measurement"]] == list(range(n))
+    assert [m.publish_time for _, _, m in msgs["noiselab/src/measurement"]] == [k * 1_000_000 for k in range(n)]
+    (schema, channel, end_msg), = msgs["noiselab/src/end"]
+    assert schema.name == "noiselab.End" and wire.decode_end(end_msg.data)["counts"] == claimed
+    assert "noiselab/src/truth" not in msgs
+
+
+def test_emulator_at_10_khz_loses_nothing_at_the_end(spawn, tmp_path):
+    """Ts = 0.1 ms for 2 s (60,000 messages; the emulator catches up when it falls behind, it never
+    skips a sample) into a recorder process: the emulator exits only after the recorder has
+    acknowledged its end of stream, and the file holds every sample of the step API's path."""
+    f = tmp_path / "fast10k.toml"
+    f.write_text(model_text("fast10k", 0.0001))
+    model = load_model(f)
+    n = 20_000
+    port = free_port()
+    out = tmp_path / "fast10k.mcap"
+    rec = spawn("record", "record", "--listen", ep(port), "--out", out, "--json")
+    rec.wait_line(READY_MARK)
+    emu = spawn("emulate", "emulate", f, "--connect", ep(port), "--wait-subscribers", "20", "--duration", "2",
+                "--seed", "3", "--json")
+    assert emu.finish(120) == 0, emu.stderr_text()
+    assert waited_for_subscribers(emu), emu.stderr_text()
+    summary = emu.json()
+    assert summary["samples"] == n
+    check_end_acknowledged(summary, "fast10k", n)
+    rec.wait_line("noiselab record: noiselab/fast10k ended (duration) after 20000 samples: every message recorded")
+    assert rec.interrupt() == 0, rec.stderr_text()
+    check_summary_topics(rec.json()["topics"], "fast10k", n)
+    check_recording(out, model, 3, n, batch=False)
+
+
+def test_recorder_batches_equal_message_by_message(tmp_path):
+    """The recorder's work on a batch (runs decoded with wire.decode_batch and written with
+    write_batch) gives the same file and books as message by message (wire.decode, write); a
+    malformed payload in a long run costs only itself; a gap and a restart are booked the same."""
+    rng = np.random.default_rng(0)
+    meas = wire.encode_batch("measurement", 0, np.arange(300) * 0.01, rng.normal(size=(300, 2)))
+    truth = wire.encode_batch("truth", 0, np.arange(300) * 0.01, rng.normal(size=(300, 2)))
+    items = []
+    for k in range(300):
+        if k in (100, 101, 102):
+            continue                                           # a gap
+        items.append(("noiselab/d/truth", truth[k]))
+        items.append(("noiselab/d/measurement", meas[k] if k != 150 else b'{"seq":150,"t":1.5,"y":[1.0,true]}'))
+    items += [("noiselab/d/measurement", meas[5]), ("noiselab/d/truth", truth[5]),   # restarts
+              ("noiselab/d/state", b"{}"), ("noiselab/d/health", b'{"seq":0}')]       # a foreign kind, a bad health
+    books, files = [], []
+    for mode in ("batch", "one by one"):
+        path = tmp_path / f"{mode}.mcap"
+        with mcapio.RecordingWriter(path) as w:
+            ing = Ingest(w, str(path), log=open(os.devnull, "w"))
+            if mode == "batch":
+                ing.add(items, 1_000)
+            else:
+                for item in items:
+                    ing.add([item], 1_000)
+        books.append(({k: b.as_dict() for k, b in ing.books.items()}, ing.messages, ing.malformed))
+        files.append({topic: [(m.sequence, m.publish_time, m.log_time, m.data) for _, _, m in v]
+                      for topic, v in file_messages(path).items()})
+    assert books[0] == books[1] and files[0] == files[1]
+    topics, messages, malformed = books[0]
+    assert (messages, malformed) == (2 * 297 - 1 + 2, 3)
+    tb = topics["noiselab/d/truth"]            # the batch path: decode_batch, runs split at the gap and the restart
+    assert tb["gaps"] == [[99, 3]] and tb["restarts"] == [[299, 5]] and tb["count"] == 298
+    mb = topics["noiselab/d/measurement"]
+    assert mb["gaps"] == [[99, 3], [149, 1]] and mb["restarts"] == [[299, 5]] and mb["count"] == 297
+    assert [s for s, _, _, _ in files[0]["noiselab/d/measurement"]] == [k for k in range(300) if k not in (100, 101, 102, 150)] + [5]
 
 
 # --------------------------------------------------------------------------- 5. errors

@@ -7,7 +7,13 @@ skips a sample: when it falls behind it catches up and counts an *overrun* (work
 finished after d_{k+1}). Lateness is the wake-up time minus the deadline.
 
 Data streams are published with congestion control BLOCK (a slow subscriber slows the loop,
-which the health shows, instead of losing recorded data) and ``express`` (no batching delay).
+which the health shows, instead of losing recorded data), without ``express`` (with a subscriber
+attached it tripled the cost of the three puts, ~110 -> ~31 us, and bought no latency).
+
+End of stream: when the loop ends (duration reached or stopped) the emulator publishes
+``noiselab/<name>/end`` with the number of messages it published per topic and waits (at most
+``end_timeout`` s) until every recorder has acknowledged it (:func:`transport.end_stream`), so
+closing the session afterwards loses nothing that was still queued or in flight.
 
 Closed loop (``[command] kind = "external"``): the emulator subscribes to
 ``noiselab/<name>/control`` and applies the latest command it has received (zero-order hold).
@@ -43,11 +49,12 @@ class EmulatorSummary:
     wall_s: float
     stale_control_events: int = 0
     keys: dict = field(default_factory=dict)
+    end: dict = field(default_factory=dict)
 
     def as_dict(self) -> dict:
         return {"node": "emulate", "name": self.name, "samples": self.samples, "Ts": self.Ts, "seed": self.seed,
                 "lateness_us": self.lateness_us, "overruns": self.overruns, "wall_s": self.wall_s,
-                "stale_control_events": self.stale_control_events, "keys": self.keys}
+                "stale_control_events": self.stale_control_events, "keys": self.keys, "end": self.end}
 
 
 class _Control:
@@ -84,20 +91,22 @@ def _percentiles(values_ns: list[int]) -> tuple[float, float, float]:
 
 def run_emulator(model, session: "zenoh.Session", *, duration: float | None, seed: int = 0,
                  stop: threading.Event | None = None, wait_subscribers: float = 0.0,
-                 stale_s: float = 0.5, wait_peers: int = 0, log=sys.stderr) -> EmulatorSummary:
+                 stale_s: float = 0.5, wait_peers: int = 0, end_timeout: float = 10.0,
+                 log=sys.stderr) -> EmulatorSummary:
     """Run the real-time loop until ``duration`` seconds of samples are out or ``stop`` is set.
 
     ``wait_subscribers`` > 0: wait up to that many seconds for a subscriber of the measurement
     before the first sample (so a recorder started alongside gets sample 0). ``wait_peers``: first
     wait until that many peers are connected (several sinks on separate links: a match tells
-    only that one of them has subscribed; their subscriptions come with their session)."""
+    only that one of them has subscribed; their subscriptions come with their session).
+    ``end_timeout``: longest wait for the recorders' acknowledgement of the end of stream (0: do
+    not wait; the last messages may then be lost when the session closes)."""
     stop = stop or threading.Event()
     name, Ts = model.name, model.Ts
     Ts_ns = wire.period_ns(Ts)
     n_total = None if duration is None else max(1, int(round(duration / Ts)))
-    keys = {kind: wire.key(name, kind) for kind in (*wire.KINDS, wire.HEALTH, wire.CONTROL)}
-    opts = dict(congestion_control=zenoh.CongestionControl.BLOCK, express=True)
-    pubs = {kind: session.declare_publisher(keys[kind], **opts) for kind in wire.KINDS}
+    keys = {kind: wire.key(name, kind) for kind in (*wire.KINDS, wire.HEALTH, wire.CONTROL, wire.END)}
+    pubs = {kind: session.declare_publisher(keys[kind], **transport.DATA_QOS) for kind in (*wire.KINDS, wire.END)}
     health_pub = session.declare_publisher(keys[wire.HEALTH], congestion_control=zenoh.CongestionControl.DROP)
     external = model.command.kind == "external"
     control = _Control(model.m) if external else None
@@ -166,8 +175,33 @@ def run_emulator(model, session: "zenoh.Session", *, duration: float | None, see
     finally:
         if sub is not None:
             sub.undeclare()
+    wall_s = (mono() - start_ns) / 1e9
+    counts = {kind: k for kind in wire.KINDS}
+    counts[wire.HEALTH] = health_seq
+    reason = "duration" if n_total is not None and k >= n_total else "stopped"
+    end = transport.end_stream(session, pubs[wire.END],
+                               wire.encode_end(0, wire.sample_time(max(k - 1, 0), Ts), k, counts, reason),
+                               end_timeout)
+    _report_end(name, end, counts, end_timeout, log)
     p50, p99, mx = _percentiles(lat_all)
     return EmulatorSummary(name=name, samples=k, Ts=Ts, seed=seed,
                            lateness_us={"p50": p50, "p99": p99, "max": mx}, overruns=overruns,
-                           wall_s=(mono() - start_ns) / 1e9, stale_control_events=stale_events,
-                           keys={k_: v for k_, v in keys.items()})
+                           wall_s=wall_s, stale_control_events=stale_events,
+                           keys={k_: v for k_, v in keys.items()}, end=end)
+
+
+def _report_end(name: str, end: dict, counts: dict, timeout: float, log) -> None:
+    """Say on ``log`` what went wrong at the end of the stream (nothing when every recorder has
+    acknowledged every message)."""
+    if end["timed_out"]:
+        print(f"noiselab emulate: {name}: end of stream not acknowledged by every recorder within "
+              f"{timeout:g} s: the last messages may be lost", file=log, flush=True)
+    for err in end["errors"]:
+        if err != "Timeout":
+            print(f"noiselab emulate: {name}: end of stream: {err}", file=log, flush=True)
+    for ack in end["acks"]:
+        short = {kind: t.get("missing", 0) for kind, t in (ack.get("topics") or {}).items()
+                 if kind in counts and t.get("missing", 0)}
+        if short:
+            print(f"noiselab emulate: {name}: recorder {ack.get('out', '?')} lacks "
+                  + ", ".join(f"{n} {kind}" for kind, n in short.items()), file=log, flush=True)

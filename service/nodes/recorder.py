@@ -2,33 +2,55 @@
 sample it receives to MCAP (wire contract: one channel per key, JSON Schema, sequence = seq,
 publish_time = the sample time t in ns, log_time = receive time, wall clock ns).
 
-* A Zenoh callback only queues (key, payload, receive ns); the main thread decodes and writes.
+* Samples wait in a bounded zenoh FIFO channel (:data:`CAPACITY`); the main thread takes them in
+  batches (whatever has arrived, at most :data:`BATCH`), so no Python code runs per message on
+  zenoh's threads. When the recorder falls behind, the full channel stops zenoh reading the link
+  and the source's BLOCK congestion control slows the source down: backpressure, bounded memory,
+  nothing dropped. log_time is the wall-clock time the batch was taken from the channel (one
+  reading per batch; at normal rates a batch is what arrived in the last ~2 ms).
+* A batch is decoded topic by topic (``wire.decode_batch`` for long runs, ``wire.decode`` for a
+  few messages, the same checks either way), written topic by topic, and its seqs are booked.
+  A payload that breaks the contract is skipped and counted (never the rest of its batch).
 * The chunk in progress is flushed every ``flush_s`` (default 0.25 s), so a SIGKILLed recorder
-  loses at most the last ~0.25 s: the file lacks its footer, and `noiselab recover` (or any
-  reader, which says the file is unfinished) gets every message up to the last flushed chunk.
-* SIGINT/SIGTERM, ``duration`` or ``stop`` finish the file (summary, footer) cleanly, after
-  writing what is still arriving (until the stream is quiet for 0.2 s, at most 2 s).
+  loses at most the last ~0.25 s plus what waited in the channel: the file lacks its footer, and
+  `noiselab recover` (or any reader, which says the file is unfinished) gets every message up to
+  the last flushed chunk.
+* End of stream (README "Live pipeline"): a source publishes ``<prefix>/end`` with the number of
+  messages it sent per topic, then queries that key. The recorder answers the query once it has
+  written everything that arrived before it, with what it holds per topic; the messages the
+  source sent but the recorder lacks at the end are reported as a gap after the last seq.
+* SIGINT/SIGTERM, ``duration`` or ``stop`` finish the file (summary, footer) cleanly. The
+  recorder first writes what is still queued, and goes on until every source it has heard has
+  ended, or nothing arrived for :data:`QUIET_S` (a source gone without an end), or it has been
+  caught up for :data:`LIVE_S` (a live stream: it stops there), or at most :data:`DRAIN_MAX_S`.
 * Sequence bookkeeping per topic: first and last seq, count, gaps (a forward jump: the seqs
-  skipped) and restarts (seq going back, e.g. a restarted emulator). A recorder started
-  mid-stream reports the seqs before its first one as missing at start. They are printed on
-  stop and stored in the file's metadata record ``noiselab.recorder`` (JSON strings).
+  skipped; and the tail a source announced but that never came) and restarts (seq going back,
+  e.g. a restarted emulator). A recorder started mid-stream reports the seqs before its first
+  one as missing at start. They are printed on stop and stored in the file's metadata record
+  ``noiselab.recorder`` (JSON strings).
 """
 
 from __future__ import annotations
 
 import json
-import queue
 import sys
 import threading
 import time
 from dataclasses import dataclass, field
 
+import numpy as np
 import zenoh
 
 from . import mcapio, wire
 
-QUIET_S = 0.2        # on stop: keep writing until no message arrived for this long ...
-DRAIN_MAX_S = 2.0    # ... but at most this long (a live stream never goes quiet)
+CAPACITY = 16384     # samples the zenoh channel holds before zenoh stops reading the link
+BATCH = 4096         # samples taken from the channel per batch, at most
+IDLE_S = 0.002       # nothing queued: look again after this long
+BATCH_DECODE_MIN = 16  # a topic's run in a batch at least this long is decoded with wire.decode_batch
+QUIET_S = 0.25       # on stop: nothing arrived for this long and a source has not ended: finish
+LIVE_S = 0.5         # on stop: caught up for this long with sources still streaming: finish
+DRAIN_MAX_S = 10.0   # on stop: finish after this long whatever is still arriving
+VECTOR_KINDS = (*wire.KINDS, wire.CONTROL)
 
 
 @dataclass
@@ -40,6 +62,8 @@ class TopicBook:
     count: int = 0
     gaps: list = field(default_factory=list)        # (after_seq, missing)
     restarts: list = field(default_factory=list)    # (from_seq, to_seq)
+    expected: int | None = None                      # messages the source says it published
+    missing_at_end: int = 0
 
     def see(self, seq: int) -> None:
         if self.first_seq is None:
@@ -48,17 +72,46 @@ class TopicBook:
             self.gaps.append((self.last_seq, seq - self.last_seq - 1))
         elif seq <= self.last_seq:
             self.restarts.append((self.last_seq, seq))
+            self.expected, self.missing_at_end = None, 0      # a new stream: its end is to come
         self.last_seq = seq
         self.count += 1
 
+    def see_run(self, seq0: int, n: int) -> None:
+        """``n`` consecutive seqs from ``seq0`` (same as ``see`` on each)."""
+        self.see(seq0)
+        if n > 1:
+            self.last_seq = seq0 + n - 1
+            self.count += n - 1
+
+    def end(self, expected: int) -> int:
+        """The source published ``expected`` messages (seq 0..expected-1): book the tail that
+        did not arrive as a gap after the last seq; returns it. A topic of which nothing arrived
+        has all of them missing at start (a recorder started late cannot tell a loss from that)."""
+        self.expected = expected
+        self.missing_at_end = 0 if self.last_seq is None else max(0, expected - 1 - self.last_seq)
+        if self.missing_at_end:
+            self.gaps.append((self.last_seq, self.missing_at_end))
+        return self.missing_at_end
+
     @property
     def missing(self) -> int:
+        """Seqs skipped inside the stream and, once the source has ended, after its last seq."""
         return sum(m for _, m in self.gaps)
+
+    @property
+    def missing_at_start(self) -> int:
+        return self.first_seq if self.first_seq is not None else (self.expected or 0)
+
+    @property
+    def lacks(self) -> int:
+        """Every seq from 0 to the last one the source announced (or to the last seen) not recorded."""
+        return self.missing_at_start + self.missing
 
     def as_dict(self) -> dict:
         return {"first_seq": self.first_seq, "last_seq": self.last_seq, "count": self.count,
-                "missing_at_start": self.first_seq or 0, "gaps": [list(g) for g in self.gaps],
-                "missing": self.missing, "restarts": [list(r) for r in self.restarts]}
+                "missing_at_start": self.missing_at_start, "gaps": [list(g) for g in self.gaps],
+                "missing": self.missing, "restarts": [list(r) for r in self.restarts],
+                "expected": self.expected, "missing_at_end": self.missing_at_end}
 
 
 @dataclass
@@ -68,19 +121,24 @@ class RecorderSummary:
     messages: int
     malformed: int
     wall_s: float
+    ended: dict = field(default_factory=dict)
 
     def as_dict(self) -> dict:
         return {"node": "record", "out": self.out, "messages": self.messages, "malformed": self.malformed,
-                "wall_s": self.wall_s, "topics": {k: v.as_dict() for k, v in self.topics.items()}}
+                "wall_s": self.wall_s, "topics": {k: v.as_dict() for k, v in self.topics.items()},
+                "ended": self.ended}
 
     def lines(self) -> list[str]:
         out = [f"recorded {self.messages} messages to {self.out} in {self.wall_s:.1f} s"]
         for topic, b in sorted(self.topics.items()):
             d = b.as_dict()
-            text = f"  {topic}: {b.count} messages, seq {b.first_seq}..{b.last_seq}"
-            if d["missing_at_start"]:
+            text = f"  {topic}: " + (f"{b.count} messages, seq {b.first_seq}..{b.last_seq}" if b.count else
+                                     f"no messages (the source published {b.expected})")
+            if d["missing_at_start"] and b.count:
                 text += f", started at seq {b.first_seq} (seqs 0..{b.first_seq - 1} not recorded)"
             text += f", {b.missing} missing in {len(b.gaps)} gaps" if b.gaps else ", no gaps"
+            if b.missing_at_end:
+                text += f" ({b.missing_at_end} at the end: the source published {b.expected})"
             if b.restarts:
                 text += f", {len(b.restarts)} restarts (seq went back)"
             out.append(text)
@@ -95,14 +153,145 @@ def _kind_of_key(key: str) -> str | None:
 
 
 def _seq_t(payload: bytes, kind: str, key: str) -> tuple[int, float]:
+    """Validate one payload of ``kind``; its (seq, t)."""
     if kind == wire.HEALTH:
         obj = wire.decode_health(payload, topic=key)
-        return obj["seq"], float(obj["t"])
-    if kind == wire.ANALYSIS:
+    elif kind == wire.ANALYSIS:
         obj = wire.decode_analysis(payload, topic=key)
-        return obj["seq"], float(obj["t"])
-    obj = wire.decode(payload, kind, topic=key)
-    return obj["seq"], obj["t"]
+    elif kind == wire.END:
+        obj = wire.decode_end(payload, topic=key)
+    else:
+        obj = wire.decode(payload, kind, topic=key)
+    return obj["seq"], float(obj["t"])
+
+
+class Ingest:
+    """Decode, check, write and book batches of received samples (the recorder's main-thread
+    work, without the transport: tests/bench calls it in-process)."""
+
+    def __init__(self, writer: "mcapio.RecordingWriter", out: str = "", log=sys.stderr):
+        self.w = writer
+        self.out = out
+        self.log = log
+        self.books: dict[str, TopicBook] = {}
+        self.malformed = 0
+        self.messages = 0
+        self.ends: dict[str, dict] = {}          # prefix -> its last end payload (stream ended)
+        self.live: set[str] = set()              # prefixes with data whose end has not come
+
+    def _skip(self, exc: Exception, n: int = 1) -> None:
+        self.malformed += n
+        if self.malformed - n < 5:
+            print(f"noiselab record: skipped a message: {exc}", file=self.log, flush=True)
+
+    def add(self, items: list[tuple[str, bytes]], rx_ns: int) -> None:
+        """``items``: (key, payload) in arrival order, all taken from the channel at ``rx_ns``."""
+        groups: dict[str, list[bytes]] = {}
+        for key, payload in items:
+            g = groups.get(key)
+            if g is None:
+                groups[key] = [payload]
+            else:
+                g.append(payload)
+        for key, payloads in groups.items():       # keys in order of first arrival
+            kind = _kind_of_key(key)
+            if kind is None:
+                self._skip(wire.WireError(f"{key}: not a noiselab topic kind"), len(payloads))
+                continue
+            if kind in VECTOR_KINDS and len(payloads) >= BATCH_DECODE_MIN and self._add_run(key, kind, payloads, rx_ns):
+                continue
+            for payload in payloads:
+                self._add_one(key, kind, payload, rx_ns)
+
+    def _add_run(self, key: str, kind: str, payloads: list[bytes], rx_ns: int) -> bool:
+        """Many payloads of one vector topic at once; False (nothing written) when any of them
+        breaks the contract, so the caller goes message by message and skips just that one."""
+        try:
+            seq, t, _ = wire.decode_batch(payloads, kind, topic=key)
+        except wire.WireError:
+            return False
+        pub = np.rint(t * 1e9)
+        if ((pub < 0) | (pub >= 2.0**63)).any():   # not a u64 publish_time: write() names it
+            return False
+        pub = pub.astype(np.int64)
+        log = np.full(len(payloads), rx_ns, dtype=np.int64)
+        # consecutive runs of seq (normally one): write_batch writes seq0..seq0+n-1
+        breaks = np.flatnonzero(np.diff(seq) != 1) + 1
+        book = self.books.get(key)
+        if book is None:
+            book = self.books[key] = TopicBook()
+        restarted = False
+        for a, b in zip([0, *breaks.tolist()], [*breaks.tolist(), len(payloads)]):
+            s0 = int(seq[a])
+            self.w.write_batch(key, kind, s0, pub[a:b], log[a:b], payloads[a:b])
+            n_restarts = len(book.restarts)
+            book.see_run(s0, b - a)
+            restarted |= len(book.restarts) > n_restarts
+        self.messages += len(payloads)
+        self._data_seen(key, kind, restarted)
+        return True
+
+    def _add_one(self, key: str, kind: str, payload: bytes, rx_ns: int) -> None:
+        try:
+            seq, t = _seq_t(payload, kind, key)
+            self.w.write(key, kind, seq, int(round(t * 1e9)), rx_ns, payload)
+        except (wire.WireError, mcapio.McapIoError) as exc:
+            self._skip(exc)
+            return
+        book = self.books.get(key)
+        if book is None:
+            book = self.books[key] = TopicBook()
+        n_restarts = len(book.restarts)
+        book.see(seq)
+        self.messages += 1
+        if kind == wire.END:
+            self._end(key, wire.decode_end(payload, topic=key))
+        else:
+            self._data_seen(key, kind, len(book.restarts) > n_restarts)
+
+    def _data_seen(self, key: str, kind: str, restarted: bool) -> None:
+        if kind not in wire.KINDS:
+            return                                  # health, control, analysis: not a stream of its own
+        prefix = key.rsplit("/", 1)[0]
+        if restarted or prefix not in self.ends:
+            self.ends.pop(prefix, None)
+            self.live.add(prefix)
+
+    def _end(self, key: str, end: dict) -> None:
+        """The end of a source's stream: everything it sent before has been written (same links,
+        in order). Book the tail that did not come as a gap, and say so."""
+        prefix = key.rsplit("/", 1)[0]
+        self.ends[prefix] = end
+        self.live.discard(prefix)
+        short = []
+        for kind, n in end["counts"].items():
+            book = self.books.get(f"{prefix}/{kind}")
+            if book is None:
+                if not n:
+                    continue
+                book = self.books[f"{prefix}/{kind}"] = TopicBook()
+            book.end(n)
+            if book.lacks:
+                where = ("none arrived" if not book.count else
+                         ", ".join(f"{m} {w}" for m, w in ((book.missing_at_start, "at the start"),
+                                                           (book.missing - book.missing_at_end, "in gaps"),
+                                                           (book.missing_at_end, "at the end")) if m))
+                short.append(f"{book.lacks} {kind} ({where})")
+        text = (f"noiselab record: {prefix} ended ({end['reason']}) after {end['samples']} samples: "
+                + ("every message recorded" if not short else "not recorded: " + ", ".join(short)))
+        print(text, file=self.log, flush=True)
+
+    def ack(self, prefix: str) -> dict:
+        """What the recorder holds of ``prefix``'s topics (the answer to an end-of-stream query)."""
+        end = self.ends.get(prefix)
+        topics = {}
+        for key, book in self.books.items():
+            if key.rsplit("/", 1)[0] == prefix:
+                topics[key.rsplit("/", 1)[1]] = {"count": book.count, "last_seq": book.last_seq,
+                                                 "expected": book.expected, "missing": book.lacks}
+        return {"node": "record", "out": self.out, "prefix": prefix, "ended": end is not None,
+                "complete": end is not None and all(t["missing"] == 0 for t in topics.values()),
+                "topics": topics}
 
 
 def run_recorder(session: "zenoh.Session", key_expr: str, out: str, *, duration: float | None = None,
@@ -111,62 +300,74 @@ def run_recorder(session: "zenoh.Session", key_expr: str, out: str, *, duration:
                  log=sys.stderr) -> RecorderSummary:
     """Record until ``duration`` (wall seconds) or ``stop``. ``ready`` is set once subscribed."""
     stop = stop or threading.Event()
-    q: queue.SimpleQueue = queue.SimpleQueue()
-
-    def on_sample(sample) -> None:
-        q.put((str(sample.key_expr), sample.payload.to_bytes(), time.time_ns()))
-
-    books: dict[str, TopicBook] = {}
-    malformed = 0
-    messages = 0
     t_start = time.monotonic()
     meta = {"generator": "noiselab record", "key_expr": key_expr, "started_unix_ns": str(time.time_ns())}
     with mcapio.RecordingWriter(out, force=force, chunk_size=chunk_size, metadata=meta) as w:
-        sub = session.declare_subscriber(key_expr, on_sample)
+        ing = Ingest(w, str(out), log)
+        # the queryable first: a source that sees the subscriber has seen it too
+        queries = session.declare_queryable(key_expr, zenoh.handlers.FifoChannel(256))
+        sub = session.declare_subscriber(key_expr, zenoh.handlers.FifoChannel(CAPACITY))
         if ready is not None:
             ready.set()
-        last_flush = time.monotonic()
-        stop_at = None
+        recv, recv_query = sub.try_recv, queries.try_recv
+        pending: list[list] = []          # [query, samples still to take before it may be answered]
+        last_flush = last_rx = time.monotonic()
+        stop_at = caught_up_at = None
         try:
             while True:
+                while (q := recv_query()) is not None:
+                    pending.append([q, CAPACITY])     # what preceded it is in the channel, at most CAPACITY
+                items = []
+                while len(items) < BATCH and (s := recv()) is not None:
+                    items.append((str(s.key_expr), s.payload.to_bytes()))
+                empty = len(items) < BATCH            # the channel ran dry: what preceded the queries is in
                 now = time.monotonic()
-                done = stop.is_set() or (duration is not None and now - t_start >= duration)
-                if done and stop_at is None:
-                    stop_at = now
-                if done and now - stop_at > DRAIN_MAX_S:
-                    break
-                try:
-                    # once stopping, drain until the stream has been quiet for QUIET_S (what is still
-                    # in flight from a fast sender), at most DRAIN_MAX_S
-                    item = q.get(timeout=0.05 if not done else QUIET_S)
-                except queue.Empty:
-                    item = None
-                if item is not None:
-                    key, payload, rx_ns = item
-                    kind = _kind_of_key(key)
-                    try:
-                        if kind is None:
-                            raise wire.WireError(f"{key}: not a noiselab topic kind")
-                        seq, t = _seq_t(payload, kind, key)
-                        w.write(key, kind, seq, int(round(t * 1e9)), rx_ns, payload)
-                    except (wire.WireError, mcapio.McapIoError) as exc:
-                        malformed += 1
-                        if malformed <= 5:
-                            print(f"noiselab record: skipped a message: {exc}", file=log, flush=True)
-                    else:
-                        books.setdefault(key, TopicBook()).see(seq)
-                        messages += 1
-                if time.monotonic() - last_flush >= flush_s:
+                if items:
+                    ing.add(items, time.time_ns())
+                    last_rx = now
+                if pending:
+                    for p in pending:
+                        p[1] -= len(items)
+                    for p in [p for p in pending if empty or p[1] <= 0]:
+                        pending.remove(p)
+                        _answer(p[0], ing)
+                if now - last_flush >= flush_s:
                     w.flush()
-                    last_flush = time.monotonic()
-                if done and item is None:
-                    break
+                    last_flush = now
+                if stop_at is None and (stop.is_set() or (duration is not None and now - t_start >= duration)):
+                    stop_at = now
+                if stop_at is not None:
+                    caught_up_at = (caught_up_at or now) if empty else None
+                    if empty and (not ing.live or now - last_rx >= QUIET_S or now - caught_up_at >= LIVE_S):
+                        break
+                    if now - stop_at >= DRAIN_MAX_S:
+                        print(f"noiselab record: still receiving {DRAIN_MAX_S:g} s after the stop: finishing",
+                              file=log, flush=True)
+                        break
+                if empty:
+                    time.sleep(IDLE_S)
         finally:
             sub.undeclare()
-            summary = RecorderSummary(out=str(out), topics=books, messages=messages, malformed=malformed,
-                                      wall_s=time.monotonic() - t_start)
+            for p in pending:
+                _answer(p[0], ing)
+            queries.undeclare()
+            summary = RecorderSummary(out=str(out), topics=ing.books, messages=ing.messages,
+                                      malformed=ing.malformed, wall_s=time.monotonic() - t_start,
+                                      ended={k: v["counts"] for k, v in ing.ends.items()})
             w.add_metadata("noiselab.recorder", {
-                "topics": json.dumps({k: v.as_dict() for k, v in books.items()}),
-                "messages": str(messages), "malformed": str(malformed),
+                "topics": json.dumps({k: v.as_dict() for k, v in ing.books.items()}),
+                "messages": str(ing.messages), "malformed": str(ing.malformed),
                 "stopped_unix_ns": str(time.time_ns())})
     return summary
+
+
+def _answer(query: "zenoh.Query", ing: Ingest) -> None:
+    """Answer an end-of-stream query (any other query on the recorded keys gets no answer)."""
+    try:
+        key = str(query.key_expr)
+        if key.endswith("/" + wire.END) and "*" not in key:
+            query.reply(key, json.dumps(ing.ack(key.rsplit("/", 1)[0])).encode())
+    except zenoh.ZError as exc:                 # the querier gave up (timeout) or went away
+        print(f"noiselab record: could not answer an end-of-stream query: {exc}", file=ing.log, flush=True)
+    finally:
+        query.drop()

@@ -42,7 +42,7 @@ def run_replay(session: "zenoh.Session", path: str, *, speed: float | None = 1.0
     report = mcapio.ScanReport()
     pubs: dict[str, "zenoh.Publisher"] = {}
     counts: dict[str, int] = {}
-    opts = dict(congestion_control=zenoh.CongestionControl.BLOCK, express=True)
+    opts = dict(congestion_control=zenoh.CongestionControl.BLOCK)
 
     def publisher(topic: str):
         pub = pubs.get(topic)

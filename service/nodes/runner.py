@@ -2,8 +2,11 @@
 
 The recorder starts first and listens on a free 127.0.0.1 port; once it reports that it is
 subscribed, the emulator connects to it and waits for the match before its first sample, so the
-recording starts at seq 0. When the emulator has published its ``duration``, the recorder is
-stopped with SIGINT (it finishes the file) and both summaries are combined.
+recording starts at seq 0. When the emulator has published its ``duration`` it ends the stream
+(``noiselab/<name>/end``) and exits once the recorder has acknowledged every message; the
+recorder is then stopped with SIGINT (it finishes the file) once it has said that the stream
+ended (bounded wait: without that line it still finishes, and reports what is missing as gaps),
+and both summaries are combined.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ import time
 from pathlib import Path
 
 READY_MARK = "noiselab record: subscribed"
+END_WAIT_S = 15.0          # longest wait for the recorder's "<prefix> ended" line after the emulator exits
 
 
 def free_port() -> int:
@@ -31,14 +35,26 @@ def _cli(*args: str) -> list[str]:
     return [sys.executable, "-m", "service.cli", *args]
 
 
-def _pump(stream, sink: list, ready: threading.Event | None = None, echo=None, mark: str = READY_MARK):
+def _pump(stream, sink: list, ready: threading.Event | None = None, echo=None, mark: str = READY_MARK,
+          cond: threading.Condition | None = None):
+    """Collect ``stream``'s lines into ``sink``; with ``cond``, notify it on every line and append
+    None at the end of the output."""
     for line in stream:
-        sink.append(line)
+        if cond is not None:
+            with cond:
+                sink.append(line)
+                cond.notify_all()
+        else:
+            sink.append(line)
         if ready is not None and mark in line:
             ready.set()
         if echo is not None:
             echo.write(line)
             echo.flush()
+    if cond is not None:
+        with cond:
+            sink.append(None)
+            cond.notify_all()
 
 
 def _last_json(lines: list[str]) -> dict | None:
@@ -58,8 +74,10 @@ class _Child:
     def __init__(self, argv, mark, env):
         self.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
         self.out, self.err, self.ready = [], [], threading.Event()
+        self.cond = threading.Condition()
         self.threads = [threading.Thread(target=_pump, args=(self.proc.stdout, self.out, self.ready, None, mark), daemon=True),
-                        threading.Thread(target=_pump, args=(self.proc.stderr, self.err, self.ready, None, mark), daemon=True)]
+                        threading.Thread(target=_pump, args=(self.proc.stderr, self.err, self.ready, None, mark, self.cond),
+                                         daemon=True)]
         for t in self.threads:
             t.start()
 
@@ -68,7 +86,15 @@ class _Child:
             if self.proc.poll() is not None:
                 for t in self.threads:
                     t.join(2)
-                raise RuntimeError(f"{what} exited before subscribing: " + "".join(self.err).strip()[-500:])
+                raise RuntimeError(f"{what} exited before subscribing: " + "".join(ln for ln in self.err if ln is not None).strip()[-500:])
+
+    def wait_err_line(self, text: str, timeout: float) -> bool:
+        """Wait until a stderr line contains ``text`` (False on timeout or if the child exits)."""
+        def seen():
+            return any(ln is not None and text in ln for ln in self.err)
+        with self.cond:
+            self.cond.wait_for(lambda: seen() or (self.err and self.err[-1] is None), timeout)
+            return seen()
 
     def stop(self, what: str, timeout: float = 120) -> None:
         if self.proc.poll() is None:
@@ -81,7 +107,7 @@ class _Child:
         for t in self.threads:
             t.join(5)
         if self.proc.returncode != 0:
-            raise RuntimeError(f"{what} failed: " + "".join(self.err).strip()[-500:])
+            raise RuntimeError(f"{what} failed: " + "".join(ln for ln in self.err if ln is not None).strip()[-500:])
 
     def kill(self) -> None:
         if self.proc.poll() is None:
@@ -122,6 +148,9 @@ def run_pipeline(model_spec: str, model_name: str, *, duration: float, seed: int
                              capture_output=True, text=True, env=env)
         if emu.returncode != 0:
             raise RuntimeError("emulator failed: " + emu.stderr.strip()[-500:])
+        # the emulator acknowledged its end with the recorder before exiting: this returns at once
+        # unless the acknowledgement timed out; the recorder then reports the shortfall as gaps
+        rec.wait_err_line(f"noiselab record: noiselab/{model_name} ended", END_WAIT_S)
         rec.stop("recorder")
         if an is not None:
             an.stop("analyzer")

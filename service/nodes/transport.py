@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 import re
+import time
 from pathlib import Path
 
 import zenoh
@@ -138,6 +139,44 @@ def wait_peers(session, n: int, timeout: float, stop=None) -> bool:
             return False
         time.sleep(0.002)
     return True
+
+
+DATA_QOS = dict(congestion_control=zenoh.CongestionControl.BLOCK)
+"""Publisher options of recorded data streams: BLOCK (a slow subscriber slows the source instead of
+losing data). No ``express``: it makes zenoh send every message in its own write, which tripled
+the cost of a put with a subscriber attached and bought no latency (tests/bench/RESULTS.md)."""
+
+
+def end_stream(session, publisher, payload: bytes, timeout: float) -> dict:
+    """End a stream without losing its tail: publish ``payload`` (a :func:`wire.encode_end`
+    message) on ``publisher`` (``noiselab/<name>/end``), then query that key and wait, at most
+    ``timeout`` seconds, until every recorder whose key expression covers it has answered.
+
+    Why: a publisher that closed its session right after its last put lost what was still
+    queued or in flight (0..49,276 of 300,000 messages, tests/bench/RESULTS.md). A query travels on the same
+    links, at the same priority and behind the data, so a recorder sees it only once it has
+    received every message before it, and answers once it has written them: after the answers
+    the session can be closed. Subscribers that are not recorders do not answer (nothing to wait
+    for). Returns ``{"acks": [the recorders' answers], "errors": [...], "timed_out": bool,
+    "wait_s": s}``."""
+    t0 = time.monotonic()
+    publisher.put(payload)
+    acks, errors = [], []
+    if timeout > 0:
+        replies = session.get(publisher.key_expr, payload=payload, target=zenoh.QueryTarget.ALL,
+                              consolidation=zenoh.ConsolidationMode.NONE, timeout=timeout,
+                              priority=zenoh.Priority.DATA, **DATA_QOS)
+        for reply in replies:                 # ends when every queryable has answered, or at timeout
+            ok = reply.ok
+            if ok is None:
+                errors.append(reply.err.payload.to_string())
+                continue
+            try:
+                acks.append(json.loads(ok.payload.to_bytes()))
+            except ValueError:
+                errors.append("an acknowledgement that is not JSON")
+    return {"acks": acks, "errors": errors, "timed_out": "Timeout" in errors,
+            "wait_s": time.monotonic() - t0}
 
 
 def check_key_expr(text: str) -> str:

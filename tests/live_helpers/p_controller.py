@@ -25,8 +25,6 @@ import signal
 import sys
 import threading
 
-import zenoh
-
 from service.nodes import transport, wire
 
 READY = "p_controller: ready"
@@ -52,8 +50,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"p_controller: {exc}", file=sys.stderr)
         return 2
     with session:
-        pub = session.declare_publisher(wire.key(args.name, wire.CONTROL), express=True,
-                                        congestion_control=zenoh.CongestionControl.BLOCK)
+        pub = session.declare_publisher(wire.key(args.name, wire.CONTROL), **transport.DATA_QOS)
 
         def on_measurement(sample) -> None:
             try:
