@@ -42,6 +42,7 @@ The analysis starts after the model's transient from rest when the recording sta
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from functools import lru_cache
 
 import numpy as np
@@ -74,7 +75,7 @@ def default_settings(n: int) -> dict:
 def transient_samples(model) -> int:
     """Samples until the covariance of a model started at rest is within 1 % of stationary:
     ln(0.01) / (2 ln rho), rho the spectral radius of the augmented stationary dynamics."""
-    pr = model.predictor()
+    pr = predictor_of(model)
     pr.steady_state()
     F = pr._ls.F
     if F.size == 0:
@@ -86,27 +87,119 @@ def transient_samples(model) -> int:
 
 
 # -- exact expectations from the variogram ---------------------------------------------------------------
-_CACHE: dict = {}
+# Predictions depend on the model and the estimator sizes only, never on the data: they are cached
+# per model (its source and text) so that a live analyzer, which recomputes its views at 2 Hz on a
+# window that fills up and then keeps its size, pays for them once per model revision. The cache is
+# least-recently-used and bounded in bytes (entries larger than the bound are not kept).
+CACHE_MAX_BYTES = 64 * 2**20
+CACHE_MAX_ENTRIES = 256
+_CACHE: OrderedDict = OrderedDict()        # key -> (value, bytes, model kept alive for id keys)
+_cache_bytes = 0
+
+
+def _model_key(model):
+    """Models parsed from the same text are the same model; one without text is itself."""
+    return ("text", model.source, model.text) if model.text else ("object", id(model))
+
+
+def _nbytes(value) -> int:
+    if isinstance(value, np.ndarray):
+        return value.nbytes
+    if isinstance(value, dict):
+        return sum(_nbytes(v) for v in value.values())
+    if isinstance(value, (list, tuple)):
+        return sum(_nbytes(v) for v in value)
+    return 0
+
+
+def _freeze(value) -> None:
+    """Cached arrays are shared by every comparison that uses them: make them read-only."""
+    if isinstance(value, np.ndarray):
+        value.flags.writeable = False
+    elif isinstance(value, dict):
+        for v in value.values():
+            _freeze(v)
+    elif isinstance(value, (list, tuple)):
+        for v in value:
+            _freeze(v)
+
+
+def _cache_drop(k) -> None:
+    global _cache_bytes
+    _, nb, _ = _CACHE.pop(k)
+    _cache_bytes -= nb
+
+
+def _cache_put(k, value, model) -> None:
+    global _cache_bytes
+    if k in _CACHE:
+        _cache_drop(k)
+    nb = _nbytes(value)
+    if nb > CACHE_MAX_BYTES:
+        return
+    _freeze(value)
+    while _CACHE and (_cache_bytes + nb > CACHE_MAX_BYTES or len(_CACHE) >= CACHE_MAX_ENTRIES):
+        _cache_drop(next(iter(_CACHE)))
+    _CACHE[k] = (value, nb, model if k[0][0] == "object" else None)
+    _cache_bytes += nb
+
+
+def _cache_get(k):
+    hit = _CACHE.get(k)
+    if hit is None:
+        return None
+    _CACHE.move_to_end(k)
+    return hit[0]
+
+
+def cache_clear() -> None:
+    """Forget every cached prediction (and the Welch kernels): what a fresh process starts with."""
+    global _cache_bytes
+    _CACHE.clear()
+    _cache_bytes = 0
+    _welch_kernel.cache_clear()
 
 
 def _cached(model, what: str, key, compute):
-    """Predictions depend on the model and the estimator sizes only, never on the data: cache them
-    per model text (a live analyzer recomputes its views at 2 Hz on a window of constant size)."""
-    k = (model.source, model.text, what, key)
-    if k not in _CACHE:
-        if len(_CACHE) > 64:
-            _CACHE.clear()
-        _CACHE[k] = compute()
-    return _CACHE[k]
+    """``compute()`` once per (model, what, key), from the bounded cache."""
+    k = (_model_key(model), what, key)
+    hit = _cache_get(k)
+    if hit is None:
+        hit = compute()
+        _cache_put(k, hit, model)
+    return hit
+
+
+def predictor_of(model):
+    """The model's :class:`~service.model.predict.Predictor`, one per model (its steady state and
+    linear system are computed once, not at every comparison)."""
+    return _cached(model, "predictor", None, model.predictor)
+
+
+def _generous(L: int) -> int:
+    """L rounded up to 1/8 of its power of two (at most +12.5 %): a window that fills up asks for a
+    new variogram length at every update; this way it is computed ~8 times per doubling."""
+    q = 1 << max(int(L).bit_length() - 3, 4)
+    return -(-int(L) // q) * q
 
 
 def _gamma_parts(model, L: int) -> dict:
-    """{effect id: (L, p) variogram} of the stationary-increment parts; error if not stable."""
-    return _cached(model, "gamma", L, lambda: _gamma_parts_uncached(model, L))
+    """{effect id: (L, p) variogram} of the stationary-increment parts; error if not stable.
+    One variogram per model is kept, computed for a generous length and sliced (the values at lag
+    d do not depend on the length computed: :meth:`Predictor.variogram` builds them by doubling)."""
+    k = (_model_key(model), "gamma", None)
+    got = _cache_get(k)
+    if got is None or got[0] < L:
+        if got is not None:
+            _cache_drop(k)                      # free the shorter one before computing the longer
+        Lg = _generous(L)
+        got = (Lg, _gamma_parts_uncached(model, Lg))
+        _cache_put(k, got, model)
+    return {eid: g[:L] for eid, g in got[1].items()}
 
 
 def _gamma_parts_uncached(model, L: int) -> dict:
-    vg = model.predictor().variogram(L)
+    vg = predictor_of(model).variogram(L)
     bad = [eid for eid, v in vg.items() if v is None]
     if bad:
         raise AnalysisError(f"model {model.name}: the plant is not stable, so {', '.join(bad)} has no "
@@ -130,7 +223,7 @@ def expected_window_stats(gam: np.ndarray, M: int, max_lag: int) -> np.ndarray:
     return ((cnt * (-g_[d] - G)) + head + tail) / M
 
 
-@lru_cache(maxsize=8)
+@lru_cache(maxsize=3)
 def _welch_kernel(L: int, window: str) -> np.ndarray:
     """Re C_j(d), d = 0..L-1, of h_j(n) = w_n e_j(n) - a_j, e_j(n) = e^{-i w_j n}, a_j = W_j / L,
     for bins j = 0..L/2: (J, L). With c_w(d) = sum_n w_{n+d} w_n, the suffix sums
@@ -203,17 +296,19 @@ def _finish(view: View, n_points: int, by_band: bool = False) -> View:
 
 
 # -- the four views ------------------------------------------------------------------------------------
-def variance_view(r, t, gam_parts, j, W):
+def variance_view(r, t, gam_parts, j, W, model=None):
     n_win = r.size // W
     if n_win < 2:
         raise AnalysisError(f"record too short for the variance window of {W} samples")
     seg = r[: n_win * W].reshape(n_win, W)
     emp = seg.var(axis=1)
     centres = t[: n_win * W].reshape(n_win, W).mean(axis=1)
-    parts = {eid: expected_window_stats(g[:, j:j + 1], W, W - 1)[:, 0] for eid, g in gam_parts.items()}
-    R = sum(parts.values())                           # expected autocovariance within a window
-    E = R[0]
-    var = windowed_variance_var(sum(g[:W, j] for g in gam_parts.values()), W, R)
+
+    def predict():
+        parts = {eid: expected_window_stats(g[:, j:j + 1], W, W - 1)[:, 0] for eid, g in gam_parts.items()}
+        R = sum(parts.values())                       # expected autocovariance within a window
+        return parts, R[0], windowed_variance_var(sum(g[:W, j] for g in gam_parts.values()), W, R)
+    parts, E, var = predict() if model is None else _cached(model, "variance_view", (j, W), predict)
     nu = np.full(n_win, 2 * E**2 / var)
     pred = np.full(n_win, E)
     alpha = FAMILY_ALPHA / n_win
@@ -240,7 +335,7 @@ def windowed_variance_var(gam: np.ndarray, W: int, R: np.ndarray) -> float:
     return float((2.0 / W) * (R[0] ** 2 + 2 * np.sum((1 - lags / W) * R[1:W] ** 2)))
 
 
-def acf_view(r, Ts, gam_parts, j, M, max_lag):
+def acf_view(r, Ts, gam_parts, j, M, max_lag, model=None):
     K = r.size // M
     if K < 1:
         raise AnalysisError(f"record too short for the autocorrelation segment of {M} samples")
@@ -249,18 +344,22 @@ def acf_view(r, Ts, gam_parts, j, M, max_lag):
     F = np.fft.rfft(seg, 2 * M, axis=1)
     ac = np.fft.irfft(np.abs(F) ** 2, 2 * M, axis=1)[:, : max_lag + 1] / M
     emp = ac.mean(axis=0)
-    parts = {eid: expected_window_stats(g[:, j:j + 1], M, M - 1)[:, 0] for eid, g in gam_parts.items()}
-    R = sum(parts.values())
-    # Bartlett: Var(r(d)) ~ (1/M) sum_k [R(k)^2 + R(k+d) R(k-d)], |k| < M, per segment, / K
-    Rs = np.concatenate([R[:0:-1], R])                # R(-(M-1)) .. R(M-1)
-    c = M - 1
-    var = np.empty(max_lag + 1)
-    for d in range(max_lag + 1):
-        k = np.arange(-(M - 1), M)
-        plus = k + d
-        minus = k - d
-        ok = (np.abs(plus) < M) & (np.abs(minus) < M)
-        var[d] = (np.sum(R[np.abs(k)] ** 2) + np.sum(Rs[c + plus[ok]] * Rs[c + minus[ok]])) / M / K
+
+    def predict():
+        parts = {eid: expected_window_stats(g[:, j:j + 1], M, M - 1)[:, 0] for eid, g in gam_parts.items()}
+        R = sum(parts.values())
+        # Bartlett: Var(r(d)) ~ (1/M) sum_k [R(k)^2 + R(k+d) R(k-d)], |k| < M, per segment, / K
+        Rs = np.concatenate([R[:0:-1], R])            # R(-(M-1)) .. R(M-1)
+        c = M - 1
+        var = np.empty(max_lag + 1)
+        for d in range(max_lag + 1):
+            k = np.arange(-(M - 1), M)
+            plus = k + d
+            minus = k - d
+            ok = (np.abs(plus) < M) & (np.abs(minus) < M)
+            var[d] = (np.sum(R[np.abs(k)] ** 2) + np.sum(Rs[c + plus[ok]] * Rs[c + minus[ok]])) / M / K
+        return parts, R, var
+    parts, R, var = predict() if model is None else _cached(model, "acf_view", (j, M, max_lag, K), predict)
     se = np.sqrt(var)
     pred = R[: max_lag + 1]
     z = (emp - pred) / se
@@ -272,17 +371,21 @@ def acf_view(r, Ts, gam_parts, j, M, max_lag):
     return _finish(v, max_lag + 1)
 
 
-def psd_view(r, Ts, gam_parts, j, L, bpd):
+def psd_view(r, Ts, gam_parts, j, L, bpd, model=None):
     if r.size < L:
         raise AnalysisError(f"record too short for Welch segments of {L} samples")
     est = welch(r, 1.0 / Ts, nperseg=L)
     groups = log_bin_groups(est.f, bpd)
     from ..stats.psd import _average_groups
     binned = _average_groups(est, groups)
-    parts = {}
-    for eid, g in gam_parts.items():
-        e = expected_welch_detrended(g[:, j:j + 1], L, Ts)[:, 0]
-        parts[eid] = np.array([e[gr].mean() for gr in groups])
+
+    def predict():
+        parts = {}
+        for eid, g in gam_parts.items():
+            e = expected_welch_detrended(g[:, j:j + 1], L, Ts)[:, 0]
+            parts[eid] = np.array([e[gr].mean() for gr in groups])
+        return parts
+    parts = predict() if model is None else dict(_cached(model, "psd_view", (j, L, bpd), predict))
     pred = sum(parts.values())
     nu = binned.dof
     alpha = FAMILY_ALPHA / pred.size
@@ -380,7 +483,7 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
     if not np.all(np.isfinite(y)):
         k = int(np.flatnonzero(~np.all(np.isfinite(y), axis=1))[0])
         raise AnalysisError(f"the measurement holds NaN or inf (first at sample {k}, t = {t[k]:g} s)")
-    pr = model.predictor()
+    pr = predictor_of(model)
     try:
         mean = pr.mean_response(command=u) if u is not None else pr.mean_response(len(y))
         cov_tail = None
@@ -402,9 +505,9 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
     views = []
     for j in range(model.p):
         rj = r[:, j]
-        views.append(variance_view(rj, ta, gam_short, j, s["window"]))
-        views.append(acf_view(rj, model.Ts, gam_short, j, s["acf_segment"], s["max_lag"]))
-        views.append(psd_view(rj, model.Ts, gam_short, j, s["nperseg"], s["bins_per_decade"]))
+        views.append(variance_view(rj, ta, gam_short, j, s["window"], model))
+        views.append(acf_view(rj, model.Ts, gam_short, j, s["acf_segment"], s["max_lag"], model))
+        views.append(psd_view(rj, model.Ts, gam_short, j, s["nperseg"], s["bins_per_decade"], model))
         views.append(allan_view(rj, model.Ts, gam, j, corr, model))
     per_view = {}
     for name in ("variance", "acf", "psd", "allan"):

@@ -199,7 +199,9 @@ class Model:
         if self.description:
             d["description"] = self.description
         d["sampling"] = {"Ts": self.Ts, "discretization": self.discretization}
-        d["plant"] = _plant_dict(self.plant, self.text, self.source)
+        if "plant" not in self._asm:                     # the text is parsed once per model
+            self._asm["plant"] = _plant_dict(self.plant, self.text, self.source)
+        d["plant"] = dict(self._asm["plant"])
         d["command"] = _command_dict(self.command)
         for eid, eff in self.effects.items():
             g, s = eid.split(".")
@@ -215,6 +217,15 @@ class Model:
         g, s = eid.split(".")
         d.setdefault(g, {})[s] = params
         return parse_model(dumps_toml(d), f"{self.source} + [{eid}]")
+
+    def with_params(self, eid: str, params: dict) -> "Model":
+        """The model with effect ``eid``'s table replaced by ``params`` (added if absent): one
+        parse, for the diagnosis' many trial models."""
+        _check_effect_id(eid)
+        d = self.to_dict()
+        g, s = eid.split(".")
+        d.setdefault(g, {})[s] = params
+        return parse_model(dumps_toml(d), self.source if "[" in self.source else f"{self.source} + fit")
 
     def without_effect(self, eid: str) -> "Model":
         _check_effect_id(eid)

@@ -11,7 +11,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from ..schema import nonnegative
-from .base import Effect, parse_rho_tau
+from .base import Effect, FitSpec, _g, parse_rho_tau, rho_tau_equivalents, parse_rho_tau
 
 
 class ActuatorAR1(Effect):
@@ -20,6 +20,18 @@ class ActuatorAR1(Effect):
     chain_order = 2
     draw_order = 1
     summary = "colored (AR(1)) actuator noise in the input channel"
+    fit = FitSpec("noise", scale="std", shape=(("tau_s", 0.5, 2.0, "Ts|T", "log"),), replaces=("actuator.white",))
+
+    @classmethod
+    def explain(cls, params, Ts, ctx=None):
+        tau = params["tau_s"] if "tau_s" in params else _tau(params, Ts)
+        fc = 1.0 / (2 * np.pi * tau)
+        return (f"excess power below about {_g(fc)} Hz that the plant shapes like its input: colored "
+                f"(AR(1)) actuator noise of std {_g(params['std'])} with correlation time {_g(tau)} s")
+
+    @classmethod
+    def equivalents(cls, params, Ts):
+        return rho_tau_equivalents(params, Ts)
 
     def parse(self, t):
         self.params["std"] = t.vector("std", self.dims.m, check=nonnegative, expect="std >= 0")
@@ -47,3 +59,8 @@ class ActuatorAR1(Effect):
 
     def drive_linear(self):
         return np.diag(self.rho), np.diag(self.c), np.diag(self.rho), np.diag(self.c)
+
+
+def _tau(params, Ts):
+    rho = np.atleast_1d(params["rho"]).astype(float)
+    return float(np.mean(-Ts / np.log(rho)))

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..schema import positive
-from .base import Effect
+from .base import Effect, FitSpec, _g
 
 
 class ActuatorDeadzone(Effect):
@@ -19,6 +19,13 @@ class ActuatorDeadzone(Effect):
     chain_order = 5
     linear = False
     summary = "actuator dead zone"
+    fit = FitSpec("mean", shape=(("width", 0.003, 0.9, "umax", "log"),), needs_command=True)
+
+    @classmethod
+    def explain(cls, params, Ts, ctx=None):
+        return (f"small commands have no effect and the response is pulled in at every zero crossing "
+                f"(odd harmonics of the command in the residual): an actuator dead zone of about "
+                f"{_g(params['width'])}")
 
     def parse(self, t):
         self.params["width"] = t.vector("width", self.dims.m, check=positive, expect="widths > 0")

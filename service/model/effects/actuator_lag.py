@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..schema import positive
-from .base import Effect
+from .base import Effect, FitSpec, _g
 
 
 class ActuatorLag(Effect):
@@ -18,6 +18,13 @@ class ActuatorLag(Effect):
     role = "modifier"
     chain_order = 3
     summary = "first-order actuator lag between command and plant input"
+    fit = FitSpec("mean", shape=(("tau_s", 0.2, 0.05, "Ts|T", "log"),), needs_command=True)
+
+    @classmethod
+    def explain(cls, params, Ts, ctx=None):
+        fc = 1.0 / (2 * np.pi * np.mean(params["tau_s"]))
+        return (f"the response lags the predicted one and loses amplitude towards {_g(fc)} Hz: first-order "
+                f"actuator dynamics with time constant {_g(params['tau_s'])} s")
 
     def parse(self, t):
         self.params["tau_s"] = t.vector("tau_s", self.dims.m, check=positive, expect="time constants in s > 0")

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..schema import positive
-from .base import Effect
+from .base import Effect, FitSpec, _g
 
 
 class ActuatorSaturation(Effect):
@@ -21,6 +21,12 @@ class ActuatorSaturation(Effect):
     chain_order = 4
     linear = False
     summary = "actuator saturation of the plant input"
+    fit = FitSpec("mean", shape=(("limit", 0.02, 1.2, "umax", "log"),), needs_command=True)
+
+    @classmethod
+    def explain(cls, params, Ts, ctx=None):
+        return (f"the response is flattened where the command is large, with odd harmonics of the "
+                f"command in the residual: the actuator saturates at about {_g(params['limit'])}")
 
     def parse(self, t):
         self.params["limit"] = t.vector("limit", self.dims.m, check=positive, expect="limits > 0")

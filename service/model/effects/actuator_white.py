@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..schema import nonnegative
-from .base import Effect
+from .base import Effect, FitSpec, _g
 
 
 class ActuatorWhite(Effect):
@@ -14,6 +14,12 @@ class ActuatorWhite(Effect):
     chain_order = 1
     draw_order = 0
     summary = "white actuator noise in the input channel"
+    fit = FitSpec("noise", scale="std")
+
+    @classmethod
+    def explain(cls, params, Ts, ctx=None):
+        return (f"excess power with the plant's input-to-output shape (around its resonance and "
+                f"falling above it): white actuator noise of std {_g(params['std'])}")
 
     def parse(self, t):
         self.params["std"] = t.vector("std", self.dims.m, check=nonnegative, expect="std >= 0")

@@ -36,6 +36,12 @@ Prediction hooks (implemented by the effects they concern; defaults contribute n
 * ``spectral()``: non-state contributions as primitives: ``("white", var)``, ``("walk", q, var0)``,
   ``("tone", amplitude, frequency_hz)``.
 * ``output_gain()``: a multiplicative modifier of the plant output (scale factor).
+
+Diagnosis hooks (how the effect is found and fitted from a residual, :mod:`service.diagnose`):
+``fit`` (a :class:`FitSpec`: which parameter scales the noise variance, which are searched and
+over what range, which effect it can replace), ``explain(params, Ts)`` (one sentence of evidence in
+physical terms) and ``equivalents(params, Ts)`` (the same fit in the file's other spellings, e.g.
+``rho`` for ``tau_s``, for users' scripts).
 """
 
 from __future__ import annotations
@@ -46,6 +52,30 @@ from typing import ClassVar
 import numpy as np
 
 from ..schema import Table
+
+
+@dataclass(frozen=True)
+class FitSpec:
+    """How the diagnosis fits an effect (see :mod:`service.diagnose.search`).
+
+    kind: ``noise`` (a source whose variance scales with ``scale``^2, fitted by the spectral
+    likelihood), ``mean`` (changes the mean response to the command), ``grid`` (quantization: values
+    on a grid), ``line`` (a tone: a deterministic sinusoid in a record), ``modulated`` (a noise source
+    whose variance follows the signal's slope: jitter).
+    shape: searched parameters ``(name, lo, hi, unit, spacing)``: bounds in ``unit`` ("Ts": sample
+    periods, "T": record lengths, "umax": the largest |command|, "1": absolute), ``spacing`` "log"
+    or "lin".
+    unit_scale: the reference value of ``scale`` ("Ts/10" for a value relative to Ts).
+    replaces: effect ids this one may replace (white actuator noise that is really colored).
+    needs_command: only identifiable when the record holds a varying command.
+    """
+
+    kind: str
+    scale: str | None = None
+    shape: tuple = ()
+    unit_scale: float | str = 1.0
+    replaces: tuple = ()
+    needs_command: bool = False
 
 
 @dataclass(frozen=True)
@@ -67,6 +97,7 @@ class Effect:
     draw_order: ClassVar[int] = 99     # position in the per-sample block of normals
     summary: ClassVar[str] = ""
     linear: ClassVar[bool] = True      # False: predictions use an approximation (documented)
+    fit: ClassVar[FitSpec] = FitSpec("none")
 
     def __init__(self, table: Table, dims: Dims):
         self.dims = dims
@@ -94,8 +125,40 @@ class Effect:
             out[k] = float(a[0]) if np.all(a == a[0]) else [float(x) for x in a]
         return out
 
+    # -- diagnosis ----------------------------------------------------------------------------
+    @classmethod
+    def explain(cls, params: dict, Ts: float, ctx: dict | None = None) -> str:
+        """One sentence of evidence for a fitted effect; ``ctx`` may hold ``band`` (f_lo, f_hi)
+        where the data left the model."""
+        return f"{cls.summary} ({', '.join(f'{k} = {_g(v)}' for k, v in params.items())})"
+
+    @classmethod
+    def equivalents(cls, params: dict, Ts: float) -> dict:
+        """Other spellings of the same fitted values (added to the JSON report, not the file)."""
+        return {}
+
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.param_dict()})"
+
+
+def _g(v) -> str:
+    """A parameter for a sentence: 3 significant digits, lists element-wise."""
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return "[" + ", ".join(_g(x) for x in v) + "]"
+    return f"{float(v):.3g}"
+
+
+def rho_tau_equivalents(params: dict, Ts: float) -> dict:
+    """rho = exp(-Ts / tau_s) and back, for AR(1) and Gauss-Markov fits."""
+    if "tau_s" in params and "rho" not in params:
+        return {"rho": _map(lambda t: float(np.exp(-Ts / t)), params["tau_s"])}
+    if "rho" in params and "tau_s" not in params:
+        return {"tau_s": _map(lambda r: float(-Ts / np.log(r)) if 0 < r < 1 else float("nan"), params["rho"])}
+    return {}
+
+
+def _map(fn, v):
+    return [fn(float(x)) for x in v] if isinstance(v, (list, tuple)) else fn(float(v))
 
 
 def parse_rho_tau(table: Table, n: int, Ts: float) -> tuple[np.ndarray, np.ndarray]:

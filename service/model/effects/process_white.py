@@ -13,7 +13,7 @@ import numpy as np
 from .. import discretize
 from ..errors import ModelError
 from ..schema import nonnegative
-from .base import Effect
+from .base import Effect, FitSpec, _g
 
 
 class ProcessWhite(Effect):
@@ -22,6 +22,22 @@ class ProcessWhite(Effect):
     chain_order = 0
     draw_order = 2
     summary = "white process (force) noise through L"
+    fit = FitSpec("noise", scale="std")
+
+    @classmethod
+    def explain(cls, params, Ts, ctx=None):
+        what = f"std {_g(params['std'])} per sample" if "std" in params else f"intensity {_g(params['psd'])}"
+        return (f"excess power with the shape of the plant's response to a force (peaked at its "
+                f"resonance): white process noise of {what}")
+
+    @classmethod
+    def equivalents(cls, params, Ts):
+        """A force held over each sample with std s and continuous white noise of two-sided
+        intensity q put the same power into the plant when q = s^2 Ts (G_d ~ Ts L, Q_d ~ L q L^T Ts)."""
+        from .base import _map
+        if "std" in params:
+            return {"psd": _map(lambda s: s * s * Ts, params["std"])}
+        return {"std": _map(lambda q: float(np.sqrt(q / Ts)), params["psd"])}
 
     def parse(self, t):
         if t.has("std") == t.has("psd"):

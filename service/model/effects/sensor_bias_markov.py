@@ -10,7 +10,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from ..schema import nonnegative
-from .base import Effect, parse_rho_tau
+from .base import Effect, FitSpec, _g, parse_rho_tau, rho_tau_equivalents, parse_rho_tau
 
 
 class SensorBiasMarkov(Effect):
@@ -19,6 +19,22 @@ class SensorBiasMarkov(Effect):
     chain_order = 8
     draw_order = 4
     summary = "first-order Gauss-Markov sensor bias (bias instability)"
+    fit = FitSpec("noise", scale="std", shape=(("tau_s", 2.0, 1.0, "Ts|T", "log"),))
+
+    @classmethod
+    def explain(cls, params, Ts, ctx=None):
+        tau = params.get("tau_s")
+        if tau is None:
+            rho = np.atleast_1d(params["rho"]).astype(float)
+            tau = float(np.mean(-Ts / np.log(rho)))
+        fc = 1.0 / (2 * np.pi * np.mean(tau))
+        return (f"a flat excess below about {_g(fc)} Hz that the plant does not shape, and an Allan "
+                f"deviation bump near tau = {_g(1.9 * np.mean(tau))} s: a Gauss-Markov bias (bias instability) of std "
+                f"{_g(params['std'])} with correlation time {_g(tau)} s")
+
+    @classmethod
+    def equivalents(cls, params, Ts):
+        return rho_tau_equivalents(params, Ts)
 
     def parse(self, t):
         self.params["std"] = t.vector("std", self.dims.p, check=nonnegative, expect="std >= 0")

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..schema import nonnegative
-from .base import Effect
+from .base import Effect, FitSpec, _g
 
 
 class SensorBiasWalk(Effect):
@@ -20,6 +20,14 @@ class SensorBiasWalk(Effect):
     chain_order = 7
     draw_order = 3
     summary = "sensor bias random walk (drift)"
+    fit = FitSpec("noise", scale="std")
+
+    @classmethod
+    def explain(cls, params, Ts, ctx=None):
+        band = (ctx or {}).get("band")
+        where = f"below {_g(band[1])} Hz " if band else "at low frequency "
+        return (f"{where}the PSD rises as 1/f^2 and the Allan deviation climbs with slope +1/2 at long "
+                f"averaging times: a bias random walk of about {_g(params['std'])} per sqrt(s)")
 
     def parse(self, t):
         self.params["std"] = t.vector("std", self.dims.p, check=nonnegative, expect="std >= 0 in units/sqrt(s)")

@@ -10,7 +10,7 @@ are sampled at the same instant). Valid while std_s is small against the plant's
 from __future__ import annotations
 
 from ..schema import nonnegative
-from .base import Effect
+from .base import Effect, FitSpec, _g
 
 
 class SensorJitter(Effect):
@@ -20,6 +20,13 @@ class SensorJitter(Effect):
     draw_order = 6
     linear = False
     summary = "sampling-time jitter"
+    fit = FitSpec("modulated", scale="std_s", unit_scale="Ts/10", needs_command=True)
+
+    @classmethod
+    def explain(cls, params, Ts, ctx=None):
+        return (f"the residual's high-frequency power rises and falls with the square of the signal's "
+                f"slope (largest where the response is steepest): sampling-time jitter of about "
+                f"{_g(np.asarray(params['std_s']) * 1e6)} us rms")
 
     def parse(self, t):
         self.params["std_s"] = t.number("std_s", check=lambda v: 0 <= v < self.dims.Ts,

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..schema import positive
-from .base import Effect
+from .base import Effect, FitSpec, _g
 
 
 class SensorQuantization(Effect):
@@ -22,6 +22,12 @@ class SensorQuantization(Effect):
     chain_order = 12
     linear = False
     summary = "quantization of the measurement"
+    fit = FitSpec("grid")
+
+    @classmethod
+    def explain(cls, params, Ts, ctx=None):
+        return (f"every measured value lies on a grid of step {_g(params['step'])} (the chance of that "
+                f"for a continuous signal is nil): the sensor is quantized, adding step^2/12 of white noise")
 
     def parse(self, t):
         self.params["step"] = t.vector("step", self.dims.p, check=positive, expect="steps > 0")

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import Effect
+from .base import Effect, FitSpec, _g
 
 
 class SensorScaleFactor(Effect):
@@ -17,6 +17,12 @@ class SensorScaleFactor(Effect):
     role = "modifier"
     chain_order = 6
     summary = "sensor scale-factor error"
+    fit = FitSpec("mean", shape=(("error", -0.5, 1.0, "1", "lin"),), needs_command=True)
+
+    @classmethod
+    def explain(cls, params, Ts, ctx=None):
+        return (f"the residual is a copy of the predicted response itself (in phase, at the command's "
+                f"frequencies): a sensor scale-factor error of {_g(np.asarray(params['error']) * 100)} %")
 
     def parse(self, t):
         self.params["error"] = t.vector("error", self.dims.p, check=lambda v: bool(np.all(v > -1)),

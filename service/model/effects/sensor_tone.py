@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..schema import nonnegative
-from .base import Effect
+from .base import Effect, FitSpec, _g
 
 
 class SensorTone(Effect):
@@ -17,6 +17,12 @@ class SensorTone(Effect):
     stage = "sensor"
     chain_order = 10
     summary = "periodic interference (a tone)"
+    fit = FitSpec("line", scale="amplitude")
+
+    @classmethod
+    def explain(cls, params, Ts, ctx=None):
+        return (f"a narrow spectral line at {_g(params['frequency_hz'])} Hz that no noise source explains: "
+                f"periodic interference (a tone) of amplitude {_g(params['amplitude'])}")
 
     def parse(self, t):
         self.params["amplitude"] = t.vector("amplitude", self.dims.p, check=nonnegative, expect="amplitudes >= 0")

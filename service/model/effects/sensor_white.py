@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from ..schema import nonnegative
-from .base import Effect
+from .base import Effect, FitSpec, _g
 
 
 class SensorWhite(Effect):
@@ -12,6 +12,12 @@ class SensorWhite(Effect):
     chain_order = 9
     draw_order = 5
     summary = "white sensor noise"
+    fit = FitSpec("noise", scale="std")
+
+    @classmethod
+    def explain(cls, params, Ts, ctx=None):
+        return (f"a flat floor above the model's at high frequency, the same in every time window: "
+                f"white sensor noise of std {_g(params['std'])}")
 
     def parse(self, t):
         self.params["std"] = t.vector("std", self.dims.p, check=nonnegative, expect="std >= 0")

@@ -1,0 +1,86 @@
+"""The diagnosis as JSON (``noiselab diagnose --json``) and as text."""
+
+from __future__ import annotations
+
+import numpy as np
+
+UNITS = {"variance": "s", "acf": "s", "psd": "Hz", "allan": "s"}
+
+
+def _clean(v):
+    """JSON-safe values: floats (NaN/inf -> None), lists, dicts."""
+    if isinstance(v, dict):
+        return {k: _clean(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return [_clean(x) for x in v]
+    if isinstance(v, (np.floating, float)):
+        f = float(v)
+        return f if np.isfinite(f) else None
+    if isinstance(v, np.integer):
+        return int(v)
+    return v
+
+
+def diagnosis_json(rep: dict, series=None, extra: dict | None = None) -> dict:
+    """DESIGN.md's fields (``error_before``, ``error_after``, ``missing``) and the extensions."""
+    out = {k: rep[k] for k in ("error_before", "error_after", "missing", "steps", "candidates", "samples",
+                               "Ts", "threshold", "seconds")}
+    out["error_per_view_before"] = rep["before"].error_per_view
+    out["error_per_view_after"] = rep["after"].error_per_view
+    out["regions"] = [{"view": r.view, "output": r.output, "from": r.x_lo, "to": r.x_hi, "points": r.points,
+                       "max_abs_z": r.max_abs_z, "direction": r.direction} for r in rep["before"].regions]
+    out["model"] = rep["before"].model_name
+    out["model_source"] = rep["before"].model_source
+    out["notes"] = (list(series.notes) if series is not None else []) + list(rep.get("notes", []))
+    if series is not None:
+        out["recording"] = series.source
+    out.update(extra or {})
+    return _clean(out)
+
+
+def diagnosis_lines(rep: dict, series=None, extra: dict | None = None) -> list[str]:
+    b, a = rep["before"], rep["after"]
+    src = f"{series.source}: " if series is not None else ""
+    lines = [f"{src}{rep['samples']} samples against model {b.model_name} ({b.model_source})",
+             f"model error before: {b.error:.3g} (about 1 when the model explains the data; per view: "
+             + ", ".join(f"{k} {v:.3g}" for k, v in b.error_per_view.items()) + ")"]
+    if b.regions:
+        lines.append("where the data leave the model:")
+        for r in sorted(b.regions, key=lambda r: -r.max_abs_z)[:8]:
+            lines.append("  " + r.describe(UNITS[r.view]))
+        if len(b.regions) > 8:
+            lines.append(f"  (+{len(b.regions) - 8} more regions)")
+    if not rep["missing"]:
+        lines.append(f"nothing missing: no effect of the catalogue improves the fit by Delta BIC > {rep['threshold']:g}")
+        if rep["candidates"]:
+            c = rep["candidates"][0]
+            lines.append(f"  (best candidate: {c['mode']} {c['effect']}, Delta BIC {c['score']:.1f})")
+    else:
+        lines.append("missing, most likely first (Delta BIC; model error after adding it):")
+        for i, (m, st) in enumerate(zip(rep["missing"], rep["steps"]), 1):
+            ps = ", ".join(f"{k} = {_fmt(v)} [{_fmt(m['interval'][k][0])}, {_fmt(m['interval'][k][1])}]"
+                           if k in m["interval"] else f"{k} = {_fmt(v)}" for k, v in m["params"].items()
+                           if k in _file_keys(rep, m))
+            what = m["mode"].replace("replace:", "in place of ")
+            lines.append(f"  {i}. [{m['effect']}] {what}: {ps}   (Delta BIC {m['score']:.0f}; error {st['error']:.3g})")
+            lines.append(f"     {m['evidence']}")
+        lines.append(f"model error: {rep['error_before']:.3g} -> " + " -> ".join(f"{s['error']:.3g}" for s in rep["steps"])
+                     + (f" (final joint fit {a.error:.3g})" if abs(a.error - rep['steps'][-1]['error']) > 1e-9 else ""))
+    for note in (list(series.notes) if series is not None else []) + list(rep.get("notes", [])):
+        lines.append(f"note: {note}")
+    for k in ("fit_out", "rrd", "png"):
+        if extra and extra.get(k):
+            lines.append(f"wrote {extra[k]}")
+    return lines
+
+
+def _file_keys(rep: dict, m: dict) -> set:
+    """The parameters as the fitted model file spells them (the JSON also carries equivalents)."""
+    eff = rep["model"].effects.get(m["effect"])
+    return set(eff.param_dict()) if eff is not None else set(m["params"])
+
+
+def _fmt(v) -> str:
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_fmt(x) for x in v) + "]"
+    return f"{float(v):.4g}"

@@ -1,0 +1,882 @@
+"""Which physical effect is missing: fit every candidate of the catalogue, rank, add, repeat.
+
+A *hypothesis* is a model plus the set of its parameters that are free (fitted to the data); the
+parameters of the user's model stay at the user's values unless a candidate frees them (``refit``:
+the effect is there but a value is wrong). Every hypothesis is scored by one likelihood:
+
+    l = l_Whittle(residual spectrum | the hypothesis' noise spectrum)      (:mod:`.whittle`)
+        + l_grid   (values on a grid: quantization)
+        + l_mod    (residual power that follows the slope: jitter)
+
+and hypotheses are compared by Delta BIC = 2 Delta l - k ln n (k free parameters added, n the
+number of samples times outputs; Schwarz 1978). A candidate is added when its Delta BIC exceeds
+:data:`THRESHOLD` (10: "very strong" evidence, Kass & Raftery 1995), then every parameter freed so
+far is refitted jointly and the search repeats, so a second hidden effect is found with the first
+one's parameters adjusted to it (an AR(1) that first took a bias walk's low-frequency power gives
+it back). How each effect is fitted is declared by the effect itself (``Effect.fit``,
+:class:`service.model.effects.base.FitSpec`):
+
+* ``noise`` sources (white, AR(1), Gauss-Markov, bias walk, process noise): the expected
+  periodogram is linear in each source's variance, so the variances are fitted together by
+  L-BFGS-B on their logarithms (the profile over the shape parameters, e.g. a correlation time,
+  by a grid then golden-section search);
+* ``mean`` effects (scale factor, lag, saturation, dead zone) change the predicted response to the
+  recorded command: the residual is recomputed for each value of their parameter;
+* ``line`` (tone): a deterministic sinusoid in a record; peaks of I_f / E_f beyond what the
+  exponential distribution allows over all bins (P < 1e-3) are candidates, the frequency refined by
+  maximizing the periodogram, amplitude and phase by least squares; 3 parameters;
+* ``grid`` (quantization): every value on a grid of step Delta. Under any continuous model the
+  chance that a value falls within 1e-6 Delta of a grid point is 2e-6, so l_grid = n ln(1/2e-6);
+* ``modulated`` (jitter): its power is white on average, like sensor noise, but follows the
+  square of the slope: the squared differenced residual z_q is modelled as Gamma (chi-squared 1)
+  with mean a + b x_q (x_q the predicted slope squared, b = std_s^2, a fixed by the average level),
+  a quasi-likelihood divided by the dependence factor 1 + 2 sum rho_d(h)^2.
+
+95 % intervals are profile-likelihood intervals (2 Delta l = 3.84).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..model import ModelError
+from ..model.effects import CATALOGUE
+from . import whittle as W
+
+THRESHOLD = 10.0          # Delta BIC to add an effect
+REL_BW = 0.01             # frequency groups: at most 1 % of their frequency wide (Whittle on group means)
+CHI2_95 = 3.841
+GRID_TOL = 1e-6           # values within GRID_TOL * step of the grid count as on it
+
+
+# -- the data ---------------------------------------------------------------------------------------------
+@dataclass
+class Data:
+    """What the diagnosis works on: y (N, p), the recorded command u (N, m) or None, and whether the
+    record starts at rest (sample 0 of a noiselab stream). ``k0``: first sample analysed (0 at
+    rest; else after the nominal model's transient)."""
+
+    y: np.ndarray
+    u: np.ndarray | None
+    Ts: float
+    at_rest: bool
+    k0: int = 0
+    notes: list = field(default_factory=list)
+
+    def __post_init__(self):
+        self.y = np.asarray(self.y, float).reshape(len(self.y), -1)
+        # the transforms are O(M log M) only for smooth M: drop up to ~0.1 % of the samples at the end
+        n_all = self.y.shape[0]
+        M = smooth_len(n_all - self.k0 - 1)
+        if self.k0 + 1 + M < n_all:
+            self.notes.append(f"the last {n_all - self.k0 - 1 - M} samples are left out of the spectral fit "
+                              f"(a transform length of {M} samples is fast)")
+            self.y = self.y[:self.k0 + 1 + M]
+            if self.u is not None:
+                self.u = np.asarray(self.u, float)[:self.k0 + 1 + M]
+        self.N, self.p = self.y.shape
+        self.M = self.N - self.k0 - 1
+        self.nf = W.n_freqs(self.M)
+        self.n_bic = self.N * self.p
+        self.t = np.arange(self.N) * self.Ts
+        self.has_command = self.u is not None and bool(np.any(np.ptp(self.u, axis=0) > 0))
+        self.umax = float(np.max(np.abs(self.u))) if self.u is not None and self.u.size else 0.0
+        self.T = self.N * self.Ts
+        self.starts = _group_starts(self.nf, REL_BW)
+        self.sizes = np.diff(np.append(self.starts, self.nf)).astype(float)
+        self.grid = quantization_grid(self.y)
+
+    def group(self, A: np.ndarray) -> np.ndarray:
+        """Means over the frequency groups (nb, ...)."""
+        return np.add.reduceat(A, self.starts, axis=0) / self.sizes.reshape((-1,) + (1,) * (A.ndim - 1))
+
+
+def smooth_len(n: int) -> int:
+    """The largest m <= n whose prime factors are 2, 3, 5 and 7."""
+    m = n
+    while m > 1:
+        k = m
+        for q in (2, 3, 5, 7):
+            while k % q == 0:
+                k //= q
+        if k == 1:
+            return m
+        m -= 1
+    return max(n, 1)
+
+
+def _group_starts(nf: int, rel: float) -> np.ndarray:
+    """Bins one by one up to 1/rel, then groups at most rel * f wide (f in bins)."""
+    starts, i = [], 0
+    while i < nf:
+        starts.append(i)
+        i += max(1, int((i + 1) * rel))
+    return np.asarray(starts, np.int64)
+
+
+def quantization_grid(y: np.ndarray) -> list:
+    """Per output: the step of the grid every value lies on (to GRID_TOL), or None."""
+    out = []
+    for j in range(y.shape[1]):
+        v = np.unique(y[:, j])
+        step = None
+        if v.size >= 3:
+            d = np.diff(v)
+            d0 = float(d.min())
+            big = float(np.max(np.abs(v)))
+            if d0 > 1e-9 * max(big, 1e-300):
+                small = d[d < 1.5 * d0]
+                s = float(np.median(small))
+                k = v / s
+                if np.max(np.abs(k - np.rint(k))) < GRID_TOL:
+                    step = float(f"{s:.10g}")
+        out.append(step)
+    return out
+
+
+# -- mean response and residual ----------------------------------------------------------------------------
+def mean_response(model, data: Data):
+    """E[y_k] and E[ydot_k] (N, p) for the recorded command (seed section 3, fast modal form)."""
+    pr = model.predictor()
+    N = data.N
+    u = data.u if data.u is not None else model.command.values(0, N, model.Ts)
+    var = pr.drive_noise_var(N)
+    drive, _, _ = pr.drive_stats(np.asarray(u, float), var)
+    C = np.vstack([model.Cy, model.Cy @ model.Ac])
+    D = np.vstack([model.Dy, model.Cy @ model.Bc])
+    yy = W.lsim(model.Ad, model.Bd, C, D, drive)
+    g = model.out_gain
+    return yy[:, :model.p] * g, yy[:, model.p:] * g
+
+
+def tone_ls(r: np.ndarray, f: float, Ts: float, k0: int):
+    """Least-squares sinusoid a sin + b cos at f over samples k >= k0: (a, b)."""
+    k = np.arange(r.size)
+    w = 2 * np.pi * f * Ts
+    s, c = np.sin(w * k[k0:]), np.cos(w * k[k0:])
+    X = np.column_stack([s, c])
+    coef, *_ = np.linalg.lstsq(X, r[k0:], rcond=None)
+    return float(coef[0]), float(coef[1])
+
+
+def refine_frequency(r: np.ndarray, f0: float, Ts: float, k0: int, width: float) -> float:
+    """The frequency near f0 (within +-width Hz) that maximizes |sum r_k e^{-i w k}|^2."""
+    x = r[k0:] - r[k0:].mean()
+    k = np.arange(x.size)
+
+    def power(f):
+        z = np.exp(-2j * np.pi * f * Ts * k)
+        return -abs(np.dot(x, z)) ** 2
+
+    a, b = f0 - width, f0 + width
+    gr = (math.sqrt(5) - 1) / 2
+    c, d = b - gr * (b - a), a + gr * (b - a)
+    fc, fd = power(c), power(d)
+    for _ in range(40):
+        if fc < fd:
+            b, d, fd = d, c, fc
+            c = b - gr * (b - a)
+            fc = power(c)
+        else:
+            a, c, fc = c, d, fd
+            d = a + gr * (b - a)
+            fd = power(d)
+    return 0.5 * (a + b)
+
+
+# -- one evaluation: residual spectrum and noise spectrum of a hypothesis -----------------------------------
+class Evaluator:
+    """Caches what does not change between evaluations (mean responses, parts of fixed effects)."""
+
+    def __init__(self, data: Data):
+        self.data = data
+        self._mean: dict = {}
+        self._parts: dict = {}
+        self._grouped: dict = {}
+        self.evals = 0
+
+    def mean(self, model):
+        key = _mean_key(model)
+        if key not in self._mean:
+            if len(self._mean) > 16:
+                self._mean.clear()
+            self._mean[key] = mean_response(model, self.data)
+        return self._mean[key]
+
+    def parts(self, model, ydot_sq):
+        """Per effect, the expected periodogram averaged over the frequency groups."""
+        d = self.data
+        raw = W.expected_parts(model, d.M, d.k0, d.at_rest, ydot_sq=ydot_sq, cache=self._parts)
+        out = {}
+        for k, v in raw.items():
+            key = id(v)
+            if key not in self._grouped or self._grouped[key][0] is not v:
+                if len(self._grouped) > 512:
+                    self._grouped.clear()
+                self._grouped[key] = (v, d.group(v))
+            out[k] = self._grouped[key][1]
+        return out
+
+    def residual(self, model, free_tone: bool):
+        """r (N, p) with the tones removed, and the tone parameters fitted (amplitude per output)."""
+        d = self.data
+        ym, yd = self.mean(model)
+        r = d.y - ym
+        tone = model.effects.get("sensor.tone")
+        fitted = None
+        if tone is not None:
+            amp = np.broadcast_to(tone.params["amplitude"], (d.p,)).astype(float)
+            freq = np.broadcast_to(tone.params["frequency_hz"], (d.p,)).astype(float)
+            r = r.copy()
+            fitted = amp.copy()
+            for j in range(d.p):
+                a, b = tone_ls(r[:, j], freq[j], d.Ts, d.k0)
+                A = math.hypot(a, b)
+                if free_tone:
+                    fitted[j] = A
+                    scale = 1.0
+                else:
+                    scale = amp[j] / A if A > 0 else 0.0
+                w = 2 * np.pi * freq[j] * d.Ts * np.arange(d.N)
+                r[:, j] -= scale * (a * np.sin(w) + b * np.cos(w))
+        return r, yd, fitted
+
+
+def _mean_key(model) -> str:
+    """The part of a model the mean response depends on: plant, sampling, command and the mean
+    effects; actuator noise only through the nonlinearities' statistical linearization."""
+    d = model.to_dict()
+    nonlin = any(hasattr(e, "knots") for e in model.effects.values())
+    for g in ("process", "sensor", "actuator"):
+        sub = d.get(g, {})
+        for s in list(sub):
+            eid = f"{g}.{s}"
+            if CATALOGUE[eid].fit.kind != "mean" and not (nonlin and g == "actuator"):
+                sub.pop(s)
+    d.pop("description", None)
+    d.pop("name", None)
+    return repr(d)
+
+
+# -- the likelihood over the free variances (inner problem) ---------------------------------------------------
+class Inner:
+    """l(v) = -sum_b G_b sum_j [ln E_bj + I_bj / E_bj] + l_mod(v_jitter), E = E0 + sum_a v_a U_a,
+    v_a >= 0, maximized by projected Fisher scoring (the expected information
+    sum_b G_b U_a U_b / E^2 is positive definite, so each step is a Newton-like ascent step)."""
+
+    def __init__(self, I, G, E0, U, mod=None, mod_index=None):
+        # G: bins per group divided by the taper's kappa (see :func:`.whittle.loglik`)
+        self.I, self.G, self.E0 = I, G[:, None], E0
+        self.U = np.stack(U) if len(U) else np.zeros((0,) + I.shape)
+        self.mod, self.mod_index = mod, mod_index
+        tot = float(np.sum(self.G * I))
+        self.vref = np.array([tot / max(float(np.sum(self.G * u)), 1e-300) for u in self.U])
+        self.hi = self.vref * 1e4
+
+    def _E(self, v):
+        E = self.E0 + np.tensordot(v, self.U, axes=1) if len(v) else self.E0
+        return np.maximum(E, 1e-300)
+
+    def value(self, v):
+        v = np.asarray(v, float)
+        E = self._E(v)
+        l = -float(np.sum(self.G * (np.log(E) + self.I / E)))
+        R = self.G * (self.I - E) / E**2
+        g = np.array([float(np.sum(u * R)) for u in self.U])
+        if self.mod is not None:
+            lm, gm = self.mod(v[self.mod_index])
+            l += lm
+            g[self.mod_index] += gm
+        return l, g
+
+    def _info(self, v):
+        E = self._E(v)
+        W = self.G / E**2
+        n = len(self.U)
+        F = np.empty((n, n))
+        for a in range(n):
+            Wa = W * self.U[a]
+            for b in range(a, n):
+                F[a, b] = F[b, a] = float(np.sum(Wa * self.U[b]))
+        if self.mod is not None:
+            i = self.mod_index
+            h = max(abs(v[i]) * 1e-3, self.vref[i] * 1e-9)
+            g1 = self.mod(v[i] + h)[1]
+            g0 = self.mod(max(v[i] - h, 0.0))[1]
+            F[i, i] += max(-(g1 - g0) / (h + min(h, v[i])), 0.0)
+        return F
+
+    def optimize(self, v0=None, fixed: dict | None = None):
+        """Maximize over v >= 0 (``fixed``: {index: value} held)."""
+        n = len(self.U)
+        if n == 0:
+            return np.zeros(0), self.value(np.zeros(0))[0]
+        fixed = fixed or {}
+        starts = [np.clip(self.vref * 1e-2, 0, self.hi)]
+        if v0 is not None:
+            starts.insert(0, np.clip(np.asarray(v0, float), 0, self.hi))
+        best = None
+        for v in starts:
+            v = v.copy()
+            for i, x in fixed.items():
+                v[i] = x
+            l, g = self.value(v)
+            for _ in range(100):
+                free = np.array([i not in fixed and not (v[i] <= 0 and g[i] <= 0) for i in range(n)])
+                if not free.any():
+                    break
+                F = self._info(v)[np.ix_(free, free)]
+                try:
+                    step_f = np.linalg.solve(F + 1e-12 * np.trace(F) * np.eye(F.shape[0]) / max(F.shape[0], 1), g[free])
+                except np.linalg.LinAlgError:
+                    step_f = g[free] / np.maximum(np.diag(F), 1e-300)
+                step = np.zeros(n)
+                step[free] = step_f
+                alpha, improved = 1.0, False
+                for _ in range(30):
+                    vn = np.clip(v + alpha * step, 0.0, self.hi)
+                    ln, gn = self.value(vn)
+                    if ln >= l - 1e-12 * abs(l):
+                        improved = True
+                        break
+                    alpha *= 0.5
+                if not improved:
+                    break
+                dl = ln - l
+                v, l, g = vn, ln, gn
+                if dl < 1e-9 * max(1.0, abs(l)) * 1e-3 and alpha == 1.0:
+                    break
+            if best is None or l > best[1]:
+                best = (v, l)
+        return best
+
+    def profile(self, a: int, v_hat: np.ndarray, l_hat: float):
+        """95 % profile interval of v_a (others re-optimized)."""
+        target = l_hat - CHI2_95 / 2
+
+        def prof(va):
+            return self.optimize(v_hat, fixed={a: va})[1]
+
+        def edge(inside, outside):
+            if prof(outside) > target:
+                return outside
+            for _ in range(30):
+                mid = math.sqrt(inside * outside) if inside > 0 and outside > 0 else 0.5 * (inside + outside)
+                if prof(mid) > target:
+                    inside = mid
+                else:
+                    outside = mid
+            return 0.5 * (inside + outside)
+
+        vh = max(v_hat[a], 1e-300)
+        lo = edge(vh, 0.0)
+        hi = edge(vh, vh * 1e4)
+        return lo, hi
+
+
+# -- the jitter's modulation term ---------------------------------------------------------------------------
+class Modulation:
+    """Quasi log-likelihood of the squared differenced residual under mean a + b x_q (b = std_s^2
+    in s^2, x_q = ydot_{q+1}^2 + ydot_q^2), relative to the constant mean; a fixed so that the
+    average matches the data's (the level is the Whittle part's business)."""
+
+    def __init__(self, d: np.ndarray, ydot: np.ndarray, k0: int, unit: float):
+        self.z = d**2                                               # (M, p)
+        yd2 = ydot[k0:] ** 2
+        self.x = yd2[1:] + yd2[:-1]
+        self.zbar = self.z.mean(axis=0)
+        self.xc = self.x - self.x.mean(axis=0)
+        self.unit = unit                                            # v = b / unit
+        self.phi = np.array([_dependence(d[:, j]) for j in range(d.shape[1])])
+        self.base = -0.5 * np.sum((np.log(self.zbar) + 1.0) * self.z.shape[0] / self.phi)
+
+    def __call__(self, v: float):
+        b = v * self.unit
+        mu = self.zbar + b * self.xc
+        if np.any(mu <= 0):
+            return -1e30, 0.0
+        l = -0.5 * np.sum((np.log(mu) + self.z / mu) / self.phi)
+        g = -0.5 * np.sum(self.xc * (1 / mu - self.z / mu**2) / self.phi) * self.unit
+        return float(l - self.base), float(g)
+
+
+def _dependence(d: np.ndarray, H: int = 50) -> float:
+    """1 + 2 sum_h rho_d(h)^2: the variance inflation of a mean of d_q^2 for Gaussian d."""
+    x = d - d.mean()
+    n = x.size
+    X = np.fft.rfft(x, 2 * n)
+    ac = np.fft.irfft(np.abs(X) ** 2)[:H + 1]
+    if ac[0] <= 0:
+        return 1.0
+    rho = ac[1:] / ac[0]
+    return float(1 + 2 * np.sum(rho**2))
+
+
+# -- hypotheses ---------------------------------------------------------------------------------------------
+def _unit_scale(spec, Ts):
+    return Ts / 10 if spec.unit_scale == "Ts/10" else float(spec.unit_scale)
+
+
+@dataclass
+class Fit:
+    model: object
+    free: dict                      # eid -> list of free parameter names
+    loglik: float
+    parts: dict = field(default_factory=dict)
+    inner: object = None
+    v: np.ndarray = None
+    scale_ids: list = field(default_factory=list)
+
+
+class Hypotheses:
+    def __init__(self, data: Data, base_model):
+        self.data = data
+        self.ev = Evaluator(data)
+        self.base = base_model
+
+    # one evaluation: outer parameters fixed (in ``model``), the free variances fitted
+    def inner_fit(self, model, free: dict) -> Fit:
+        d = self.data
+        self.ev.evals += 1
+        scales = []                                    # (effect id, parameter, power of the variance)
+        for e, names in free.items():
+            if CATALOGUE[e].fit.kind in ("noise", "modulated") and e in model.effects:
+                sname, power = _scale_name(model.effects[e])
+                if sname in names:
+                    scales.append((e, sname, power))
+        scale_ids = [e for e, _, _ in scales]
+        nonlin = any(hasattr(e, "knots") for e in model.effects.values())
+        canon = model
+        cur, refs = [], []
+        for e, sname, power in scales:
+            val = float(np.max(np.asarray(model.effects[e].params[sname], float)))
+            unit = _unit_scale(CATALOGUE[e].fit, d.Ts) if sname != "psd" else 1.0
+            ref = val if (nonlin and val > 0) else unit
+            cur.append(val)
+            refs.append(ref)
+            canon = _set(canon, e, {sname: ref})
+        r, ydot, tone_amp = self.ev.residual(model, "sensor.tone" in free)
+        if tone_amp is not None and "sensor.tone" in free:
+            model = _set(model, "sensor.tone", {"amplitude": _vec(tone_amp)})
+            canon = _set(canon, "sensor.tone", {"amplitude": _vec(tone_amp)})
+        ydot_sq = np.mean(ydot[d.k0:] ** 2, axis=0)
+        parts = self.ev.parts(canon, ydot_sq)
+        Ig = d.group(W.periodogram(r, d.k0))
+        E0 = sum((v for k, v in parts.items() if k not in scale_ids), np.zeros_like(Ig))
+        U = [parts.get(e, np.zeros_like(Ig)) for e in scale_ids]
+        mod = None
+        mod_index = None
+        if "sensor.jitter" in model.effects or "sensor.jitter" in scale_ids:
+            dd = np.diff(r[d.k0:], axis=0)
+            if "sensor.jitter" in scale_ids:
+                i = scale_ids.index("sensor.jitter")
+                mod, mod_index = Modulation(dd, ydot, d.k0, refs[i] ** 2), i
+        inner = Inner(Ig, d.sizes / W.taper(d.M)[2], E0, U, mod, mod_index)
+        v0 = np.array([(c / ref) ** pw for c, ref, (_, _, pw) in zip(cur, refs, scales)]) if scales else None
+        v, l = inner.optimize(v0)
+        if "sensor.jitter" in model.effects and "sensor.jitter" not in scale_ids:
+            # a fixed jitter still explains (or not) the modulation
+            dd = np.diff(r[d.k0:], axis=0)
+            std_s = float(model.effects["sensor.jitter"].params["std_s"])
+            l += Modulation(dd, ydot, d.k0, 1.0)(std_s**2)[0]
+        if d.grid is not None:
+            l += self.grid_loglik(model)
+        fitted = model
+        for (e, sname, pw), vi, ref in zip(scales, v, refs):
+            fitted = _set(fitted, e, {sname: float(ref * vi ** (1.0 / pw))})
+        return Fit(fitted, free, l, parts, inner, v, scale_ids)
+
+    def grid_loglik(self, model) -> float:
+        """l_grid: values on the model's quantization grid (ln(1 / 2e-6) each) when the data are."""
+        q = model.effects.get("sensor.quantization")
+        if q is None:
+            return 0.0
+        step = np.broadcast_to(q.params["step"], (self.data.p,))
+        l = 0.0
+        for j, g in enumerate(self.data.grid):
+            if g is not None and np.isclose(step[j], g, rtol=1e-6):
+                l += self.data.N * math.log(1 / (2 * GRID_TOL))
+        return l
+
+    # outer parameters: grid then golden section, coordinate ascent
+    def fit(self, model, free: dict, rounds: int = 2, new: tuple = (), screen: bool = False) -> Fit:
+        """Fit the free parameters of ``model``. ``new``: effects whose searched parameters get a
+        coarse grid over their whole range first (the others start from their current values).
+        ``screen``: a cheap pass that searches only the new effects' parameters, once, with a
+        coarser grid (candidates are ranked by it, then the leaders are fitted in full)."""
+        best = self.inner_fit(model, free)
+        outer = [(e, spec) for e in free for spec in CATALOGUE[e].fit.shape if spec[0] in free[e]
+                 and (not screen or e in new)]
+        if "sensor.tone" in free and "frequency_hz" in free["sensor.tone"] and (not screen or "sensor.tone" in new):
+            best = self._fit_tone_frequency(best)
+        for rnd in range(1 if screen else rounds):
+            before = best.loglik
+            for e, spec in outer:
+                best = self._search(best, e, spec, coarse=(rnd == 0 and e in new),
+                                    n_grid=7 if screen else 9, n_golden=6 if screen else 10)
+            if best.loglik - before < 0.05:
+                break
+        return best
+
+    def _bounds(self, spec):
+        name, lo, hi, unit, spacing = spec
+        d = self.data
+        if unit == "Ts|T":
+            return lo * d.Ts, hi * d.T, spacing
+        if unit == "umax":
+            return lo * d.umax, hi * d.umax, spacing
+        return lo, hi, spacing
+
+    def _try(self, fit: Fit, e: str, name: str, value: float) -> Fit | None:
+        try:
+            m = _set(fit.model, e, {name: value})
+            if _radius(m.Ad) >= 1.0 and _radius(self.base.Ad) < 1.0:
+                return None            # e.g. a lag faster than Ts under forward Euler: not a model of anything
+            return self.inner_fit(m, fit.free)
+        except (ModelError, ValueError, np.linalg.LinAlgError):
+            return None
+
+    def _search(self, fit: Fit, e: str, spec, coarse: bool, n_grid: int = 9, n_golden: int = 10) -> Fit:
+        lo, hi, spacing = self._bounds(spec)
+        name = spec[0]
+        cur = fit.model.effects[e].param_dict().get(name)
+        cur = float(np.mean(cur)) if cur is not None else None
+        tr = (np.log, np.exp) if spacing == "log" else (lambda x: x, lambda x: x)
+        a, b = tr[0](lo), tr[0](hi)
+        best = fit
+        if coarse or cur is None:
+            xs = np.linspace(a, b, n_grid)
+            for x in xs:
+                f = self._try(fit, e, name, float(tr[1](x)))
+                if f is not None and f.loglik > best.loglik:
+                    best = f
+            step = (b - a) / (n_grid - 1)
+        else:
+            step = (b - a) / 40
+        c = best.model.effects[e].param_dict().get(name)
+        x0 = tr[0](float(np.mean(c)))
+        a2, b2 = max(a, x0 - step), min(b, x0 + step)
+        gr = (math.sqrt(5) - 1) / 2
+        cache = {}
+
+        def val(x):
+            if x not in cache:
+                f = self._try(best, e, name, float(tr[1](x)))
+                cache[x] = f
+            f = cache[x]
+            return -1e300 if f is None else f.loglik
+
+        c1, d1 = b2 - gr * (b2 - a2), a2 + gr * (b2 - a2)
+        for _ in range(n_golden):
+            if val(c1) > val(d1):
+                b2, d1 = d1, c1
+                c1 = b2 - gr * (b2 - a2)
+            else:
+                a2, c1 = c1, d1
+                d1 = a2 + gr * (b2 - a2)
+        for f in cache.values():
+            if f is not None and f.loglik > best.loglik:
+                best = f
+        return best
+
+    def _fit_tone_frequency(self, fit: Fit) -> Fit:
+        d = self.data
+        tone = fit.model.effects["sensor.tone"]
+        freq = np.broadcast_to(tone.params["frequency_hz"], (d.p,)).astype(float).copy()
+        ym, _ = self.ev.mean(fit.model)
+        r = d.y - ym
+        for j in range(d.p):
+            freq[j] = refine_frequency(r[:, j], freq[j], d.Ts, d.k0, 1.0 / (d.M * d.Ts))
+        m = _set(fit.model, "sensor.tone", {"frequency_hz": _vec(freq)})
+        f = self.inner_fit(m, fit.free)
+        return f if f.loglik >= fit.loglik - 1e-9 else fit
+
+
+def _radius(A: np.ndarray) -> float:
+    return float(np.max(np.abs(np.linalg.eigvals(A)), initial=0.0))
+
+
+def _vec(a):
+    a = [float(x) for x in np.atleast_1d(a)]
+    return a[0] if all(x == a[0] for x in a) else a
+
+
+def _set(model, eid: str, values: dict):
+    """The model with effect ``eid``'s parameters updated (added if absent)."""
+    params = model.effects[eid].param_dict() if eid in model.effects else {}
+    params.update(values)
+    if "tau_s" in values:
+        params.pop("rho", None)
+    return model.with_params(eid, params)
+
+
+# -- candidates ---------------------------------------------------------------------------------------------
+@dataclass
+class Candidate:
+    effect: str
+    mode: str                       # add | refit | replace:<effect id>
+    fit: Fit
+    k: int                          # free parameters it adds
+    score: float = float("nan")     # Delta BIC against the current hypothesis
+    loglik: float = float("nan")
+
+
+def _scale_name(eff) -> tuple[str, int]:
+    """The parameter that scales an effect's noise and the power the variance goes with."""
+    if "psd" in eff.params:
+        return "psd", 1
+    return type(eff).fit.scale, 2
+
+
+def tone_peaks(I: np.ndarray, E: np.ndarray, M: int, Ts: float, max_peaks: int = 3) -> list[tuple[int, float]]:
+    """(output, frequency Hz) of bins whose I/E exceeds what Exp(1) allows over all bins (P < 1e-3),
+    strongest first, at least 5 bins apart."""
+    out = []
+    nf = I.shape[0]
+    thr = math.log(nf / 1e-3)
+    for j in range(I.shape[1]):
+        ratio = I[:, j] / np.maximum(E[:, j], 1e-300)
+        idx = np.flatnonzero(ratio > thr)
+        chosen: list[int] = []
+        for i in idx[np.argsort(-ratio[idx])]:
+            if any(abs(i - c) < 5 for c in chosen):
+                continue
+            chosen.append(int(i))
+            if len(chosen) >= max_peaks:
+                break
+        out += [(j, (c + 1) / (M * Ts)) for c in chosen]
+    return out
+
+
+MODE_RANK = {"replace": 0, "add": 1, "refit": 2}
+TIE = 2.0                 # Delta BIC within which candidates count as equally supported
+
+
+@dataclass
+class Start:
+    """A candidate before fitting: its initial model and free parameters."""
+    effect: str
+    mode: str
+    model: object
+    free: dict
+    k: int
+
+
+class Search:
+    """Greedy forward selection over the catalogue with joint refits (see the module docstring)."""
+
+    def __init__(self, model, data: Data, log=None, n_full: int = 3):
+        self.data = data
+        self.H = Hypotheses(data, model)
+        self.log = log or (lambda s: None)
+        self.nominal = model
+        self.n_full = n_full
+
+    def start(self) -> Fit:
+        return self.H.inner_fit(self.nominal, {})
+
+    def score(self, fit: Fit, cur: Fit, k: int) -> float:
+        return 2 * (fit.loglik - cur.loglik) - k * math.log(self.data.n_bic)
+
+    def candidates(self, cur: Fit) -> list[Candidate]:
+        """Every candidate screened (its own parameters searched, the rest refitted only in their
+        variances), then the ``n_full`` best fitted jointly with everything freed so far; ranked by
+        Delta BIC, near-ties (within :data:`TIE`) resolved towards fewer effects: a replacement
+        first, then an addition, then a changed value."""
+        out: list[Candidate] = []
+        for st in self.starts(cur):
+            try:
+                fit = self.H.fit(st.model, st.free, new=(st.effect,), screen=True)
+            except (ModelError, ValueError, np.linalg.LinAlgError) as exc:
+                self.log(f"candidate {st.mode} {st.effect}: skipped ({exc})")
+                continue
+            c = Candidate(st.effect, st.mode, fit, st.k)
+            c.score = self.score(fit, cur, st.k)
+            c.start = st
+            out.append(c)
+        out.sort(key=lambda c: -c.score)
+        for c in out[:self.n_full]:
+            if c.score < THRESHOLD - 30:
+                continue
+            try:
+                full = self.H.fit(c.fit.model, c.fit.free, rounds=2, new=())
+            except (ModelError, ValueError, np.linalg.LinAlgError):
+                continue
+            if full.loglik > c.fit.loglik:
+                c.fit = full
+                c.score = self.score(full, cur, c.k)
+        for c in out:
+            c.loglik = c.fit.loglik
+        out.sort(key=lambda c: -c.score)
+        if out:
+            top = out[0].score
+            near = [c for c in out if c.score > top - TIE]
+            near.sort(key=lambda c: (MODE_RANK[c.mode.split(":")[0]], -c.score))
+            first = near[0]
+            out.remove(first)
+            out.insert(0, first)
+        return out
+
+    def starts(self, cur: Fit) -> list[Start]:
+        d = self.data
+        out: list[Start] = []
+        model = cur.model
+        for eid, cls in CATALOGUE.items():
+            spec = cls.fit
+            if spec.kind == "none" or eid in cur.free:
+                continue
+            if spec.needs_command and not d.has_command:
+                continue
+            mode = "refit" if eid in model.effects else "add"
+            try:
+                if spec.kind in ("noise", "modulated", "mean"):
+                    out += self._noise_or_mean(cur, eid, mode)
+                    for rep in spec.replaces:
+                        if mode == "add" and rep in model.effects and rep not in cur.free:
+                            out += self._noise_or_mean(cur, eid, f"replace:{rep}")
+                elif spec.kind == "grid":
+                    out += self._grid(cur, mode)
+                elif spec.kind == "line":
+                    out += self._tones(cur, mode)
+            except (ModelError, ValueError, np.linalg.LinAlgError) as exc:
+                self.log(f"candidate {eid}: skipped ({exc})")
+        return out
+
+    def _noise_or_mean(self, cur: Fit, eid: str, mode: str) -> list[Start]:
+        d = self.data
+        spec = CATALOGUE[eid].fit
+        model = cur.model
+        if mode.startswith("replace:"):
+            model = model.without_effect(mode.split(":", 1)[1])
+        names = []
+        init: dict = {}
+        if spec.kind in ("noise", "modulated"):
+            if mode == "refit":
+                sname, _ = _scale_name(model.effects[eid])
+            else:
+                sname = spec.scale
+                init[sname] = _unit_scale(spec, d.Ts) * (1e-3 if spec.kind == "noise" else 1e-1)
+            names.append(sname)
+        for sh in spec.shape:
+            lo, hi, spacing = self.H._bounds(sh)
+            if hi <= lo:
+                return []
+            names.append(sh[0])
+            cur_v = None
+            if mode == "refit":
+                pd = model.effects[eid].param_dict()
+                cur_v = pd.get(sh[0])
+                if cur_v is None and sh[0] == "tau_s" and "rho" in pd:
+                    rho = np.atleast_1d(model.effects[eid].params["rho"]).astype(float)
+                    cur_v = float(np.mean(-d.Ts / np.log(rho)))
+                cur_v = None if cur_v is None else float(np.mean(cur_v))
+            init[sh[0]] = cur_v if cur_v is not None else \
+                (math.sqrt(lo * hi) if spacing == "log" else 0.5 * (lo + hi))
+        m = _set(model, eid, init) if init else model
+        free = dict(cur.free)
+        free[eid] = names
+        return [Start(eid, mode, m, free, len(names))]
+
+    def _grid(self, cur: Fit, mode: str) -> list[Start]:
+        d = self.data
+        steps = d.grid
+        if any(s is None for s in steps):
+            return []
+        q = cur.model.effects.get("sensor.quantization")
+        if q is not None and np.allclose(np.broadcast_to(q.params["step"], (d.p,)), steps, rtol=1e-6):
+            return []
+        m = _set(cur.model, "sensor.quantization", {"step": _vec(steps)})
+        free = dict(cur.free)
+        free["sensor.quantization"] = []
+        return [Start("sensor.quantization", mode, m, free, d.p)]
+
+    def _tones(self, cur: Fit, mode: str) -> list[Start]:
+        d = self.data
+        free = dict(cur.free)
+        free["sensor.tone"] = ["amplitude", "frequency_hz"]
+        if mode == "refit":
+            return [Start("sensor.tone", mode, cur.model, free, 2 * d.p)]
+        r, _, _ = self.H.ev.residual(cur.model, False)
+        I = W.periodogram(r, d.k0)
+        E = sum(W.expected_parts(cur.model, d.M, d.k0, d.at_rest, cache=self.H.ev._parts,
+                                 ydot_sq=np.mean(self.H.ev.mean(cur.model)[1][d.k0:] ** 2, axis=0)).values())
+        out = []
+        for j, f in tone_peaks(I, E, d.M, d.Ts):
+            amp = np.zeros(d.p)
+            amp[j] = 1.0
+            m = _set(cur.model, "sensor.tone", {"amplitude": _vec(amp), "frequency_hz": _vec(np.full(d.p, f))})
+            out.append(Start("sensor.tone", "add", m, free, 3))
+        return out
+
+    def refit_all(self, cur: Fit) -> Fit:
+        return self.H.fit(cur.model, cur.free, rounds=2, new=())
+
+
+# -- intervals ----------------------------------------------------------------------------------------------
+def intervals(H: Hypotheses, fit: Fit, eid: str) -> dict:
+    """95 % profile-likelihood intervals of ``eid``'s free parameters at the joint fit."""
+    out = {}
+    eff = fit.model.effects.get(eid)
+    if eff is None:
+        return out
+    spec = CATALOGUE[eid].fit
+    if eid in fit.scale_ids:
+        a = fit.scale_ids.index(eid)
+        lo, hi = fit.inner.profile(a, fit.v, fit.loglik - _extra(H, fit))
+        name, power = _scale_name(eff)
+        val = float(np.max(np.asarray(eff.params[name], float)))
+        vhat = max(fit.v[a], 1e-300)
+        out[name] = [val * (lo / vhat) ** (1 / power), val * (hi / vhat) ** (1 / power)]
+    for sh in spec.shape:
+        if sh[0] not in fit.free.get(eid, []):
+            continue
+        out[sh[0]] = _profile_outer(H, fit, eid, sh)
+    return out
+
+
+def _extra(H: Hypotheses, fit: Fit) -> float:
+    """The parts of the log-likelihood outside the inner problem (grid, fixed jitter)."""
+    lin = fit.inner.value(fit.v)[0] if fit.inner is not None else 0.0
+    return fit.loglik - lin
+
+
+def _profile_outer(H: Hypotheses, fit: Fit, eid: str, spec) -> list[float]:
+    name = spec[0]
+    lo_b, hi_b, spacing = H._bounds(spec)
+    x = float(np.mean(fit.model.effects[eid].param_dict()[name]))
+    target = fit.loglik - CHI2_95 / 2
+
+    def l_at(v):
+        f = H._try(fit, eid, name, v)
+        return -1e300 if f is None else f.loglik
+
+    def edge(direction):
+        inside = x
+        if spacing == "log":
+            step = 1.1
+            outside = x * step ** direction
+            for _ in range(40):
+                if outside <= lo_b * 0.5 or outside >= hi_b * 2 or l_at(outside) < target:
+                    break
+                inside, outside = outside, outside * (step ** direction)
+                step = step ** 1.5
+        else:
+            span = (hi_b - lo_b) / 200
+            outside = x + direction * span
+            for _ in range(40):
+                if l_at(outside) < target:
+                    break
+                inside, outside = outside, outside + direction * span
+                span *= 1.6
+        for _ in range(12):
+            mid = math.sqrt(inside * outside) if spacing == "log" else 0.5 * (inside + outside)
+            if l_at(mid) > target:
+                inside = mid
+            else:
+                outside = mid
+        return 0.5 * (inside + outside)
+
+    return [edge(-1), edge(+1)]

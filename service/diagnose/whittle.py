@@ -1,0 +1,318 @@
+"""The likelihood the diagnosis ranks and fits effects with: a debiased Whittle likelihood of the
+differenced residual, exact for a record that starts at rest.
+
+Symbols -> names:
+
+=============  ==============  =================================================================
+symbol         name            meaning
+=============  ==============  =================================================================
+r_k            ``r``           residual y_k - E[y_k] (measurement minus the model's mean response)
+d_q            ``d``           differenced residual r_{q+k0+1} - r_{q+k0}, q = 0..M-1
+I_f            ``I``           periodogram |sum_q d_q e^{-i 2 pi f q / M}|^2 / M, f = 1..nf
+E_f            ``E``           its expectation under the model, per effect (``parts``)
+R(h), R_d(h)   ``R``, ``Rd``   autocovariance of r and of d at lag h samples
+=============  ==============  =================================================================
+
+Why this form:
+
+* Differencing makes the bias random walk white (its increments are iid), so the nonstationary
+  effect of the catalogue enters like every other one, and removes any constant offset.
+* The periodogram's expectation is computed exactly for the finite record (the "debiased Whittle
+  likelihood", Sykulski, Olhede, Guillaumin, Lilly & Early 2019, Biometrika 106(2)):
+  E I_f = sum_{|h|<M} (1 - |h|/M) R_d(h) e^{-i w_f h}, so leakage from resonances and steep
+  spectra is inside the prediction, never read as a missing effect.
+* A record that starts at rest (noiselab's emulator starts every state at zero) is not stationary:
+  P_k = P - F^k P F^T^k (the solution of P_{k+1} = F P_k F^T + Gamma Gamma^T from P_0 = 0, seed
+  section 4), so Cov(s_k, s_l) = [stationary] - F^k P F^T^l for every k, l. The correction is
+  separable, and its effect on E I_f is -(1/M) sum_c |sum_q w_{q,c} e^{-i w_f q}|^2 with
+  w_q = v_{q+1} - v_q, v_k = H F^k P^{1/2}. No samples need to be thrown away as burn-in.
+* The differenced series is tapered (Tukey, 10 % cosine at each end, normalized to sum w^2 = M)
+  before the transform. Without it the end-point term (r_M - r_0), common to every bin, leaks
+  Var(r)/M into all low frequencies and buries a bias walk there; with it E I_f =
+  (1/M) sum_h c_w(h) R_d(h) e^{-i w_f h}, c_w the taper's autocorrelation (Dahlhaus 1988).
+* Whittle: l = -(1/kappa) sum_f [ln E_f + I_f / E_f] (Whittle 1953), summed over outputs (the
+  cross-spectra of several outputs are left out: a composite likelihood). kappa = M sum w^4 /
+  (sum w^2)^2 corrects for the correlation the taper puts between neighbouring bins (the
+  likelihood's curvature would otherwise be overstated by that factor).
+
+Every autocovariance is a sum of exponentials: with F = V diag(lambda) V^-1 (the augmented
+dynamics of :class:`service.model.predict.LinearSystem`), R(h) = Re sum_i c_i lambda_i^(h-1) for
+h >= 1 (Percival & Walden 1993 ch. 9 for AR forms), computed in blocks up to where it has decayed
+below 1e-13 of its start. Defective F (e.g. a critically damped plant) falls back to repeated
+products of F.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.signal import lfilter
+
+TAPER = 0.2              # Tukey taper: the cosine parts cover 10 % of the record at each end
+DECAY = 1e-13            # |lambda|^h below which an exponential's tail is dropped
+COND_MAX = 1e8           # eigenvector condition number beyond which F is treated as defective
+
+
+# -- linear simulation of the mean response (modal, real input) ---------------------------------------------
+def lsim(Ad: np.ndarray, Bd: np.ndarray, C: np.ndarray, D: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """y_k = C x_k + D u_k, x_{k+1} = Ad x_k + Bd u_k, x_0 = 0; u (N, m) -> y (N, p).
+
+    Modal: one first-order complex recursion per eigenvalue (lfilter), conjugate pairs once. Falls
+    back to the Schur propagator of the simulation when Ad's eigenvectors are ill-conditioned."""
+    u = np.asarray(u, float)
+    N = u.shape[0]
+    y = u @ D.T if D.size else np.zeros((N, C.shape[0]))
+    n = Ad.shape[0]
+    if n == 0:
+        return y
+    lam, V = np.linalg.eig(Ad)
+    if np.linalg.cond(V) > COND_MAX:
+        from ..model.simulate import propagate
+        x = propagate(Ad, u @ Bd.T)
+        return y + x @ C.T
+    Vi = np.linalg.inv(V)
+    Bm = Vi @ Bd                       # (n, m)
+    Cm = C @ V                         # (p, n)
+    done = np.zeros(n, bool)
+    for i in range(n):
+        if done[i]:
+            continue
+        done[i] = True
+        pair = False
+        if abs(lam[i].imag) > 0:
+            # its conjugate partner: take the real part twice
+            j = [k for k in range(n) if not done[k] and np.isclose(lam[k], np.conj(lam[i]), rtol=1e-10, atol=1e-14)]
+            if j:
+                done[j[0]] = True
+                pair = True
+        drive = u @ Bm[i]
+        if not np.any(drive):
+            continue
+        z = lfilter([0.0, 1.0], [1.0, -lam[i]], drive.astype(complex))     # x_k = sum_{j<k} lam^(k-1-j) b u_j
+        contrib = np.outer(z, Cm[:, i])
+        y += 2.0 * contrib.real if pair else contrib.real
+    return y
+
+
+# -- periodogram of the differenced residual ---------------------------------------------------------------
+def n_freqs(M: int) -> int:
+    """Fourier frequencies used: f = 1..(M-1)//2 (no DC, no Nyquist)."""
+    return (M - 1) // 2
+
+
+_TAPERS: dict = {}
+
+
+def taper(M: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """Tukey taper w (M,) with sum w^2 = M, its autocorrelation c_w(h) = sum_q w_q w_{q+h}
+    (h = 0..M-1) and kappa = M sum w^4 / (sum w^2)^2."""
+    if M not in _TAPERS:
+        from scipy.signal.windows import tukey
+        w = tukey(M, TAPER) if M > 2 else np.ones(M)
+        w *= np.sqrt(M / np.sum(w**2))
+        F = np.fft.rfft(w, 2 * M)
+        cw = np.fft.irfft(np.abs(F) ** 2, 2 * M)[:M]
+        kappa = float(M * np.sum(w**4) / np.sum(w**2) ** 2)
+        if len(_TAPERS) > 8:
+            _TAPERS.clear()
+        _TAPERS[M] = (w, cw, kappa)
+    return _TAPERS[M]
+
+
+def periodogram(r: np.ndarray, k0: int = 0) -> np.ndarray:
+    """I_f (nf, p) of the tapered d_q = r_{k0+q+1} - r_{k0+q}."""
+    d = np.diff(r[k0:], axis=0)
+    M = d.shape[0]
+    w = taper(M)[0]
+    X = np.fft.rfft(d * w[:, None], axis=0)
+    return (np.abs(X[1:n_freqs(M) + 1]) ** 2) / M
+
+
+def _from_acf(Rd: np.ndarray, M: int) -> np.ndarray:
+    """E I_f from the differenced autocovariance Rd (K, p), K <= M (zero beyond):
+    (1/M) sum_h c_w(|h|) Rd(h) e^{-i w h}."""
+    K = min(Rd.shape[0], M)
+    cw = taper(M)[1]
+    a = Rd[:K] * (cw[:K, None] / M)
+    nf = n_freqs(M)
+    if K <= 8:                                   # short (white): the cosine sum directly
+        w = 2 * np.pi * np.arange(1, nf + 1) / M
+        E = np.broadcast_to(a[0], (nf, a.shape[1])).copy()
+        for h in range(1, K):
+            E += 2.0 * np.cos(w * h)[:, None] * a[h]
+        return E
+    E = 2.0 * np.fft.rfft(a, n=M, axis=0).real - a[0]
+    return E[1:nf + 1]
+
+
+def white_part(var: np.ndarray, M: int) -> np.ndarray:
+    """E I_f of white noise of variance ``var`` (p,) after differencing: 2 var (1 - cos w)(1 - ...)
+    exactly for the finite record: Rd(0) = 2 var, Rd(1) = -var."""
+    var = np.atleast_1d(np.asarray(var, float))
+    Rd = np.zeros((2, var.size))
+    Rd[0] = 2 * var
+    Rd[1] = -var
+    return _from_acf(Rd, M)
+
+
+def walk_part(q: np.ndarray, M: int) -> np.ndarray:
+    """A random walk with increment variance q (p,) per sample: white after differencing
+    (c_w(0) / M = 1)."""
+    q = np.atleast_1d(np.asarray(q, float))
+    return np.broadcast_to(q, (n_freqs(M), q.size)).copy()
+
+
+# -- sums of exponentials --------------------------------------------------------------------------------------
+class Modes:
+    """F = V diag(lam) V^-1, with F^h X evaluated as sums of exponentials (or by products when F is
+    defective)."""
+
+    def __init__(self, F: np.ndarray):
+        self.F = F
+        n = F.shape[0]
+        self.n = n
+        if n == 0:
+            self.ok = True
+            self.lam = np.zeros(0)
+            return
+        lam, V = np.linalg.eig(F)
+        self.ok = bool(np.linalg.cond(V) < COND_MAX)
+        self.lam, self.V = lam, V
+        self.Vi = np.linalg.inv(V) if self.ok else None
+        self.rho = float(np.max(np.abs(lam), initial=0.0))
+
+    def horizon(self, M: int) -> int:
+        """Lags until every mode has decayed below DECAY, capped at M."""
+        if self.n == 0:
+            return 1
+        if self.rho <= 0:
+            return min(M, self.n + 2)
+        if self.rho >= 1:
+            return M
+        return int(min(M, np.ceil(np.log(DECAY) / np.log(self.rho)) + 2))
+
+    def series(self, left: np.ndarray, right: np.ndarray, K: int, block: int = 1 << 15):
+        """S_h = left F^h right for h = 0..K-1: (K, a, b) real, left (a, n), right (n, b)."""
+        a, b = left.shape[0], right.shape[1]
+        out = np.empty((K, a, b))
+        if self.n == 0:
+            out[:] = 0.0
+            return out
+        if self.ok:
+            L = left @ self.V                      # (a, n)
+            Rm = self.Vi @ right                   # (n, b)
+            coef = L[:, :, None] * Rm[None, :, :]  # (a, n, b)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                logl = np.log(self.lam.astype(complex))
+            for h0 in range(0, K, block):
+                h = np.arange(h0, min(K, h0 + block))
+                pw = np.exp(np.outer(h, logl))      # (nb, n)
+                pw[:, self.lam == 0] = (h == 0)[:, None]
+                out[h0:h0 + h.size] = np.einsum("hn,anb->hab", pw, coef).real
+            return out
+        X = right.astype(float)
+        for h in range(K):                          # defective F: plain products
+            out[h] = left @ X
+            X = self.F @ X
+        return out
+
+
+# -- the expected periodogram of every noise source of a model -----------------------------------------------
+def psd_sqrt(P: np.ndarray) -> np.ndarray:
+    w, Q = np.linalg.eigh(0.5 * (P + P.T))
+    keep = w > 1e-13 * max(float(w.max(initial=0.0)), 1e-300)
+    return Q[:, keep] * np.sqrt(w[keep])
+
+
+def _sub_system(ls, Pe, cols, n_x: int):
+    """The states an effect's noise reaches (plant + its own), as (F, Gamma, H, Hd, P) restricted."""
+    G = ls.Gam[:, cols]
+    own = np.flatnonzero(np.any(G[n_x:] != 0, axis=1) | np.any(Pe[n_x:, n_x:] != 0, axis=1)) + n_x
+    S = np.concatenate([np.arange(n_x), own]).astype(np.int64)
+    return ls.F[np.ix_(S, S)], G[S], ls.H[:, S], Pe[np.ix_(S, S)]
+
+
+def linear_part(F, G, H, J, Pe, M: int, k0: int, at_rest: bool) -> np.ndarray:
+    """E I_f (nf, p) of one source of the augmented linear system (see the module docstring)."""
+    p = H.shape[0]
+    modes = Modes(F)
+    K = modes.horizon(M + 1)
+    X = np.concatenate([Pe @ H.T, G @ J.T], axis=1)                  # (n, 2p)
+    S = modes.series(H, X, K + 1)                                    # (K+1, p, 2p)
+    idx = np.arange(p)
+    R = np.empty((K + 2, p))
+    R[:K + 1] = S[:, idx, idx]
+    R[K + 1] = 0.0
+    R[1:K + 1] += S[:K, idx, p + idx]                                # H F^(h-1) Gamma J^T, h >= 1
+    R[0] += np.sum(J**2, axis=1)
+    Rd = np.empty((K + 1, p))
+    Rd[0] = 2 * (R[0] - R[1])
+    Rd[1:] = 2 * R[1:K + 1] - R[:K] - R[2:K + 2]
+    E = _from_acf(Rd, M)
+    if at_rest:
+        Gs = psd_sqrt(Pe)
+        if Gs.shape[1]:
+            Kr = min(modes.horizon(k0 + M + 1), k0 + M + 1)
+            v = modes.series(H, Gs, Kr)                              # (Kr, p, c): v_k = H F^k P^(1/2)
+            w = np.diff(v[k0:], axis=0)                              # w_q = v_{k0+q+1} - v_{k0+q}
+            if w.shape[0]:
+                w = w * taper(M)[0][:w.shape[0], None, None]
+                Wf = np.fft.rfft(w, n=M, axis=0)[1:n_freqs(M) + 1]  # (nf, p, c)
+                E = E - np.sum(np.abs(Wf) ** 2, axis=2) / M
+    return E
+
+
+def expected_parts(model, M: int, k0: int, at_rest: bool, ydot_sq: np.ndarray | None = None,
+                   skip: tuple = ("sensor.tone",), cache: dict | None = None) -> dict:
+    """{effect id: E I_f (nf, p)} for every effect of ``model`` that owns noise, for the
+    differenced residual of M samples starting after sample k0. ``at_rest``: the record starts at
+    rest at sample 0 (the from-rest correction applies). ``ydot_sq``: mean square of the predicted
+    mean slope per output over the record (for the jitter; default: the predictor's). Tones are
+    deterministic in a record and handled by the caller (``skip``). ``cache``: a dict reused across
+    calls, keyed by each source's own sub-system (an effect whose transfer did not change is not
+    recomputed)."""
+    pr = model.predictor()
+    pr.steady_state()
+    ls = pr._ls
+    p = model.p
+    parts: dict = {}
+    ydot_var = np.zeros(p)
+    for eid, cols in ls.owners.items():
+        Pe = pr._Pj.get(eid)
+        if Pe is None:
+            raise ValueError(f"{eid}: no stationary prediction (the plant is not stable)")
+        ydot_var += np.einsum("ij,jk,ik->i", ls.Hd, Pe, ls.Hd) + np.sum(ls.Jd[:, cols] ** 2, axis=1)
+        if eid in skip:
+            continue
+        F, G, H, Ps = _sub_system(ls, Pe, cols, ls.n_x)
+        J = ls.J[:, cols]
+        key = None
+        if cache is not None:
+            key = (eid, M, k0, at_rest, F.tobytes(), G.tobytes(), H.tobytes(), J.tobytes())
+            if key in cache:
+                parts[eid] = cache[key]
+                continue
+        E = linear_part(F, G, H, J, Ps, M, k0, at_rest)
+        if cache is not None:
+            if len(cache) > 256:
+                cache.clear()
+            cache[key] = E
+        parts[eid] = E
+    if ydot_sq is None:
+        mean = pr.mean_response()
+        ydot_sq = np.mean(mean.ydot**2, axis=0)
+    for eid, kind, *prm in pr._primitives():
+        if eid in skip:
+            continue
+        if kind == "white":
+            parts[eid] = parts.get(eid, 0) + white_part(np.broadcast_to(prm[0], (p,)), M)
+        elif kind == "walk":
+            parts[eid] = parts.get(eid, 0) + walk_part(np.broadcast_to(prm[0], (p,)), M)
+        elif kind == "jitter":
+            parts[eid] = white_part(prm[0] * (ydot_sq + ydot_var), M)
+    return parts
+
+
+def loglik(I: np.ndarray, E: np.ndarray, M: int) -> float:
+    """Whittle log-likelihood -(1/kappa) sum [ln E + I / E] over frequencies and outputs."""
+    E = np.maximum(E, 1e-300)
+    return float(-np.sum(np.log(E) + I / E) / taper(M)[2])
