@@ -3,11 +3,11 @@ latency, emulator CPU.
 
 Run on demand, not by pytest (``pyproject.toml`` ignores ``tests/bench``)::
 
-    /work/venv/bin/python tests/bench/bench_live.py                  # full run, ~5 min
-    /work/venv/bin/python tests/bench/bench_live.py --write          # ... and update RESULTS.md
-    /work/venv/bin/python tests/bench/bench_live.py --quick          # smoke test, ~1 min, never writes
-    /work/venv/bin/python tests/bench/bench_live.py --only sweep     # one part
-    /work/venv/bin/python tests/bench/bench_live.py --wait-quiet 0.5 --write   # wait for load < 0.5
+    .venv/bin/python tests/bench/bench_live.py                  # full run, ~5 min
+    .venv/bin/python tests/bench/bench_live.py --write          # ... and update RESULTS.md
+    .venv/bin/python tests/bench/bench_live.py --quick          # smoke test, ~1 min, never writes
+    .venv/bin/python tests/bench/bench_live.py --only sweep     # one part
+    .venv/bin/python tests/bench/bench_live.py --wait-quiet 0.5 --write   # wait for load < 0.5
 
 Every node runs as its own process, exactly as a user starts it (``python -m service.cli ...``),
 on free loopback ports (never 7447). The model is the built-in ``seed`` scenario with its Ts
@@ -19,34 +19,39 @@ Parts (every ratio is against a named peer measured in the same run):
    60 --connect P --wait-subscribers 10 --json``. The emulator's --json summary gives deadline
    lateness p50/p99/max and overruns; the recording is read back (``mcapio.read_recording``) and
    each topic's message count is compared with the samples published (60,000), with its gaps,
-   seqs missing at the start and at the end. The recorder is stopped with SIGINT as soon as the
-   emulator exits, as ``noiselab run`` does (``--linger S`` waits S seconds first). Peer: the same
+   seqs missing at the start and at the end. The emulator exits once the recorder has acknowledged
+   its end of stream; the recorder is then stopped with SIGINT, as ``noiselab run`` does
+   (``--linger S`` waits S seconds first). Peer: the same
    emulator with no subscriber at all (``--listen`` on a free port), same duration. Targets:
    lateness p99 < 0.5 ms, zero lost messages.
 2. ``sweep``: the same pipeline at Ts = 1, 0.5, 0.333, 0.25, 0.2, 0.1 ms (``--sweep-duration``
    seconds each). Per rate: samples, messages recorded per topic, gaps, overruns, lateness p99,
    the achieved rate (samples / emulator wall time), and whether the emulator kept real time (its
    wall time exceeded samples x Ts by less than 1 % + 10 ms; it never skips samples, it catches
-   up). Target: zero loss at >= 5 kHz.
+   up), and how long after its last sample the recorder acknowledged the end of stream (how far
+   behind it was). Target: zero loss at >= 5 kHz.
 3. ``recorder``: N messages of three topics (payloads from ``wire.encode_batch``, the three topics
    interleaved sample by sample as the emulator sends them) written (a) with ``mcap.writer.Writer``
    directly (chunk 64 KiB, zstd: the recorder's settings), (b) with ``RecordingWriter.write``,
-   (b2) with the recorder loop's own per-message work (key -> kind, ``wire.decode`` for seq and t,
-   ``RecordingWriter.write``), in this process; (c) by the ``noiselab record`` process, fed by a
-   publisher process that puts the N messages as fast as it can (BLOCK + express, the emulator's
-   settings). (c) is N / (time from the first put to the recorder's last write to its file); the
-   last write is found by polling the file size every 5 ms, and the recorder flushes every 0.25 s,
-   so (c) is a lower bound by up to 0.25 s of a ~10 s run. The publisher keeps its session open
-   until everything is written. (d) the same blast with a publisher that closes its session right
-   after its last put, as the emulator does when --duration ends: messages recorded out of N.
-   Target: (c), or at least (b), >= half of (a).
+   (b2) with the recorder's main-thread work (``recorder.Ingest.add`` on batches of 4,096: group
+   by topic, decode, check, write, book), in this process; (c) by the ``noiselab record`` process,
+   fed by a publisher process that puts the N messages as fast as it can with the emulator's
+   publisher options (BLOCK, no express) and then ends the stream as the emulator does
+   (``transport.end_stream``: end message, wait for the recorder's acknowledgement, which it
+   sends once it has written every message before it). (c) is N / (first put -> acknowledgement),
+   ``--close-repeat`` runs, the median reported. (d) the same runs: messages recorded out of N
+   (the publisher closes its session right after the acknowledgement, as the emulator does).
+   (e) diagnostic: the same blast closing right after the last put, without the end of stream
+   (the emulator before the fix); the recorder is given until its file has not changed for 1.5 s.
+   Target: (c), or at least (b), >= half of (a); zero lost in (d).
 4. ``latency``: put-to-receive latency at 1 kHz between two processes on loopback: a subscriber
    process (a bare callback that reads ``time.monotonic_ns()`` first) and a publisher process
    that, every 1 ms (absolute deadlines, sleep then spin like the emulator), puts three payloads
    (``wire.encode`` of truth, command, measurement) with its ``time.monotonic_ns()`` as an 8-byte
    attachment (same machine, same clock). Variants, run one after the other in the same run:
-   ``noiselab`` (BLOCK + express, the emulator's publishers), ``bare`` (``declare_publisher(key)``
-   with zenoh's defaults), and ``block`` (BLOCK, no express) as a diagnostic. Also the time the
+   ``noiselab`` (``transport.DATA_QOS``: BLOCK, no express, the emulator's publishers), ``bare``
+   (``declare_publisher(key)`` with zenoh's defaults), and ``express`` (BLOCK + express, the
+   emulator's options before the fix) as a diagnostic. Also the time the
    three puts take in the publisher. No target (ratio noiselab / bare reported).
 5. CPU: user + sys CPU seconds per wall second of the emulator (and of the recorder) in part 1,
    from ``/proc/<pid>/stat`` sampled every 0.5 s over the steady part of the run (start-up and
@@ -54,7 +59,7 @@ Parts (every ratio is against a named peer measured in the same run):
 6. ``phases`` (diagnostic): an instrumented copy of the emulator's loop (same deadlines, step,
    ``wire.encode``, publishers) in this process, with a ``noiselab record`` process attached, to
    show where a sample's time goes (step / encode / 3 puts / sleep overshoot), with express on
-   (the product's setting) and off, alternating (``--phase-rounds``), at ``--phase-periods``
+   (the setting before the fix) and off (the product's), alternating (``--phase-rounds``), at ``--phase-periods``
    (default 1 ms; e.g. ``--only phases --phase-periods 0.001,0.0002 --phase-rounds 2``). Not a
    product measurement: a copy.
 
@@ -590,13 +595,15 @@ def write_ours(msgs, path: Path) -> None:
 
 
 def write_recorder_loop(msgs, path: Path) -> None:
-    """What run_recorder's main thread does per message, minus the queue: kind, decode, write."""
+    """What run_recorder's main thread does with what it takes from its channel, minus zenoh:
+    ``recorder.Ingest.add`` on batches of ``recorder.BATCH`` (key, payload) pairs (group by
+    topic, decode, check, write, book)."""
     from service.nodes import mcapio, recorder
+    items = [(topic, data) for topic, _kind, _seq, _p, data in msgs]
     with mcapio.RecordingWriter(path, force=True, chunk_size=64 * 1024, compression="zstd") as w:
-        for topic, _kind, _seq, p, data in msgs:
-            kind = recorder._kind_of_key(topic)
-            seq, t = recorder._seq_t(data, kind, topic)
-            w.write(topic, kind, seq, int(round(t * 1e9)), p, data)
+        ing = recorder.Ingest(w, str(path))
+        for i in range(0, len(items), recorder.BATCH):
+            ing.add(items[i:i + recorder.BATCH], time.time_ns())
 
 
 def timed(fn, repeat: int) -> list[float]:
@@ -609,34 +616,43 @@ def timed(fn, repeat: int) -> list[float]:
     return ts
 
 
-def blast_child(endpoint: str, n_samples: int, linger: bool) -> None:
-    """Publisher process of part 3: put n_samples x 3 messages as fast as possible."""
-    import zenoh
+def blast_child(endpoint: str, n_samples: int, end: bool) -> None:
+    """Publisher process of part 3: put n_samples x 3 messages as fast as possible with the
+    emulator's publisher options, then (``end``) end the stream as the emulator does
+    (``transport.end_stream``: end message, wait for the recorder's acknowledgement) and close;
+    without ``end``, close right after the last put (the behaviour before the fix)."""
     from service.nodes import transport, wire
     msgs = make_messages(n_samples)
     args = argparse.Namespace(connect=[endpoint], listen=None, config=None, mode=None, connect_timeout=10.0)
-    session = transport.open_session(args, "source")
-    opts = dict(congestion_control=zenoh.CongestionControl.BLOCK, express=True)
-    pubs = {wire.key(NAME, kind): session.declare_publisher(wire.key(NAME, kind), **opts) for kind in wire.KINDS}
-    t_end = time.monotonic() + 20
-    while not all(p.matching_status for p in pubs.values()) and time.monotonic() < t_end:
-        time.sleep(0.002)
-    seq = [(pubs[topic].put, data) for topic, _k, _s, _p, data in msgs]
-    t0 = time.monotonic_ns()
-    for put, data in seq:
-        put(data)
-    t1 = time.monotonic_ns()
-    print(json.dumps({"t_first_ns": t0, "t_last_ns": t1, "messages": len(seq)}), flush=True)
-    if linger:
-        sys.stdin.readline()              # wait for "close" from the bench
-    session.close()
+    with transport.open_session(args, "source") as session:
+        pubs = {wire.key(NAME, kind): session.declare_publisher(wire.key(NAME, kind), **transport.DATA_QOS)
+                for kind in (*wire.KINDS, wire.END)}
+        if not transport.wait_matching(pubs.values(), 20):
+            raise SystemExit("blast: the recorder did not match")
+        seq = [(pubs[topic].put, data) for topic, _k, _s, _p, data in msgs]
+        t0 = time.monotonic_ns()
+        for put, data in seq:
+            put(data)
+        t1 = time.monotonic_ns()
+        info = {"t_first_ns": t0, "t_last_ns": t1, "messages": len(seq)}
+        if end:
+            counts = {kind: n_samples for kind in wire.KINDS}
+            e = transport.end_stream(session, pubs[wire.key(NAME, wire.END)],
+                                     wire.encode_end(0, (n_samples - 1) * 0.001, n_samples, counts, "duration"), 60.0)
+            info.update(t_ack_ns=time.monotonic_ns(), acks=e["acks"], timed_out=e["timed_out"])
+        print(json.dumps(info), flush=True)
 
 
-def recorder_node(n_samples: int, workdir: Path, *, linger: bool, settle: float = 1.5) -> dict:
+def recorder_node(n_samples: int, workdir: Path, *, end: bool, settle: float = 1.5) -> dict:
+    """One blast into a `noiselab record` process. With ``end`` (the product): the node's rate is
+    N / (first put -> the recorder's acknowledgement, sent once it has written every message).
+    Without: the publisher closes at once, the recorder is given until its file has not changed
+    for ``settle`` s, and only the loss is of interest."""
     port = free_port()
     ep = f"tcp/127.0.0.1:{port}"
-    out = workdir / f"blast-{'linger' if linger else 'close'}.mcap"
-    rec = start_recorder(workdir, out, ep, f"blast-rec-{int(linger)}")
+    tag = "end" if end else "close"
+    out = workdir / f"blast-{tag}.mcap"
+    rec = start_recorder(workdir, out, ep, f"blast-rec-{tag}")
     sizes: list[tuple[float, int]] = []
     stop_poll = threading.Event()
 
@@ -652,51 +668,40 @@ def recorder_node(n_samples: int, workdir: Path, *, linger: bool, settle: float 
                 last = sz
             time.sleep(0.005)
 
-    poller = threading.Thread(target=poll, daemon=True)
-    poller.start()
+    if not end:
+        threading.Thread(target=poll, daemon=True).start()
     pub = Child([sys.executable, str(Path(__file__).resolve()), "--_blast", ep, str(n_samples)]
-                + (["--_linger"] if linger else []), workdir, f"blast-pub-{int(linger)}", stdin=True)
+                + (["--_end"] if end else []), workdir, f"blast-pub-{tag}")
     try:
-        # wait for the publisher's JSON line (it prints it after its last put)
-        t_end = time.monotonic() + 600
-        info = None
-        while info is None and time.monotonic() < t_end:
-            if not pub.alive():
-                break
-            try:
-                info = pub.stdout_json()
-            except OSError:
-                info = None
-            time.sleep(0.05)
-        if linger:
-            # wait until the recorder has not written for `settle` s
-            while time.monotonic() - (sizes[-1][0] if sizes else 0) < settle:
-                time.sleep(0.05)
-            pub.send("close")
-        pub.reap(60)
-        info = info or pub.stdout_json()
-        if not linger:
+        if pub.reap(600) != 0:
+            raise RuntimeError(f"blast publisher failed: {''.join(pub.err)[-800:]}")
+        info = pub.stdout_json()
+        if not end:
             time.sleep(settle)
             while time.monotonic() - (sizes[-1][0] if sizes else 0) < settle:
                 time.sleep(0.05)
         stop_poll.set()
-        poller.join(2)
-        t_last_write = sizes[-1][0] if sizes else float("nan")
         rsum, drain = stop_recorder(rec)
     finally:
         stop_poll.set()
         pub.kill()
         rec.kill()
     n = info["messages"]
-    t_first = info["t_first_ns"] / 1e9
-    recorded = int(rsum.get("messages", 0))
+    recorded = sum(v["count"] for k, v in (rsum.get("topics") or {}).items() if k.rsplit("/", 1)[-1] in
+                   ("truth", "command", "measurement"))
     out.unlink(missing_ok=True)
-    return {"messages": n, "recorded": recorded, "pub_rate": n / ((info["t_last_ns"] - info["t_first_ns"]) / 1e9),
-            "node_s": t_last_write - t_first, "node_rate": recorded / (t_last_write - t_first),
-            "topics": {k.rsplit("/", 1)[-1]: {"count": v["count"], "missing": v["missing"],
-                                               "last_seq": v["last_seq"]}
-                       for k, v in (rsum.get("topics") or {}).items()},
-            "rec_cpu": rec.cpu(), "drain_s": drain}
+    res = {"messages": n, "recorded": recorded, "end": end,
+           "pub_rate": n / ((info["t_last_ns"] - info["t_first_ns"]) / 1e9),
+           "topics": {k.rsplit("/", 1)[-1]: {"count": v["count"], "missing": v["missing"],
+                                              "last_seq": v["last_seq"]}
+                      for k, v in (rsum.get("topics") or {}).items()},
+           "rec_cpu": rec.cpu(), "drain_s": drain}
+    if end:
+        node_s = (info["t_ack_ns"] - info["t_first_ns"]) / 1e9
+        res.update(node_s=node_s, node_rate=recorded / node_s, timed_out=info["timed_out"],
+                   ack_complete=bool(info["acks"]) and all(a.get("complete") for a in info["acks"]),
+                   ack_after_last_put_s=(info["t_ack_ns"] - info["t_last_ns"]) / 1e9)
+    return res
 
 
 def bench_recorder(n_samples: int, n_node: int, repeat: int, workdir: Path, close_repeat: int = 3) -> dict:
@@ -713,16 +718,25 @@ def bench_recorder(n_samples: int, n_node: int, repeat: int, workdir: Path, clos
                     "rate_median": n / statistics.median(ts), "file_bytes": path.stat().st_size}
         path.unlink()
         print(f"  ({key}) {res[key]['rate']:,.0f} msg/s best, {res[key]['rate_median']:,.0f} median", flush=True)
-    print(f"[recorder] node: {3 * n_node} messages blasted to `noiselab record` (load {loadavg()})", flush=True)
-    quiet_gate("recorder node")
-    res["node"] = recorder_node(n_node, workdir, linger=True)
-    print(f"  (c) {res['node']['node_rate']:,.0f} msg/s (publisher {res['node']['pub_rate']:,.0f} msg/s), "
-          f"recorded {res['node']['recorded']}/{res['node']['messages']}", flush=True)
+    print(f"[recorder] node: {3 * n_node} messages blasted to `noiselab record`, ended as `emulate` does, "
+          f"{close_repeat} runs (load {loadavg()})", flush=True)
+    res["end_runs"] = []
+    for _ in range(close_repeat):
+        quiet_gate("recorder node")
+        c = recorder_node(n_node, workdir, end=True)
+        res["end_runs"].append(c)
+        print(f"  (c/d) {c['node_rate']:,.0f} msg/s (publisher {c['pub_rate']:,.0f} msg/s), recorded "
+              f"{c['recorded']}/{c['messages']}, acknowledged {c['ack_after_last_put_s']:.2f} s after the last put",
+              flush=True)
+    res["node"] = sorted(res["end_runs"], key=lambda c: c["node_rate"])[len(res["end_runs"]) // 2]   # the median run
+    print(f"[recorder] diagnostic: the same blast, publisher closes right after its last put (no end of stream), "
+          f"{close_repeat} runs", flush=True)
     res["close_runs"] = []
     for _ in range(close_repeat):
-        c = recorder_node(n_node, workdir, linger=False)
+        quiet_gate("recorder node")
+        c = recorder_node(n_node, workdir, end=False)
         res["close_runs"].append(c)
-        print(f"  (d) immediate close: recorded {c['recorded']}/{c['messages']}", flush=True)
+        print(f"  (e) immediate close: recorded {c['recorded']}/{c['messages']}", flush=True)
     res["close"] = min(res["close_runs"], key=lambda c: c["recorded"])
     res["load_end"] = loadavg()
     res["cpu_machine"] = meter.stop()
@@ -730,7 +744,7 @@ def bench_recorder(n_samples: int, n_node: int, repeat: int, workdir: Path, clos
 
 
 # ------------------------------------------------------------------------------- 4: latency
-VARIANTS = ("noiselab", "bare", "block")
+VARIANTS = ("noiselab", "bare", "express")
 WARMUP = 200                              # ticks (ms) sent before timing starts
 
 
@@ -775,9 +789,10 @@ def latpub_child(endpoint: str, variant: str, seconds: float) -> None:
     conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
     conf.insert_json5("listen/endpoints", "[]")
     if variant == "noiselab":
+        from service.nodes import transport
+        opts = dict(transport.DATA_QOS)
+    elif variant == "express":
         opts = dict(congestion_control=zenoh.CongestionControl.BLOCK, express=True)
-    elif variant == "block":
-        opts = dict(congestion_control=zenoh.CongestionControl.BLOCK)
     else:
         opts = {}
     Ts_ns = 1_000_000
@@ -996,7 +1011,8 @@ def table(res: dict) -> str:
         ratio = lat["p99"] / lata["p99"] if lata["p99"] > 0 else float("inf")
         rows.append(f"| 1 | ratio p99 with recorder / alone | {ratio:.2g}× | | info |")
         rows.append(f"| 1 | end-to-end: recorded per topic (of {n:,} published), lost | {fmt_topics(r)}; lost: "
-                    f"{loss_text(r)}; recorder drained in {r['drain_s']:.2f} s after SIGINT | 0 lost | "
+                    f"{loss_text(r)}; end of stream acknowledged after {end_text(s)}; recorder finished "
+                    f"{r['drain_s']:.2f} s after SIGINT | 0 lost | "
                     f"{pf(r['zero_loss'])} |")
     sw = res.get("sweep")
     if sw:
@@ -1019,23 +1035,33 @@ def table(res: dict) -> str:
         rows.append(f"| 3b | `RecordingWriter.write`, same messages | {ours['rate']:,.0f} msg/s (median "
                     f"{ours['rate_median']:,.0f}); **{ours['rate'] / raw['rate']:.2f}×** raw | ≥ 0.5× | "
                     f"{pf(ours['rate'] / raw['rate'] >= TARGET_WRITER_RATIO)} |")
-        rows.append(f"| 3b2 | recorder loop's per-message work in-process (key→kind, `wire.decode`, write) | "
+        rows.append(f"| 3b2 | the recorder's main-thread work in-process (`recorder.Ingest.add` on batches of "
+                    f"4,096: group by topic, decode, check, write, book) | "
                     f"{loop['rate']:,.0f} msg/s; {loop['rate'] / raw['rate']:.2f}× raw | | info |")
-        rows.append(f"| 3c | `noiselab record` process fed by a publisher process (BLOCK+express), "
-                    f"{node['messages']:,} msgs | **{node['node_rate']:,.0f} msg/s** (publisher put "
-                    f"{node['pub_rate']:,.0f} msg/s; recorded {node['recorded']:,}; recorder CPU "
+        runs = rc.get("end_runs") or [node]
+        rates = ", ".join(f"{c['node_rate']:,.0f}" for c in runs)
+        rows.append(f"| 3c | `noiselab record` process fed by a publisher process (the emulator's publisher options "
+                    f"and end of stream), {node['messages']:,} msgs, {len(runs)} runs: first put → the recorder's "
+                    f"acknowledgement (every message written) | **{node['node_rate']:,.0f} msg/s** median (runs: "
+                    f"{rates}; publisher put {node['pub_rate']:,.0f} msg/s; recorder CPU "
                     f"{100 * node['rec_cpu'].get('whole_frac', float('nan')):.0f} % of a core over its life); "
                     f"**{node['node_rate'] / raw['rate']:.2f}×** raw | ≥ 0.5× | "
                     f"{pf(node['node_rate'] / raw['rate'] >= TARGET_WRITER_RATIO)} |")
-        runs = rc.get("close_runs") or [close]
         lost = ", ".join(f"{c['messages'] - c['recorded']:,}" for c in runs)
-        rows.append(f"| 3d | same blast, publisher closes its session right after its last put (as "
-                    f"`emulate` does at --duration), {len(runs)} runs | lost per run: {lost} (of "
-                    f"{close['messages']:,}) | 0 lost | {pf(all(c['recorded'] == c['messages'] for c in runs))} |")
+        ok = all(c["recorded"] == c["messages"] and c.get("ack_complete") and not c.get("timed_out") for c in runs)
+        rows.append(f"| 3d | the same runs: publisher closes its session once the end of stream is acknowledged "
+                    f"(as `emulate` does) | lost per run: {lost} (of {node['messages']:,}); acknowledged "
+                    + ", ".join(f"{c['ack_after_last_put_s']:.2f}" for c in runs)
+                    + f" s after the last put | 0 lost | {pf(ok)} |")
+        cruns = rc.get("close_runs") or [close]
+        clost = ", ".join(f"{c['messages'] - c['recorded']:,}" for c in cruns)
+        rows.append(f"| 3e | diagnostic: the same blast, publisher closes right after its last put (no end of stream: "
+                    f"`emulate` before this fix), {len(cruns)} runs | lost per run: {clost} (of "
+                    f"{close['messages']:,}) | | info |")
     la = res.get("latency")
     if la:
-        for v, label in (("noiselab", "noiselab path (BLOCK + express)"), ("bare", "peer: bare zenoh, defaults"),
-                         ("block", "diagnostic: BLOCK, no express")):
+        for v, label in (("noiselab", "noiselab path (BLOCK, no express)"), ("bare", "peer: bare zenoh, defaults"),
+                         ("express", "diagnostic: BLOCK + express (the emulator before this fix)")):
             d = la[v]
             rows.append(f"| 4 | put→receive, {label}: p50 / p99 / max ({d['n']:,} msgs) | "
                         f"{d['lat_us'][0]:.1f} / {d['lat_us'][1]:.1f} / {d['lat_us'][2]:.0f} µs; the 3 puts take "
@@ -1055,11 +1081,23 @@ def table(res: dict) -> str:
     return "\n".join(rows)
 
 
+def end_text(s: dict) -> str:
+    """How the emulator's end of stream went: acknowledged after how long, by how many recorders."""
+    end = s.get("end") or {}
+    if not end:
+        return "n/a"
+    if end.get("timed_out"):
+        return f"**not acknowledged** ({end.get('wait_s', 0):.2f} s)"
+    acks = end.get("acks") or []
+    ok = acks and all(a.get("complete") for a in acks)
+    return f"{1e3 * end.get('wait_s', 0):.0f} ms" + ("" if ok else " (**incomplete**)")
+
+
 def sweep_table(sw: list[dict]) -> str:
     rows = ["| Ts | nominal | samples | recorded per topic | lost | overruns | lateness p99 | achieved "
-            "(samples / emulator wall) | real time kept | emulator CPU | recorder CPU | recorder drain | "
-            "load at start | others' CPU |",
-            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+            "(samples / emulator wall) | real time kept | end acknowledged after | emulator CPU | recorder CPU | "
+            "recorder drain | load at start | others' CPU |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in sw:
         s = r["emulator"]
         rows.append(
@@ -1067,6 +1105,7 @@ def sweep_table(sw: list[dict]) -> str:
             f"{'**0**' if r['zero_loss'] else loss_text(r)} | {s['overruns']:,} ({100 * s['overruns'] / max(s['samples'], 1):.0f} %) | "
             f"{s['lateness_us']['p99']:.1f} µs | "
             f"{r['achieved_hz']:,.0f} Hz | {'yes' if r['real_time'] else 'no'} (lag {1e3 * r['lag_s']:.0f} ms) | "
+            f"{end_text(s)} | "
             f"{100 * r['emu_cpu'].get('steady_frac', float('nan')):.0f} % | "
             f"{100 * r['rec_cpu'].get('steady_frac', float('nan')):.0f} % | {r['drain_s']:.2f} s | "
             f"{r['load_start'].split()[0]} | {others_text(r.get('cpu_machine'), r.get('attempts_others_cores'))} |")
@@ -1080,7 +1119,8 @@ def phases_table(ph: dict) -> str:
     rows[1] = "|---" + rows[1]
     for key in ph.get("order") or ["express", "no_express"]:
         r = ph[key]
-        label = f"{1 / r.get('Ts', 0.001):,.0f} Hz | " + ("on (product)" if key.startswith("express") else "off")
+        label = f"{1 / r.get('Ts', 0.001):,.0f} Hz | " + ("on (before the fix)" if key.startswith("express")
+                                                          else "off (product)")
         cell = lambda k: f"{r[k][0]:.0f} / {r[k][1]:.0f} / {r[k][2]:.0f}"  # noqa: E731
         rows.append(f"| {label} | {cell('step')} | {cell('encode')} | {cell('put3')} | {cell('work')} | "
                     f"{cell('sleep_over')} | {cell('late')} | {r['overruns']} of {r['samples']:,} |")
@@ -1097,7 +1137,7 @@ def markdown(res: dict, argv: list[str]) -> str:
             skip = True
         elif a != "--write" and not a.startswith(("--json=", "--from-json=")):
             shown.append(a)
-    cmd = "/work/venv/bin/python tests/bench/bench_live.py " + " ".join(shown + ["--write"])
+    cmd = ".venv/bin/python tests/bench/bench_live.py " + " ".join(shown + ["--write"])
     loads = []
     for k in PARTS:
         d = res.get("sweep_load") if k == "sweep" else res.get(k)
@@ -1188,13 +1228,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--from-json", type=Path, metavar="PATH",
                     help="measure nothing: re-render the tables of a --json dump (and --write them)")
     ap.add_argument("--_blast", nargs=2, help=argparse.SUPPRESS)
-    ap.add_argument("--_linger", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--_end", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--_latsub", help=argparse.SUPPRESS)
     ap.add_argument("--_latpub", nargs=3, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
 
     if args._blast:
-        blast_child(args._blast[0], int(args._blast[1]), args._linger)
+        blast_child(args._blast[0], int(args._blast[1]), args._end)
         return 0
     if args._latsub:
         latsub_child(args._latsub)
