@@ -345,3 +345,85 @@ def test_foreign_recording_with_gap_and_irregular_timing(tmp_path):
     assert 0.2 < rep["error"] < 1 + 5 * 0.55
     # and the analysis discriminates: without the bias instability the same data are far off
     assert compare(m.without_effect("sensor.bias_markov"), ref.t, y[:10_000], None, burn=0).error > 10
+
+
+# -- 6. what the live analyzer relies on: exact predictions, cached and bounded ----------------------------
+@pytest.mark.parametrize("text, name", [(None, "seed (rho = 0.97)"), ("tau", "seed, tau_s = 30 s (rho = 0.99967)"),
+                                        ("everything", "every effect: AR(1) + white actuator noise")])
+def test_drive_noise_var_equals_the_closed_form(text, name):
+    """Var of the AR(1) actuator noise from rest (noise updated before use, seed section 5):
+    n_k = sum_{i<k} rho^i c e, so Var(n_{k+1}) = rho^2 c^2 (1 - rho^{2k}) / (1 - rho^2) + c^2 (+ the
+    white actuator noise's std^2), evaluated in exact rational arithmetic from the model's own
+    double-precision rho and c; the doubling recursion agrees to 1e-13 relative at every k, also
+    where rho^{2k} is below the double epsilon (the converged tail)."""
+    from fractions import Fraction
+
+    from models_for_tests import EVERYTHING
+    from service.model import parse_model
+    from service.model.model import scenario_text
+
+    if text == "everything":
+        mdl = parse_model(EVERYTHING, "everything")
+    elif text == "tau":
+        mdl = parse_model(scenario_text("seed").replace("rho = 0.97", "tau_s = 30.0"), "tau")
+    else:
+        mdl = load_model("seed")
+    ar1 = mdl.effects["actuator.ar1"]
+    white = mdl.effects.get("actuator.white")
+    rho, c = Fraction(float(ar1.rho[0])), Fraction(float(ar1.c[0]))
+    w2 = Fraction(float(white.params["std"][0])) ** 2 if white else Fraction(0)
+    n = 250_000
+    got = mdl.predictor().drive_noise_var(n)[:, 0]
+    ks = [0, 1, 2, 3, 10, 100, 1000, 10_000, 100_000, n - 1]
+    exact = [float(rho**2 * c**2 * (1 - rho ** (2 * k)) / (1 - rho**2) + c**2 + w2) for k in ks]
+    assert np.allclose(got[ks], exact, rtol=1e-13, atol=0), (name, np.max(np.abs(got[ks] / exact - 1)))
+
+
+def test_cached_predictions_give_the_uncached_numbers_and_stay_bounded():
+    """compare() on records of growing length (what a live analyzer does while its window fills:
+    the variogram is computed once for a generous length and sliced) gives exactly the floats of a
+    cold compare() of each record; the cache holds at most CACHE_MAX_BYTES, keeps one variogram
+    per model, and a model whose text differs is a different entry."""
+    from service.diagnose import compare as cm
+
+    mdl = load_model("seed")
+    rec = mdl.simulate(12_000, seed=5)
+    lengths = [3000, 3500, 5000, 7001, 12_000]
+    cm.cache_clear()
+    warm = [compare(mdl, rec.t[:n], rec.y[:n], rec.u[:n], burn=None) for n in lengths]
+    gammas = [k for k in cm._CACHE if k[1] == "gamma"]
+    assert len(gammas) == 1 and cm._CACHE[gammas[0]][0][0] >= 12_000 - transient_samples(mdl)
+    assert 0 < cm._cache_bytes <= cm.CACHE_MAX_BYTES
+    for n, w in zip(lengths, warm):
+        cm.cache_clear()
+        cold = compare(mdl, rec.t[:n], rec.y[:n], rec.u[:n], burn=None)
+        assert w.error == cold.error and w.error_per_view == cold.error_per_view
+        for a, b in zip(w.views, cold.views):
+            assert np.array_equal(a.predicted, b.predicted) and np.array_equal(a.z, b.z), (n, a.name)
+    # a byte bound smaller than one variogram: computed, used, not kept; the bound holds
+    other = load_model("seed-nominal")
+    old = cm.CACHE_MAX_BYTES
+    try:
+        cm.CACHE_MAX_BYTES = 64 * 1024
+        c_small = compare(other, rec.t, rec.y, rec.u, burn=None)
+        assert cm._cache_bytes <= cm.CACHE_MAX_BYTES
+    finally:
+        cm.CACHE_MAX_BYTES = old
+    cm.cache_clear()
+    assert compare(other, rec.t, rec.y, rec.u, burn=None).error == c_small.error
+
+
+def test_live_history_is_thinned_not_unbounded():
+    """The live analyzer's error history (the .rrd's error over time) stops at HISTORY_MAX entries:
+    it keeps every other one when full, and the first entry of every revision."""
+    import io
+
+    from service.nodes import analyzer
+
+    an = analyzer.LiveAnalyzer("seed", device=None, window_s=5.0, log=io.StringIO())
+    for i in range(3 * analyzer.HISTORY_MAX):
+        an.add_history({"t": i * 0.5, "revision": 0 if i < 1000 else 1, "error": 1.0, "error_per_view": {}})
+        assert len(an.history) < analyzer.HISTORY_MAX
+    ts = [h["t"] for h in an.history]
+    assert ts == sorted(ts) and ts[0] == 0.0 and ts[-1] == (3 * analyzer.HISTORY_MAX - 1) * 0.5
+    assert 500.0 in ts                                     # revision 1 starts at i = 1000

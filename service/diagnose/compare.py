@@ -92,7 +92,7 @@ def transient_samples(model) -> int:
 # window that fills up and then keeps its size, pays for them once per model revision. The cache is
 # least-recently-used and bounded in bytes (entries larger than the bound are not kept).
 CACHE_MAX_BYTES = 64 * 2**20
-CACHE_MAX_ENTRIES = 256
+CACHE_MAX_ENTRIES = 2048                   # a filling window adds ~2 small entries per update
 _CACHE: OrderedDict = OrderedDict()        # key -> (value, bytes, model kept alive for id keys)
 _cache_bytes = 0
 
@@ -307,7 +307,8 @@ def variance_view(r, t, gam_parts, j, W, model=None):
     def predict():
         parts = {eid: expected_window_stats(g[:, j:j + 1], W, W - 1)[:, 0] for eid, g in gam_parts.items()}
         R = sum(parts.values())                       # expected autocovariance within a window
-        return parts, R[0], windowed_variance_var(sum(g[:W, j] for g in gam_parts.values()), W, R)
+        var = windowed_variance_var(sum(g[:W, j] for g in gam_parts.values()), W, R)
+        return {eid: p[:1].copy() for eid, p in parts.items()}, R[0], var    # what the view uses
     parts, E, var = predict() if model is None else _cached(model, "variance_view", (j, W), predict)
     nu = np.full(n_win, 2 * E**2 / var)
     pred = np.full(n_win, E)
@@ -358,7 +359,7 @@ def acf_view(r, Ts, gam_parts, j, M, max_lag, model=None):
             minus = k - d
             ok = (np.abs(plus) < M) & (np.abs(minus) < M)
             var[d] = (np.sum(R[np.abs(k)] ** 2) + np.sum(Rs[c + plus[ok]] * Rs[c + minus[ok]])) / M / K
-        return parts, R, var
+        return {eid: p[: max_lag + 1].copy() for eid, p in parts.items()}, R[: max_lag + 1].copy(), var  # what the view uses
     parts, R, var = predict() if model is None else _cached(model, "acf_view", (j, M, max_lag, K), predict)
     se = np.sqrt(var)
     pred = R[: max_lag + 1]

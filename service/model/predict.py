@@ -145,19 +145,47 @@ class Predictor:
 
     # -- actuator drive statistics ----------------------------------------------------------------
     def drive_noise_var(self, n: int) -> np.ndarray:
-        """Var of the actuator noise n_a,k (before nonlinearities), k = 0..n-1, per channel (n, m)."""
+        """Var of the actuator noise n_a,k (before nonlinearities), k = 0..n-1, per channel (n, m):
+        diag(C_a Pa_k C_a^T + D D^T) with Pa_0 = 0 (the noise states start at zero) and
+        Pa_k = sum_{i<k} F^i G G^T F^i^T, the transient of Pa_{k+1} = F Pa_k F^T + G G^T.
+
+        Computed by doubling, Pa_{s+j} = Pa_s + F^s Pa_j F^s^T (log2 of the transient length in
+        batched products, each term a sum of PSD matrices: no cancellation), up to the sample where
+        ||F^s||_2^2 < 1e-17; from there on Pa_k equals Pa_s to ~1e-17 relative (Pa_j <= Pa_inf in
+        the Loewner order, so F^s Pa_j F^s^T <= ||F^s||^2 Pa_inf) and the rest is filled with it."""
         m = self.model.m
         DD = sum((D @ D.T for D in self._Da), np.zeros((m, m)))
         GG = block_diag(*[G @ G.T for G in self._Ga]) if self._Ga else np.zeros((0, 0))
-        Pa = np.zeros_like(self._Fa)
+        F, Ca = self._Fa, self._Ca
         out = np.empty((n, m))
-        for k in range(n):
-            v = np.diag(self._Ca @ Pa @ self._Ca.T + DD)
-            out[k] = v
-            if k > 0 and np.allclose(v, out[k - 1], rtol=1e-14, atol=0):
-                out[k:] = v
-                break
-            Pa = self._Fa @ Pa @ self._Fa.T + GG
+        if n == 0:
+            return out
+        if F.shape[0] == 0 or not np.any(GG):
+            out[:] = np.diag(DD)
+        else:
+            na = F.shape[0]
+            Pa = np.zeros((1, na, na))
+            size, S, Fp = 1, GG.copy(), F.copy()       # S = Pa_size, Fp = F^size
+            while size < n:
+                take = min(size, n - size)
+                if Pa.shape[0] < size + take:
+                    grown = np.empty((size + take, na, na))
+                    grown[:size] = Pa[:size]
+                    Pa = grown
+                # Pa_{size+j} = Pa_size + F^size Pa_j F^size^T, j = 0..take-1
+                Pa[size:size + take] = S + Fp @ Pa[:take] @ Fp.T
+                settled = np.linalg.norm(Fp, 2) ** 2 < 1e-17
+                if take == size:
+                    S = S + Fp @ S @ Fp.T                  # Pa_{2 size}
+                    Fp = Fp @ Fp
+                size += take
+                if settled:
+                    break
+            K = min(size, n)
+            v = np.einsum("ij,kjl,il->ki", Ca, Pa[:K], Ca) + np.diag(DD)
+            out[:K] = v
+            if K < n:
+                out[K:] = np.einsum("ij,jl,il->i", Ca, S, Ca) + np.diag(DD)
         return out
 
     def _nonlinear(self, u: np.ndarray) -> np.ndarray:

@@ -4,7 +4,16 @@ rolling window, and every ``update`` seconds compares it with the model (the sam
 ``noiselab/<name>/analysis`` and prints it. On stop it writes the ``.rrd`` (the latest comparison
 of every model revision plus the error over time) and prints its final report.
 
-Memory is bounded: ring buffers of ``window`` plus a warm-up, indexed by seq. The residual needs
+Timing: updates are paced by deadlines on the monotonic clock (tick k at t0 + k * update), not by
+a pause after each update, so the period is ``update`` whatever an update costs as long as it
+costs less; an update that overruns makes the loop skip the ticks it missed (counted as
+``late_ticks``) instead of drifting. The predictions an update needs depend on the model and the
+estimator sizes only and are cached per model revision (:mod:`service.diagnose.compare`); at start
+the analyzer computes them once for the full window, so the first full-window update is not slow.
+
+Memory is bounded: ring buffers of ``window`` plus a warm-up, indexed by seq; a prediction cache
+bounded in bytes; the error history thinned (every other entry) when it reaches
+:data:`HISTORY_MAX` entries. The residual needs
 the mean response, which depends on the command history: while the buffer still holds the
 stream's start (seq 0, the emulator starts at rest) the mean is computed from rest exactly as
 offline (so a replayed file gives the offline numbers); afterwards it is computed from zero over
@@ -32,6 +41,8 @@ from . import transport, wire
 
 
 READY_MARK = "noiselab analyze: live on"
+HISTORY_MAX = 8192         # error-history entries kept (then thinned: ~2 h at 2 Hz before the first thinning)
+WARM_MAX_SAMPLES = 400_000  # the start-up warm-up runs compare() on a synthetic window up to this size
 
 
 class _Ring:
@@ -75,6 +86,31 @@ class LiveAnalyzer:
         self.history: list[dict] = []
         self.received = 0
         self.bad = 0
+
+    def warm(self) -> None:
+        """Compute the predictions of a full-window update now (they are cached per model), so
+        the update that first sees a full window is as fast as the next ones. Skipped for windows
+        over :data:`WARM_MAX_SAMPLES` (the predictions are then computed by the first updates)."""
+        n = self.meas.cap
+        if n > WARM_MAX_SAMPLES:
+            return
+        # what analyse() passes at the steady state (ring full, stream start forgotten); the data
+        # are synthetic: the predictions do not depend on them
+        y = np.random.default_rng(0).standard_normal((n, self.model.p))
+        try:
+            compare(self.model, np.arange(n) * self.model.Ts, y, np.zeros((n, self.model.m)),
+                    burn=min(self.warmup, n // 2))
+        except AnalysisError:
+            pass                                    # the first update says what is wrong
+
+    def add_history(self, entry: dict) -> None:
+        """Append to the error history; at HISTORY_MAX entries keep every other one (and the first
+        of every revision), so a long run keeps its whole time span at a coarser step."""
+        self.history.append(entry)
+        if len(self.history) >= HISTORY_MAX:
+            h = self.history
+            self.history = [e for i, e in enumerate(h)
+                            if i % 2 == 0 or i == len(h) - 1 or e["revision"] != h[i - 1]["revision"]]
 
     # Zenoh callback: only queue
     def on_sample(self, sample) -> None:
@@ -172,6 +208,7 @@ def run_live(session, model_spec: str, *, device: str | None, window_s: float, u
              duration: float | None, stop: threading.Event, rrd: str | None, quiet: bool = False,
              log=sys.stderr) -> dict:
     an = LiveAnalyzer(model_spec, device=device, window_s=window_s, log=log)
+    an.warm()
     keys = [wire.key(an.device, k) for k in ("measurement", "command")]
     subs = [session.declare_subscriber(k, an.on_sample) for k in keys]
     pub = session.declare_publisher(wire.key(an.device, wire.ANALYSIS))
@@ -180,9 +217,15 @@ def run_live(session, model_spec: str, *, device: str | None, window_s: float, u
     t_start = time.monotonic()
     seq = 0
     last = None
+    tick = 1                                   # the next update is due at t_start + tick * update_s
+    late = 0
     try:
         while True:
-            done = stop.wait(update_s) or (duration is not None and time.monotonic() - t_start >= duration)
+            due = t_start + tick * update_s
+            if duration is not None:
+                due = min(due, t_start + duration)
+            done = stop.wait(max(0.0, due - time.monotonic())) or \
+                (duration is not None and time.monotonic() - t_start >= duration)
             an.drain()
             an.maybe_reload()
             cmp = an.analyse()
@@ -190,8 +233,8 @@ def run_live(session, model_spec: str, *, device: str | None, window_s: float, u
                 last = cmp
                 an.latest[cmp.revision] = cmp
                 summ = summary_of(cmp, an)
-                an.history.append({"t": float(cmp.t[-1]), "revision": cmp.revision, "error": cmp.error,
-                                   "error_per_view": dict(cmp.error_per_view)})
+                an.add_history({"t": float(cmp.t[-1]), "revision": cmp.revision, "error": cmp.error,
+                                "error_per_view": dict(cmp.error_per_view)})
                 pub.put(wire.encode_analysis(seq, float(cmp.t[-1]), summ))
                 seq += 1
                 if not quiet:
@@ -200,11 +243,17 @@ def run_live(session, model_spec: str, *, device: str | None, window_s: float, u
                           + ")", file=log, flush=True)
             if done:
                 break
+            # next tick; ticks that passed during this update are skipped (and counted), not made up
+            now_tick = int((time.monotonic() - t_start) // update_s)
+            if now_tick > tick:
+                late += now_tick - tick
+                tick = now_tick
+            tick += 1
     finally:
         for s in subs:
             s.undeclare()
     out = {"node": "analyze", "live": True, "updates": seq, "received": an.received, "malformed": an.bad,
-           "revisions": an.revision + 1}
+           "revisions": an.revision + 1, "late_ticks": late}
     if last is not None:
         out.update(summary_of(last, an))
         out["notes"] = last.notes
