@@ -475,3 +475,235 @@ def test_non_mcap_file_raises_not_mcap_error(tmp_path, content):
     with pytest.raises(NotMcapError):
         recover(path, tmp_path / "out.mcap")
     assert not (tmp_path / "out.mcap").exists()
+
+
+# ------------------------------------------- fast reader: any layout, same numbers as the peer
+
+
+def peer_arrays(path):
+    """What the mcap library's own reader and json.loads give, per topic (file order kept per
+    topic; the payload seq sorts it as read_recording does): the reference for the fast path."""
+    per: dict = {}
+    with open(path, "rb") as f:
+        for _, c, m in make_reader(f).iter_messages(log_time_order=False):
+            obj = json.loads(m.data)
+            field = next(k for k in obj if k not in ("seq", "t"))
+            per.setdefault(c.topic.lstrip("/"), []).append((obj["seq"], obj["t"], obj[field], m.publish_time,
+                                                             m.log_time))
+    out = {}
+    for topic, rows in per.items():
+        rows.sort(key=lambda r: r[0])
+        out[topic] = (np.array([r[0] for r in rows]), np.array([r[1] for r in rows], float),
+                      np.array([r[2] for r in rows], float), [r[3] for r in rows], [r[4] for r in rows])
+    return out
+
+
+def assert_reads_like_the_peer(path, kinds=wire.KINDS):
+    rec = read_recording(path, kinds=kinds)
+    ref = peer_arrays(path)
+    got = {td.topic: td for dev in rec.devices.values() for td in dev.streams.values()}
+    assert set(got) == {t for t in ref if t.rsplit("/", 1)[-1] in set(kinds) | {"measurement"}}
+    for topic, td in got.items():
+        seq, t, vals, pub, log = ref[topic]
+        assert td.seq.tolist() == seq.tolist(), topic
+        assert same_bits(td.t, t) and same_bits(td.values, vals), topic
+        assert td.publish_ns.tolist() == pub and td.log_ns.tolist() == log, topic
+    return rec
+
+
+def blocked_file(path, n=3000, block=700, chunk_size=4096, name="dev", **writer_kw):
+    """Per-topic blocks of ``block`` samples (how ``noiselab simulate`` wrote before it
+    interleaved), written with mcap's Writer so that its index options can be switched off."""
+    data = make_data(n)
+    with open(path, "wb") as f:
+        w = Writer(f, chunk_size=chunk_size, **writer_kw)
+        w.start()
+        cids = {}
+        for kind in wire.KINDS:
+            sid = w.register_schema(wire.SCHEMA_NAMES[kind], "jsonschema", wire.schema_bytes(kind))
+            cids[kind] = w.register_channel(wire.key(name, kind), "json", sid)
+        for k0 in range(0, n, block):
+            for kind in wire.KINDS:
+                t, pub, log, vals = data[kind]
+                sl = slice(k0, min(k0 + block, n))
+                for k, p in zip(range(k0, sl.stop), wire.encode_batch(kind, k0, t[sl], vals[sl])):
+                    w.add_message(cids[kind], log_time=int(log[k]), data=p, publish_time=int(pub[k]), sequence=k)
+        w.finish()
+    return data
+
+
+@pytest.mark.parametrize("layout", ["interleaved", "blocked", "blocked_no_message_index",
+                                    "blocked_no_statistics", "one_chunk_uncompressed"])
+def test_fast_reader_equals_the_mcap_reader_on_every_layout(tmp_path, layout):
+    """read_recording's chunk-level path (message indexes, numpy, packed payloads) gives exactly
+    the peer's numbers whatever the file's layout and index options; --json's read without truth
+    skips the truth topic and still gives the same measurement and command."""
+    from mcap.writer import CompressionType, IndexType
+
+    path = tmp_path / f"{layout}.mcap"
+    if layout == "interleaved":
+        write_sample(path, 500, chunk_size=2048)
+    elif layout == "blocked":
+        blocked_file(path)
+    elif layout == "blocked_no_message_index":
+        blocked_file(path, index_types=IndexType.CHUNK | IndexType.METADATA | IndexType.ATTACHMENT)
+    elif layout == "blocked_no_statistics":
+        blocked_file(path, use_statistics=False)
+    else:
+        blocked_file(path, n=400, chunk_size=1 << 24, compression=CompressionType.NONE)
+    rec = assert_reads_like_the_peer(path)
+    assert rec.complete
+    rec2 = assert_reads_like_the_peer(path, kinds=("measurement", "command"))
+    assert set(rec2.device().streams) == {"measurement", "command"}
+
+
+def message_index_records(path):
+    """(file offset, channel id, records length) of every MessageIndex record of a finished file."""
+    out = []
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+        for ci in summary.chunk_indexes:
+            for cid, off in ci.message_index_offsets.items():
+                f.seek(off)
+                head = f.read(15)
+                assert head[0] == 0x07
+                out.append((off, cid, int.from_bytes(head[11:15], "little")))
+    return out
+
+
+@pytest.mark.parametrize("damage", ["offset_points_elsewhere", "entry_missing"])
+def test_fast_reader_does_not_trust_a_wrong_message_index(tmp_path, damage):
+    """Message indexes carry no CRC. One pointing into the middle of a record, or one that leaves
+    a message out (the summary's counts then disagree), makes the reader walk the records
+    instead: same numbers as the peer, which ignores the indexes."""
+    path = tmp_path / "blocked.mcap"
+    blocked_file(path)
+    blob = bytearray(path.read_bytes())
+    off, cid, nbytes = message_index_records(path)[3]
+    if damage == "offset_points_elsewhere":
+        first = off + 15 + 8                     # offset field of the first (timestamp, offset) pair
+        blob[first:first + 8] = (int.from_bytes(blob[first:first + 8], "little") + 3).to_bytes(8, "little")
+    else:
+        blob[off + 11:off + 15] = (nbytes - 16).to_bytes(4, "little")   # one pair fewer
+    path.write_bytes(bytes(blob))
+    with open(path, "rb") as f:                  # the damage is really there
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    assert_reads_like_the_peer(path)
+
+
+@pytest.mark.parametrize("payload, ok", [
+    (b'{"seq":0,"t":0.0,"y":[1e-05,-0.0]}', True),
+    (b'{"seq":0,"t":1E+300,"y":[12345678901234567890,2.5e-320]}', True),
+    (b'{"seq":0,"t":0,"y":[-1,0]}', True),
+    (b'{"seq":0,"t":0.0,"y":[+1,0]}', False),          # not JSON numbers: the template path must
+    (b'{"seq":0,"t":0.0,"y":[01,0]}', False),          # not accept what json refuses
+    (b'{"seq":0,"t":0.0,"y":[.5,0]}', False),
+    (b'{"seq":0,"t":0.0,"y":[1.,0]}', False),
+    (b'{"seq":0,"t":0.0,"y":[1e,0]}', False),
+    (b'{"seq":0,"t":0.0,"y":[NaN,0]}', False),
+    (b'{"seq":0,"t":0.0,"y":[Infinity,0]}', False),
+    (b'{"seq":0,"t":0.0,"y":[true,0]}', False),
+    (b'{"seq":-1,"t":0.0,"y":[1,0]}', False),
+    (b'{"seq":0.0,"t":0.0,"y":[1,0]}', False),
+    (b'{"seq":0,"t":0.0,"y":[1,0],"t":1}', True),       # duplicate key: json keeps the last
+    (b'{"seq":0,"t":0.0,"y":[1,0]}\n{"seq":0,"t":0.0,"y":[1,0]}', False),
+    (b'{"seq":0, "t":0.0,"y":[1,0]}', True),           # valid JSON, not the template: slow path
+    (b'{"t":0.0,"seq":0,"y":[1,0]}', True),
+])
+def test_packed_decode_agrees_with_json_on_odd_payloads(payload, ok):
+    """wire.decode_packed (the reader's path) on 50 good payloads with one odd one in the middle:
+    exactly json's values when the odd one is valid, a WireError naming the topic when not."""
+    good = wire.encode_batch("measurement", 0, np.arange(50) * Ts, np.arange(100.0).reshape(50, 2) / 7)
+    payloads = good[:20] + [payload] + good[21:]
+    blob = b"".join(p + b"\n" for p in payloads)
+    lens = np.array([len(p) for p in payloads])
+    if not ok:
+        with pytest.raises(wire.WireError, match="^dev/measurement: "):
+            wire.decode_packed(blob, lens, "measurement", topic="dev/measurement")
+        return
+    seq, t, vals = wire.decode_packed(blob, lens, "measurement", topic="dev/measurement")
+    objs = [json.loads(p) for p in payloads]
+    assert seq.tolist() == [o["seq"] for o in objs]
+    assert same_bits(t, [o["t"] for o in objs]) and same_bits(vals, [o["y"] for o in objs])
+
+
+# ----------------------------------------------------------- time-ordered reading (replay)
+
+
+def test_iter_time_ordered_merges_blocked_topics_with_bounded_memory(tmp_path):
+    """iter_time_ordered on a file of 2000-sample per-topic blocks: publish_time never goes back,
+    each topic comes in its own order, a sample's topics come truth, command, measurement; every
+    message once, bytes unchanged (hashed as they come). Memory: it decodes chunk by chunk (one
+    per topic in flight): what it holds at the first message (the summary's chunk index and a
+    chunk per topic) is a fraction of the payload bytes, and it does not grow after that."""
+    import hashlib
+    import tracemalloc
+
+    path = tmp_path / "blocked.mcap"
+    n = 24000
+    blocked_file(path, n=n, block=8000, chunk_size=8192)
+    ref = {}
+    for _, c, m in iter_messages(path):
+        ref.setdefault(c.topic, hashlib.sha256()).update(m.data)
+    with open(path, "rb") as f:
+        total_bytes = sum(len(m.data) for _, _, m in make_reader(f).iter_messages())
+    order = {"truth": 0, "command": 1, "measurement": 2}
+    got = {t: hashlib.sha256() for t in ref}
+    seqs = {t: [] for t in ref}
+    last = (-1, -1)
+    report = mcapio.ScanReport()
+    held = first = 0
+    tracemalloc.start()
+    base = tracemalloc.get_traced_memory()[0]
+    for i, (_, c, m) in enumerate(mcapio.iter_time_ordered(path, report=report)):
+        if i == 0:
+            first = tracemalloc.get_traced_memory()[0] - base
+        key = (m.publish_time, order[c.topic.rsplit("/", 1)[-1]])
+        assert key > last, (i, key, last)
+        last = key
+        got[c.topic].update(m.data)
+        if i % 250 == 0:
+            held = max(held, tracemalloc.get_traced_memory()[0] - base)
+        if m.sequence % 4000 == 0:
+            seqs[c.topic].append(m.sequence)
+    tracemalloc.stop()
+    assert {t: h.digest() for t, h in got.items()} == {t: h.digest() for t, h in ref.items()}
+    assert all(s == list(range(0, n, 4000)) for s in seqs.values())
+    assert report.complete and report.messages == 3 * n
+    print(f"\nmerge memory: {first} B at the first message, +{held - first} B after; payloads {total_bytes} B")
+    assert first < total_bytes / 4, (first, total_bytes)
+    assert held - first < total_bytes / 20, (held, first, total_bytes)
+
+
+def test_iter_time_ordered_on_an_unfinished_file(tmp_path):
+    """Without a summary (a cut file) the merge reads in one pass: the same time order."""
+    full = tmp_path / "full.mcap"
+    write_sample(full, 300, chunk_size=1024)
+    blob = full.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(blob[: len(blob) // 2])
+    report = mcapio.ScanReport()
+    items = [(c.topic, m.publish_time, m.sequence) for _, c, m in mcapio.iter_time_ordered(cut, report=report)]
+    assert not report.complete and items
+    order = {"truth": 0, "command": 1, "measurement": 2}
+    keys = [(p, order[t.rsplit("/", 1)[-1]]) for t, p, _ in items]
+    assert keys == sorted(keys)
+    assert sorted(items) == sorted((c.topic, m.publish_time, m.sequence) for _, c, m in iter_messages(cut))
+
+
+def test_write_interleaved_puts_the_topics_of_a_sample_together(tmp_path):
+    """RecordingWriter.write_interleaved (noiselab simulate's writer): file order is truth,
+    command, measurement of sample k, then k + 1; the data read back exactly."""
+    path = tmp_path / "inter.mcap"
+    data = make_data(40)
+    with RecordingWriter(path, chunk_size=512) as w:
+        w.write_interleaved([(wire.key("dev", kind), kind, 0, data[kind][1], data[kind][2],
+                              wire.encode_batch(kind, 0, data[kind][0], data[kind][3])) for kind in wire.KINDS])
+        with pytest.raises(mcapio.McapIoError, match="payloads where the other streams have"):
+            w.write_interleaved([("noiselab/dev/truth", "truth", 40, np.zeros(1, np.int64), np.zeros(1, np.int64),
+                                  [b"{}"]), ("noiselab/dev/command", "command", 40, np.zeros(0, np.int64),
+                                             np.zeros(0, np.int64), [])])
+    assert [(t.rsplit("/", 1)[1], s) for t, s, *_ in messages(path)] == \
+        [(kind, k) for k in range(40) for kind in wire.KINDS]
+    assert_reads_like_the_peer(path)

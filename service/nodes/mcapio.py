@@ -50,6 +50,7 @@ except ImportError:  # pragma: no cover
 
 __all__ = [
     "COMPRESSIONS",
+    "channel_topics",
     "DEFAULT_COMPRESSION",
     "CorruptRecordingError",
     "DeviceData",
@@ -63,6 +64,7 @@ __all__ = [
     "TopicData",
     "gaps",
     "iter_messages",
+    "iter_time_ordered",
     "read_recording",
     "recover",
 ]
@@ -294,6 +296,50 @@ class RecordingWriter:
                 sequence=(seq0 + i) % SEQUENCE_MODULUS)
         self._counts[topic.lstrip("/")] += n
 
+    def write_interleaved(self, streams: Sequence[tuple[str, str, int, np.ndarray, np.ndarray,
+                                                        Sequence[bytes]]]) -> None:
+        """Append N consecutive messages of several topics sample by sample, as a live source
+        publishes them: message 0 of every stream (in the order given), then message 1, ...
+
+        ``streams``: ``(topic, kind, seq0, publish_ns, log_ns, payloads)`` per topic, all with the
+        same N (arguments as :meth:`write_batch`). Readers and ``replay`` then meet the topics
+        together, not in per-topic blocks.
+        """
+        if not streams:
+            return
+        n = len(streams[0][5])
+        cols = []
+        for topic, kind, seq0, publish_ns, log_ns, payloads in streams:
+            if len(payloads) != n:
+                raise McapIoError(f"{topic}: {len(payloads)} payloads where the other streams have {n}")
+            cid = self.channel(topic, kind)
+            seq0 = _check_u64(seq0, "seq0")
+            pub, log = self._check_times(topic, publish_ns, log_ns, n)
+            if not all(type(p) is bytes for p in payloads):
+                raise McapIoError(f"{topic}: payloads must all be bytes")
+            seqs = [(seq0 + i) % SEQUENCE_MODULUS for i in range(n)] if seq0 + n > SEQUENCE_MODULUS \
+                else range(seq0, seq0 + n)
+            cols.append((cid, list(zip(pub.tolist(), log.tolist(), payloads, seqs))))
+        add = self._writer.add_message
+        cids = [c for c, _ in cols]
+        for row in zip(*[rows for _, rows in cols]):
+            for cid, (p, lg, data, sq) in zip(cids, row):
+                add(channel_id=cid, log_time=lg, data=data, publish_time=p, sequence=sq)
+        for topic, *_ in streams:
+            self._counts[topic.lstrip("/")] += n
+
+    @staticmethod
+    def _check_times(topic: str, publish_ns, log_ns, n: int):
+        pub = np.asarray(publish_ns)
+        log = np.asarray(log_ns)
+        for arr, what in ((pub, "publish_ns"), (log, "log_ns")):
+            if arr.shape != (n,) or arr.dtype.kind not in "iu":
+                raise McapIoError(f"{topic}: {what} must be an integer array of shape ({n},), "
+                                  f"got {arr.dtype} {arr.shape}")
+            if n and arr.dtype.kind == "i" and arr.min() < 0:
+                raise McapIoError(f"{topic}: {what} has negative times")
+        return pub, log
+
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
         """Write a metadata record ``name`` with string keys and values."""
         self._check_open()
@@ -475,6 +521,164 @@ def iter_messages(path: str | os.PathLike, topics: Iterable[str] | str | None = 
     yield from _scan(os.fspath(path), topics, report if report is not None else ScanReport())
 
 
+_KIND_RANK = {"truth": 0, "command": 1, "measurement": 2}
+"""Order of the topics of one sample when publish times tie: the emulator's (truth, command,
+measurement); other topics after them, by topic."""
+
+
+def _tie_rank(channels: dict[int, Channel]) -> dict[int, int]:
+    order = sorted(channels, key=lambda cid: (_KIND_RANK.get(_norm(channels[cid].topic).rsplit("/", 1)[-1], 3),
+                                              _norm(channels[cid].topic), cid))
+    return {cid: i for i, cid in enumerate(order)}
+
+
+def channel_topics(path: str | os.PathLike) -> list[str] | None:
+    """The topics (without a leading ``/``) of a finished file's channels, from its summary;
+    None for a file without a readable summary. Raises NotMcapError for a file that is not MCAP."""
+    path = os.fspath(path)
+    size = _check_magic(path)
+    with open(path, "rb") as f:
+        ok, _why = _finished(f, size)
+        if not ok:
+            return None
+        f.seek(0)
+        try:
+            summary = SeekingReader(f, validate_crcs=False).get_summary()
+        except (*_CORRUPTION_ERRORS, OSError):
+            return None
+    if summary is None:
+        return None
+    return sorted({_norm(c.topic) for c in summary.channels.values()})
+
+
+def iter_time_ordered(path: str | os.PathLike, *, report: ScanReport | None = None
+                      ) -> Iterator[tuple[Schema | None, Channel, Message]]:
+    """Yield ``(schema, channel, message)`` of ``path`` merged across channels by publish_time
+    (the sample time: the order a live source published them), each channel in file order; ties
+    go truth, command, measurement, then other topics.
+
+    A streaming k-way merge (heapq.merge) of one iterator per channel. A finished file is read
+    chunk by chunk through its chunk index: a chunk is decompressed once, when the first channel
+    iterator reaches it, and dropped when the last one that needs it has taken its messages, so
+    memory holds about one chunk per channel, however the writer grouped the topics (``noiselab
+    simulate`` used to write 65,536-sample blocks per topic). An unfinished file (no summary) is
+    read in one pass; a channel joins the merge when its first message appears, so a topic that
+    starts late in such a file comes out late. Metadata, completeness and the message count go to
+    ``report`` as for :func:`iter_messages`.
+    """
+    path = os.fspath(path)
+    report = report if report is not None else ScanReport()
+    size = _check_magic(path)
+    with open(path, "rb") as f:
+        ok, _why = _finished(f, size)
+        summary = None
+        if ok:
+            f.seek(0)
+            reader = SeekingReader(f, validate_crcs=False)
+            try:
+                summary = reader.get_summary()
+                metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+            except (*_CORRUPTION_ERRORS, OSError):
+                summary = None
+    if summary is None or not summary.chunk_indexes:
+        yield from _merge_stream(path, report)
+        return
+    report.complete = True
+    report.metadata.update(metadata)
+    with open(path, "rb") as f:
+        yield from _merge_chunks(path, f, summary, report)
+
+
+def _merge_chunks(path: str, f, summary, report: ScanReport):
+    import heapq
+
+    channels = summary.channels
+    chunks = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
+    chunks_of = {cid: [ci for ci in chunks if not ci.message_index_offsets or cid in ci.message_index_offsets]
+                 for cid in channels}
+    refs: dict[int, int] = defaultdict(int)
+    for cis in chunks_of.values():
+        for ci in cis:
+            refs[ci.chunk_start_offset] += 1
+    decoded: dict[int, dict[int, list]] = {}
+    unpack = struct.Struct("<QHIQQ").unpack_from          # length, channel, sequence, log, publish
+
+    def decode(ci) -> dict[int, list]:
+        dec = _chunk_records(f, ci, path)
+        out: dict[int, list] = defaultdict(list)
+        pos, n = 0, len(dec)
+        try:
+            while pos < n:
+                rl, cid, seq, log, pub = unpack(dec, pos + 1) if dec[pos] == 0x05 else (
+                    struct.unpack_from("<Q", dec, pos + 1)[0], None, 0, 0, 0)
+                if cid is not None:
+                    if cid not in channels or pos + 9 + rl > n:
+                        raise CorruptRecordingError("message of an unknown channel or past the chunk")
+                    out[cid].append(Message(channel_id=cid, log_time=log, publish_time=pub, sequence=seq,
+                                            data=dec[pos + _MESSAGE_HEADER: pos + 9 + rl]))
+                pos += 9 + rl
+        except (struct.error, CorruptRecordingError) as e:
+            raise CorruptRecordingError(f"{path}: finished file with a damaged chunk at byte "
+                                        f"{ci.chunk_start_offset} ({type(e).__name__}); recover() salvages "
+                                        "what comes before it") from None
+        return out
+
+    def channel_messages(cid: int):
+        schema = summary.schemas.get(channels[cid].schema_id)
+        channel = channels[cid]
+        for ci in chunks_of[cid]:
+            off = ci.chunk_start_offset
+            got = decoded.get(off)
+            if got is None:
+                got = decoded[off] = decode(ci)
+            mine = got.pop(cid, ())
+            refs[off] -= 1
+            if refs[off] == 0:
+                del decoded[off]
+            for m in mine:
+                yield schema, channel, m
+
+    rank = _tie_rank(channels)
+    for item in heapq.merge(*(channel_messages(cid) for cid in channels),
+                            key=lambda it: (it[2].publish_time, rank[it[1].id])):
+        report.messages += 1
+        yield item
+
+
+def _merge_stream(path: str, report: ScanReport):
+    """One pass over a file without a chunk index: per-channel queues; the smallest head goes out
+    whenever every channel seen so far has one, the rest (merged) at the end."""
+    import heapq
+    from collections import deque
+
+    queues: dict[int, deque] = {}
+    heads: list = []                       # heap of (publish_time, tie rank, cid), one per non-empty queue
+    ranks: dict[int, tuple] = {}
+
+    def pop():
+        _, _, c = heapq.heappop(heads)
+        q = queues[c]
+        out = q.popleft()
+        if q:
+            heapq.heappush(heads, (q[0][2].publish_time, ranks[c], c))
+        return out
+
+    for item in _scan(path, None, report):
+        channel = item[1]
+        q = queues.get(channel.id)
+        if q is None:
+            q = queues[channel.id] = deque()
+            topic = _norm(channel.topic)
+            ranks[channel.id] = (_KIND_RANK.get(topic.rsplit("/", 1)[-1], 3), topic, channel.id)
+        if not q:
+            heapq.heappush(heads, (item[2].publish_time, ranks[channel.id], channel.id))
+        q.append(item)
+        while len(heads) == len(queues):
+            yield pop()
+    while heads:
+        yield pop()
+
+
 # ---------------------------------------------------------------------------- reading
 
 
@@ -578,7 +782,12 @@ class Recording:
                               f"{', '.join(sorted(self.devices)) or 'none'}") from None
 
 
-def _as_i64(values: list[int], topic: str, what: str) -> np.ndarray:
+def _as_i64(values, topic: str, what: str) -> np.ndarray:
+    """list of ints or uint64 array -> int64 (times beyond 2**63 - 1 ns are refused)."""
+    if isinstance(values, np.ndarray) and values.dtype == np.uint64:
+        if values.size and int(values.max()) > 2**63 - 1:
+            raise McapIoError(f"{topic}: {what} beyond 2**63 - 1 ns is not supported")
+        return values.astype(np.int64)
     try:
         return np.array(values, dtype=np.int64)
     except OverflowError:
@@ -597,13 +806,128 @@ def _decompress(compression: str, data: bytes, size: int) -> bytes:
     raise CorruptRecordingError(f"unknown chunk compression {compression!r}")
 
 
-def _collect_fast(path: str, kinds: tuple[str, ...], report: ScanReport):
-    """Payloads, log and publish times per topic of a *finished* file, read chunk by chunk with
-    a struct-level record walk (mcap's dataclass reader costs ~20 us per message; this ~1 us).
-    Chunk CRCs are checked. Returns (raw, encodings) or None when the fast path does not apply
-    (unfinished file, no chunk index): the caller then uses :func:`iter_messages`."""
+@dataclass(frozen=True, eq=False)
+class _Packed:
+    """The payloads of one topic in one buffer: payload i is ``blob[starts[i]:starts[i] + lens[i]]``
+    and every payload is followed by ``b"\\n"`` (the layout :func:`wire.decode_packed` parses)."""
+
+    blob: bytes
+    lens: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.lens.size)
+
+    def payloads(self) -> list[bytes]:
+        ends = np.cumsum(self.lens + 1) - 1
+        starts = ends - self.lens
+        return [self.blob[a:b] for a, b in zip(starts.tolist(), ends.tolist())]
+
+
+_MESSAGE_HEADER = 31        # opcode 1, length 8, channel 2, sequence 4, log_time 8, publish_time 8
+
+
+def _chunk_records(f, ci, path: str) -> bytes:
+    """The decompressed, CRC-checked records of the chunk that ``ci`` (a ChunkIndex) points to."""
     import zlib
 
+    f.seek(ci.chunk_start_offset)
+    buf = f.read(ci.chunk_length)
+    try:
+        if buf[0] != 0x06:
+            raise CorruptRecordingError("not a chunk record")
+        _mst, _met, usize, ucrc = struct.unpack_from("<QQQI", buf, 9)
+        off = 9 + 28
+        (clen,) = struct.unpack_from("<I", buf, off)
+        comp = buf[off + 4: off + 4 + clen].decode()
+        off += 4 + clen
+        (rlen,) = struct.unpack_from("<Q", buf, off)
+        dec = _decompress(comp, buf[off + 8: off + 8 + rlen], usize)
+    except Exception as e:      # struct.error, IndexError, UnicodeDecodeError, codec errors
+        raise CorruptRecordingError(f"{path}: finished file with a damaged chunk at byte {ci.chunk_start_offset} "
+                                    f"({type(e).__name__}); recover() salvages what comes before it") from None
+    if ucrc and zlib.crc32(dec) != ucrc:
+        raise CorruptRecordingError(f"{path}: finished file with a chunk at byte {ci.chunk_start_offset} that fails its CRC; "
+                                    "recover() salvages what comes before it")
+    return dec
+
+
+def _walk_offsets(dec: bytes, cids: set[int]) -> dict[int, list[int]]:
+    """Offsets of the message records of channels ``cids`` in a chunk, by walking every record."""
+    unpack_q, unpack_h = struct.Struct("<Q").unpack_from, struct.Struct("<H").unpack_from
+    out: dict[int, list[int]] = {cid: [] for cid in cids}
+    pos, n = 0, len(dec)
+    while pos < n:
+        (rl,) = unpack_q(dec, pos + 1)
+        if dec[pos] == 0x05:
+            got = out.get(unpack_h(dec, pos + 9)[0])
+            if got is not None:
+                got.append(pos)
+        pos += 9 + rl
+    return out
+
+
+def _index_offsets(f, ci, cids: list[int]) -> dict[int, np.ndarray] | None:
+    """Offsets of the message records of ``cids`` in a chunk from its MessageIndex records (one
+    read, parsed with numpy); None when the chunk has no usable index."""
+    mio = ci.message_index_offsets
+    if not mio or not all(cid in mio for cid in cids):
+        return None
+    base = min(mio.values())
+    f.seek(base)
+    sec = f.read(ci.message_index_length)
+    out = {}
+    for cid in cids:
+        at = mio[cid] - base
+        if at < 0 or at + 15 > len(sec) or sec[at] != 0x07:
+            return None
+        (rec_len,) = struct.unpack_from("<Q", sec, at + 1)
+        ch, nbytes = struct.unpack_from("<HI", sec, at + 9)
+        if ch != cid or nbytes % 16 or at + 15 + nbytes > len(sec) or nbytes + 6 > rec_len:
+            return None
+        pairs = np.frombuffer(sec, dtype="<u8", count=nbytes // 8, offset=at + 15).reshape(-1, 2)
+        out[cid] = np.sort(pairs[:, 1]).astype(np.int64)
+    return out
+
+
+def _at_every_byte(dec: bytes, dtype: str) -> np.ndarray:
+    """A view of ``dec`` with one (unaligned) little-endian integer starting at every byte."""
+    size = np.dtype(dtype).itemsize
+    return np.ndarray(buffer=dec, dtype=dtype, shape=(max(len(dec) - size + 1, 0),), strides=(1,))
+
+
+def _topic_messages(dec: bytes, u8: np.ndarray, offs: np.ndarray, cids: set[int]):
+    """(starts, ends, log, pub) of the message records at ``offs`` (sorted), or None when they are
+    not message records of ``cids`` that lie inside the chunk without overlapping."""
+    n = len(dec)
+    if offs.size == 0:
+        e = np.empty(0, np.int64)
+        return e, e, e.astype(np.uint64), e.astype(np.uint64)
+    if offs[0] < 0 or offs[-1] + _MESSAGE_HEADER > n:
+        return None
+    if np.any(u8[offs] != 0x05):
+        return None
+    u64 = _at_every_byte(dec, "<u8")
+    ch = _at_every_byte(dec, "<u2")[offs + 9]
+    if not np.isin(ch, list(cids)).all():
+        return None
+    rl = u64[offs + 1]
+    if np.any(rl < _MESSAGE_HEADER - 9) or np.any(rl > n):
+        return None
+    ends = offs + 9 + rl.astype(np.int64)
+    if ends[-1] > n or np.any(ends[:-1] > offs[1:]):
+        return None
+    return offs + _MESSAGE_HEADER, ends, u64[offs + 15], u64[offs + 23]
+
+
+def _collect_fast(path: str, kinds: tuple[str, ...], report: ScanReport):
+    """Payloads, log and publish times per topic of a *finished* file, read chunk by chunk at the
+    struct level (mcap's dataclass reader costs ~20 us per message). Chunks that hold none of the
+    wanted topics (per the chunk index) are skipped; in the others the wanted messages are found
+    from the chunk's MessageIndex records (numpy), cross-checked against the summary's message
+    counts and the records themselves; without an index (or when it disagrees) every record is
+    walked in Python. Chunk CRCs are checked. Returns (raw, encodings), raw[topic] =
+    (:class:`_Packed`, log_time uint64, publish_time uint64), or None when the fast path does not
+    apply (unfinished file, no chunk index): the caller then uses :func:`iter_messages`."""
     size = _check_magic(path)
     with open(path, "rb") as f:
         ok, _why = _finished(f, size)
@@ -617,62 +941,78 @@ def _collect_fast(path: str, kinds: tuple[str, ...], report: ScanReport):
             return None
         if summary is None or not summary.chunk_indexes:
             return None
-        want = {cid: c for cid, c in summary.channels.items()
-                if _norm(c.topic).rsplit("/", 1)[-1] in kinds}
-        raw: dict[str, tuple[list, list, list]] = {}
         encodings: dict[str, set[str]] = defaultdict(set)
-        lists_of = {}
-        for cid, c in want.items():
+        cids_of: dict[str, set[int]] = defaultdict(set)       # normalised topic -> channel ids
+        for cid, c in summary.channels.items():
             topic = _norm(c.topic)
-            lists_of[cid] = raw.setdefault(topic, ([], [], []))
-            encodings[topic].add(c.message_encoding)
-        unpack_q, unpack_h, unpack_iqq = struct.Struct("<Q").unpack_from, struct.Struct("<H").unpack_from, \
-            struct.Struct("<IQQ").unpack_from
-        for ci in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
-            f.seek(ci.chunk_start_offset)
-            buf = f.read(ci.chunk_length)
-            try:
-                if buf[0] != 0x06:
-                    raise CorruptRecordingError("not a chunk record")
-                _mst, _met, usize, ucrc = struct.unpack_from("<QQQI", buf, 9)
-                off = 9 + 28
-                (clen,) = struct.unpack_from("<I", buf, off)
-                comp = buf[off + 4: off + 4 + clen].decode()
-                off += 4 + clen
-                (rlen,) = unpack_q(buf, off)
-                dec = _decompress(comp, buf[off + 8: off + 8 + rlen], usize)
-            except (struct.error, IndexError, UnicodeDecodeError, CorruptRecordingError, Exception) as e:
-                raise CorruptRecordingError(f"{path}: finished file with a damaged chunk at byte {ci.chunk_start_offset} "
-                                            f"({type(e).__name__}); recover() salvages what comes before it") from None
-            if ucrc and zlib.crc32(dec) != ucrc:
-                raise CorruptRecordingError(f"{path}: finished file with a chunk at byte {ci.chunk_start_offset} that fails its CRC; "
-                                            "recover() salvages what comes before it")
-            # walk the records; keep (offset, length) of wanted messages, gather the rest in numpy
-            offs: dict[int, list] = {cid: [] for cid in lists_of}
-            pos, n = 0, len(dec)
-            while pos < n:
-                (rl,) = unpack_q(dec, pos + 1)
-                if dec[pos] == 0x05:
-                    got = offs.get(unpack_h(dec, pos + 9)[0])
-                    if got is not None:
-                        got.append((pos + 9, rl))
-                pos += 9 + rl
-            u8 = np.frombuffer(dec, np.uint8)
-            for cid, items in offs.items():
-                if not items:
-                    continue
-                a = np.asarray(items, dtype=np.int64)
-                starts, lens = a[:, 0], a[:, 1]
-                lists = lists_of[cid]
-                lists[0].extend([dec[st + 22: st + ln] for st, ln in items])
-                for k, off in ((1, 6), (2, 14)):            # log_time at +6, publish_time at +14
-                    idx = (starts + off)[:, None] + np.arange(8)
-                    lists[k].extend(u8[idx].copy().view("<u8").ravel().tolist())
-                report.messages += len(items)
+            if topic.rsplit("/", 1)[-1] in kinds:
+                cids_of[topic].add(cid)
+                encodings[topic].add(c.message_encoding)
+        stats = summary.statistics
+        expected = None if stats is None else {cid: stats.channel_message_counts.get(cid, 0)
+                                                for cids in cids_of.values() for cid in cids}
+        chunks = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
+        for use_index in ((True, False) if expected is not None else (False,)):
+            got = _collect_chunks(f, path, chunks, cids_of, use_index)
+            if got is None:
+                continue
+            raw, counts = got
+            if use_index and any(counts.get(cid, 0) != k for cid, k in expected.items()):
+                continue                       # the index does not account for every message: walk
+            break
+        report.messages += sum(counts.values())
         for m in reader.iter_metadata():
             report.metadata[m.name] = dict(m.metadata)
     report.complete = True
     return raw, encodings
+
+
+def _collect_chunks(f, path, chunks, cids_of, use_index: bool):
+    """One pass of :func:`_collect_fast` over the chunks; None if an index turns out unusable."""
+    parts: dict[str, tuple[list, list, list, list]] = {t: ([], [], [], []) for t in cids_of}
+    counts: dict[int, int] = defaultdict(int)
+    all_cids = {cid for cids in cids_of.values() for cid in cids}
+    for ci in chunks:
+        mio = ci.message_index_offsets
+        present = [cid for cid in all_cids if cid in mio] if (use_index and mio) else sorted(all_cids)
+        if use_index and mio and not present:
+            continue                           # none of the wanted channels in this chunk
+        dec = _chunk_records(f, ci, path)
+        u8 = np.frombuffer(dec, np.uint8)
+        offs = _index_offsets(f, ci, present) if use_index else None
+        if use_index and offs is None:
+            return None
+        if offs is None:
+            offs = {cid: np.asarray(v, np.int64) for cid, v in _walk_offsets(dec, set(present)).items()}
+        for topic, cids in cids_of.items():
+            here = [offs[c] for c in cids if c in offs]
+            if not here:
+                continue
+            o = here[0] if len(here) == 1 else np.sort(np.concatenate(here))
+            if o.size == 0:
+                continue
+            msgs = _topic_messages(dec, u8, o, cids)
+            if msgs is None:
+                if use_index:
+                    return None
+                raise CorruptRecordingError(f"{path}: finished file with a damaged chunk at byte "
+                                            f"{ci.chunk_start_offset}; recover() salvages what comes before it")
+            starts, ends, log, pub = msgs
+            blob = b"\n".join(map(dec.__getitem__, map(slice, starts.tolist(), ends.tolist()))) + b"\n"
+            acc = parts[topic]
+            acc[0].append(blob)
+            acc[1].append(ends - starts)
+            acc[2].append(log)
+            acc[3].append(pub)
+            for c in cids:
+                if c in offs:
+                    counts[c] += int(offs[c].size)
+    raw = {}
+    for topic, (blobs, lens, log, pub) in parts.items():
+        if not blobs:
+            continue
+        raw[topic] = (_Packed(b"".join(blobs), np.concatenate(lens)), np.concatenate(log), np.concatenate(pub))
+    return raw, counts
 
 
 def read_recording(path: str | os.PathLike, kinds: Iterable[str] = wire.KINDS) -> Recording:
@@ -721,7 +1061,10 @@ def read_recording(path: str | os.PathLike, kinds: Iterable[str] = wire.KINDS) -
                 raise McapIoError(f"{path}: topic {ktopic!r} has message encoding "
                                   f"{sorted(bad)[0]!r}; noiselab reads 'json' only")
             payloads, log, pub = raw[ktopic]
-            seq, t, values = wire.decode_batch(payloads, kind, topic=ktopic)
+            if isinstance(payloads, _Packed):
+                seq, t, values = wire.decode_packed(payloads.blob, payloads.lens, kind, topic=ktopic)
+            else:
+                seq, t, values = wire.decode_batch(payloads, kind, topic=ktopic)
             log_a = _as_i64(log, ktopic, "log_time")
             pub_a = _as_i64(pub, ktopic, "publish_time")
             if seq.size > 1 and (np.diff(seq) < 0).any():
