@@ -181,11 +181,13 @@ def write_simulation(model, n: int, seed: int, out: Path, *, force: bool = False
         for blk in model.simulate_blocks(n, seed=seed):
             nb = blk.t.size
             t, pub = wire.sample_times(k0, nb, model.Ts)
-            for kind, arr in (("truth", blk.x[0]), ("command", blk.u[0]), ("measurement", blk.y[0])):
-                payloads = wire.encode_batch(kind, k0, t, arr, topic=topics[kind])
-                # offline: there is no receive time, log_time = publish_time (readers must not
-                # assume log_time is wall-clock, DESIGN.md)
-                w.write_batch(topics[kind], kind, k0, pub, pub, payloads)
+            # sample by sample (truth, command, measurement of k, then of k + 1), as the emulator
+            # publishes and the recorder stores them; offline there is no receive time:
+            # log_time = publish_time (readers must not assume log_time is wall-clock, DESIGN.md)
+            w.write_interleaved([(topics[kind], kind, k0, pub, pub,
+                                  wire.encode_batch(kind, k0, t, arr, topic=topics[kind]))
+                                 for kind, arr in (("truth", blk.x[0]), ("command", blk.u[0]),
+                                                   ("measurement", blk.y[0]))])
             k0 += nb
             bar.update(k0)
         counts = w.counts

@@ -427,3 +427,24 @@ def test_live_history_is_thinned_not_unbounded():
     ts = [h["t"] for h in an.history]
     assert ts == sorted(ts) and ts[0] == 0.0 and ts[-1] == (3 * analyzer.HISTORY_MAX - 1) * 0.5
     assert 500.0 in ts                                     # revision 1 starts at i = 1000
+
+
+def test_live_update_ends_at_the_newest_complete_sample():
+    """Measurement and command arrive on separate subscriber threads, so at an update the newest
+    measurements may still miss their command: the update analyses up to the newest sample that
+    has both (exactly compare() on that prefix), instead of finding no complete run at all."""
+    import io
+
+    from service.nodes import analyzer
+
+    mdl = load_model("seed")
+    rec = mdl.simulate(1000, seed=2)
+    an = analyzer.LiveAnalyzer("seed", device=None, window_s=60.0, log=io.StringIO())
+    for k in range(1000):
+        an.meas.put(k, float(rec.t[k]), rec.y[k])
+        if k < 997:
+            an.cmd.put(k, float(rec.t[k]), rec.u[k])
+    got = an.analyse()
+    ref = compare(mdl, rec.t[:997], rec.y[:997], rec.u[:997], burn=None)
+    assert got is not None and got.t.size == 997
+    assert got.error == ref.error and got.error_per_view == ref.error_per_view

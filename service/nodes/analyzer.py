@@ -161,7 +161,8 @@ class LiveAnalyzer:
         print(f"noiselab analyze: reloaded {self.path} as revision {self.revision}", file=self.log, flush=True)
 
     def analyse(self):
-        """Compare the buffered run ending at the newest measurement; None if too little data."""
+        """Compare the buffered run ending at the newest complete sample (measurement and, when
+        the stream has one, command); None if too little data."""
         top = self.meas.max_seq
         if top < 0:
             return None
@@ -174,12 +175,21 @@ class LiveAnalyzer:
             ok &= okc
         else:
             u = None
+        # the newest samples may still miss their other topic (measurement and command arrive on
+        # separate subscriber threads): end at the newest complete sample, not before it
+        done = np.flatnonzero(ok)
+        if not done.size:
+            return None
+        end = int(done[-1]) + 1
+        ok, seqs, t, y = ok[:end], seqs[:end], t[:end], y[:end]
+        u = None if u is None else u[:end]
+        top = int(seqs[-1])
         # the newest contiguous run of complete samples
         bad = np.flatnonzero(~ok)
         start = bad[-1] + 1 if bad.size else 0
         t, y = t[start:], y[start:]
         u = None if u is None else u[start:]
-        first = int(seqs[start]) if start < seqs.size else -1
+        first = int(seqs[start])
         n = t.size
         if n < 256:
             return None

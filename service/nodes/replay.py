@@ -1,7 +1,13 @@
 """The replay node: republishes a recording's messages under their keys (topic without a leading
 '/', or ``prefix/topic``), paced by publish_time (``speed`` x real time) or as fast as possible,
 with congestion control BLOCK, so everything downstream works on recorded data as on live data.
-Messages go out in file order (the order they were recorded)."""
+
+Messages go out in publish_time order across topics (the order a live source published them:
+for one sample truth, command, measurement), each topic in its recorded order, whatever order
+the file holds them in: :func:`mcapio.iter_time_ordered` merges the topics as it reads (a
+streaming k-way merge, memory about one chunk per topic). A file written with large per-topic
+blocks (``noiselab simulate`` before it interleaved, or a foreign writer) thus replays like the
+live stream it describes instead of one topic after another."""
 
 from __future__ import annotations
 
@@ -29,7 +35,11 @@ class ReplaySummary:
 
 
 def replay_topics(path: str) -> list[str]:
-    """The topics of a recording (raises NotMcapError for a file that is not MCAP)."""
+    """The topics of a recording, from its summary (raises NotMcapError for a file that is not
+    MCAP); an unfinished file is read for its devices' topics."""
+    topics = mcapio.channel_topics(path)
+    if topics is not None:
+        return topics
     rec = mcapio.read_recording(path)
     return sorted({td.topic for dev in rec.devices.values() for td in dev.streams.values()})
 
@@ -64,7 +74,7 @@ def run_replay(session: "zenoh.Session", path: str, *, speed: float | None = 1.0
     pub0 = None
     n = 0
     start = time.monotonic()
-    for schema, channel, message in mcapio.iter_messages(path, report=report):
+    for schema, channel, message in mcapio.iter_time_ordered(path, report=report):
         if stop.is_set():
             break
         if speed is not None:
