@@ -596,6 +596,7 @@ def test_fast_reader_does_not_trust_a_wrong_message_index(tmp_path, damage):
     (b'{"seq":0,"t":0.0,"y":[1e-05,-0.0]}', True),
     (b'{"seq":0,"t":1E+300,"y":[12345678901234567890,2.5e-320]}', True),
     (b'{"seq":0,"t":0,"y":[-1,0]}', True),
+    (b'{"seq":0,"t":-0,"y":[-0,1e-0]}', True),          # integer -0: json gives 0, not -0.0
     (b'{"seq":0,"t":0.0,"y":[+1,0]}', False),          # not JSON numbers: the template path must
     (b'{"seq":0,"t":0.0,"y":[01,0]}', False),          # not accept what json refuses
     (b'{"seq":0,"t":0.0,"y":[.5,0]}', False),

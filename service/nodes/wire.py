@@ -606,6 +606,8 @@ def _decode_template_blob(blob: bytes, n: int, field: str):
     m = _rows_pattern(field, dim).match(blob)
     if m is None or m.end() != len(blob):
         return None
+    if b"-0," in blob or b"-0]" in blob:       # JSON's integer -0 is 0 (json.loads), strtod gives -0.0
+        return None
     # {"seq":S,"t":T,"y":[V1,V2]}\n -> S,T,V1,V2,  (the layout is known: only template bytes go)
     body = blob.replace(b'{"seq":', b"").translate(_NL_TO_COMMA, b'"t:[]}' + field.encode())
     vals = np.fromstring(body[:-1].decode("ascii"), dtype=np.float64, sep=",")
