@@ -14,7 +14,6 @@
 
 from __future__ import annotations
 
-import math
 import time
 
 import numpy as np
@@ -69,6 +68,20 @@ def _prefer_replacements(S, cur, accepted, say):
     return cur
 
 
+def _report_intervals(eid: str, iv: dict, Ts: float) -> dict:
+    """The intervals, and the same for the equivalent spellings (monotone maps of the ends)."""
+    out = dict(iv)
+    for k, (lo, hi) in iv.items():
+        e_lo = CATALOGUE[eid].equivalents({k: lo}, Ts)
+        e_hi = CATALOGUE[eid].equivalents({k: hi}, Ts)
+        for name in e_lo:
+            if name not in out and name in e_hi:
+                a, b = e_lo[name], e_hi[name]
+                if isinstance(a, (int, float)) and isinstance(b, (int, float)):
+                    out[name] = [min(a, b), max(a, b)]
+    return out
+
+
 def _report_params(eid: str, params: dict, Ts: float) -> dict:
     out = dict(params)
     for k, v in CATALOGUE[eid].equivalents(params, Ts).items():
@@ -119,7 +132,7 @@ def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MA
     for c in accepted:
         eff = cur.model.effects.get(c.effect)
         params = eff.param_dict()
-        iv = intervals(S.H, cur, c.effect)
+        iv = _report_intervals(c.effect, intervals(S.H, cur, c.effect), model.Ts)
         band = _band(cur, c.effect, data)
         missing.append({
             "effect": c.effect,

@@ -142,14 +142,44 @@ def mean_response(model, data: Data):
     """E[y_k] and E[ydot_k] (N, p) for the recorded command (seed section 3, fast modal form)."""
     pr = model.predictor()
     N = data.N
-    u = data.u if data.u is not None else model.command.values(0, N, model.Ts)
-    var = pr.drive_noise_var(N)
-    drive, _, _ = pr.drive_stats(np.asarray(u, float), var)
+    u = np.asarray(data.u if data.u is not None else model.command.values(0, N, model.Ts), float)
+    drive = mean_drive(pr, u)
     C = np.vstack([model.Cy, model.Cy @ model.Ac])
     D = np.vstack([model.Dy, model.Cy @ model.Bc])
     yy = W.lsim(model.Ad, model.Bd, C, D, drive)
     g = model.out_gain
     return yy[:, :model.p] * g, yy[:, model.p:] * g
+
+
+def mean_drive(pr, u: np.ndarray) -> np.ndarray:
+    """E[N(u_c,k + n_k)] (seed section 7), as :meth:`Predictor.drive_stats` but fast on long
+    records: once the actuator noise variance has settled, the expectation is a fixed smooth
+    function of u_c, tabulated on a fine grid (with the nonlinearities' kinks as grid points) and
+    interpolated; without actuator noise it is N(u_c) itself."""
+    if not pr._nonlin:
+        return u.copy()
+    N, m = u.shape
+    var = pr.drive_noise_var(N)
+    settled = np.flatnonzero(np.any(np.abs(var - var[-1]) > 1e-9 * np.abs(var[-1]), axis=1))
+    k1 = int(settled[-1]) + 1 if settled.size else 0
+    out = np.empty_like(u)
+    if k1:
+        out[:k1] = pr.drive_stats(u[:k1], var[:k1])[0]
+    if k1 < N:
+        if not np.any(var[-1] > 0):
+            out[k1:] = pr._nonlinear(u[k1:])
+            return out
+        for j in range(m):
+            uj = u[k1:, j]
+            lo, hi = float(uj.min()), float(uj.max())
+            knots = np.concatenate([e.knots()[j] for e in pr._nonlin])
+            grid = np.unique(np.concatenate([np.linspace(lo, hi, 16385), knots[(knots > lo) & (knots < hi)]]))
+            ug = np.zeros((grid.size, m))
+            ug[:, j] = grid
+            vg = np.broadcast_to(var[-1], (grid.size, m))
+            mean_g = pr.drive_stats(ug, vg)[0][:, j]
+            out[k1:, j] = np.interp(uj, grid, mean_g)
+    return out
 
 
 def tone_ls(r: np.ndarray, f: float, Ts: float, k0: int):
@@ -817,24 +847,60 @@ class Search:
 
 # -- intervals ----------------------------------------------------------------------------------------------
 def intervals(H: Hypotheses, fit: Fit, eid: str) -> dict:
-    """95 % profile-likelihood intervals of ``eid``'s free parameters at the joint fit."""
+    """95 % profile-likelihood intervals of ``eid``'s free parameters at the joint fit: every other
+    free variance re-optimized, and the effect's own searched parameters too for its variance (a
+    Gauss-Markov std and its tau trade off against each other)."""
     out = {}
     eff = fit.model.effects.get(eid)
     if eff is None:
         return out
     spec = CATALOGUE[eid].fit
+    shaped = [sh for sh in spec.shape if sh[0] in fit.free.get(eid, [])]
     if eid in fit.scale_ids:
-        a = fit.scale_ids.index(eid)
-        lo, hi = fit.inner.profile(a, fit.v, fit.loglik - _extra(H, fit))
         name, power = _scale_name(eff)
         val = float(np.max(np.asarray(eff.params[name], float)))
-        vhat = max(fit.v[a], 1e-300)
-        out[name] = [val * (lo / vhat) ** (1 / power), val * (hi / vhat) ** (1 / power)]
-    for sh in spec.shape:
-        if sh[0] not in fit.free.get(eid, []):
-            continue
+        if shaped:
+            out[name] = _profile_scale_shaped(H, fit, eid, name, val)
+        else:
+            a = fit.scale_ids.index(eid)
+            lo, hi = fit.inner.profile(a, fit.v, fit.loglik - _extra(H, fit))
+            vhat = max(fit.v[a], 1e-300)
+            out[name] = [val * (lo / vhat) ** (1 / power), val * (hi / vhat) ** (1 / power)]
+    for sh in shaped:
         out[sh[0]] = _profile_outer(H, fit, eid, sh)
     return out
+
+
+def _profile_scale_shaped(H: Hypotheses, fit: Fit, eid: str, name: str, val: float) -> list[float]:
+    free = dict(fit.free)
+    free[eid] = [n for n in fit.free[eid] if n != name]
+    target = fit.loglik - CHI2_95 / 2
+
+    def l_at(v):
+        try:
+            return H.fit(_set(fit.model, eid, {name: v}), free, rounds=1).loglik
+        except (ModelError, ValueError, np.linalg.LinAlgError):
+            return -1e300
+
+    def edge(direction):
+        inside, factor = val, 1.05
+        outside = val * factor ** direction
+        for _ in range(30):
+            if l_at(outside) < target:
+                break
+            inside, factor = outside, factor ** 2
+            outside = inside * factor ** direction
+        else:
+            return outside
+        for _ in range(8):
+            mid = math.sqrt(inside * outside)
+            if l_at(mid) > target:
+                inside = mid
+            else:
+                outside = mid
+        return math.sqrt(inside * outside)
+
+    return [edge(-1), edge(+1)]
 
 
 def _extra(H: Hypotheses, fit: Fit) -> float:

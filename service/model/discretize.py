@@ -22,6 +22,21 @@ import numpy as np
 from scipy.linalg import expm
 
 
+_EXPM: dict = {}
+
+
+def _expm(X: np.ndarray) -> np.ndarray:
+    """expm, remembered for the last few hundred arguments (the diagnosis parses many variants of
+    one model whose plant does not change)."""
+    key = (X.shape, X.tobytes())
+    E = _EXPM.get(key)
+    if E is None:
+        if len(_EXPM) > 256:
+            _EXPM.clear()
+        E = _EXPM[key] = expm(X)
+    return E.copy()
+
+
 def zoh(Ac: np.ndarray, Bc: np.ndarray, Ts: float) -> tuple[np.ndarray, np.ndarray]:
     """Exact zero-order-hold discretization.
 
@@ -32,7 +47,7 @@ def zoh(Ac: np.ndarray, Bc: np.ndarray, Ts: float) -> tuple[np.ndarray, np.ndarr
     M = np.zeros((n + m, n + m))
     M[:n, :n] = Ac
     M[:n, n:] = Bc
-    E = expm(M * Ts)
+    E = _expm(M * Ts)
     return E[:n, :n], E[:n, n:]
 
 
@@ -58,7 +73,7 @@ def van_loan(Ac: np.ndarray, Qc: np.ndarray, Ts: float) -> np.ndarray:
     M[:n, :n] = -Ac
     M[:n, n:] = Qc
     M[n:, n:] = Ac.T
-    E = expm(M * h)
+    E = _expm(M * h)
     Ad = E[n:, n:].T
     Qd = Ad @ E[:n, n:]
     for _ in range(j):

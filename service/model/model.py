@@ -40,9 +40,22 @@ NAME_RE = re.compile(r"^[A-Za-z0-9_-]+$")
 GROUPS = ("process", "actuator", "sensor")
 
 
-def scenario_names() -> list[str]:
+def scenario_names(group: str | None = None) -> list[str]:
+    """Built-in scenarios: ``seed``, ``seed-nominal``, ... and, with ``group="hidden"``, the
+    hidden-effect pairs of ``service/scenarios/hidden/`` (``hidden/<effect id>`` and
+    ``hidden/<effect id>-nominal``, ``hidden/null-*``)."""
     pkg = resources.files("service.scenarios")
+    if group:
+        pkg = pkg.joinpath(group)
+        return sorted(f"{group}/{p.name[:-5]}" for p in pkg.iterdir() if p.name.endswith(".toml"))
     return sorted(p.name[:-5] for p in pkg.iterdir() if p.name.endswith(".toml"))
+
+
+def _is_scenario(name: str) -> bool:
+    group, _, rest = name.rpartition("/")
+    if group not in ("", "hidden") or not rest:
+        return False
+    return name in scenario_names(group or None)
 
 
 def scenario_text(name: str) -> str:
@@ -60,9 +73,10 @@ def load_model(spec: str | Path) -> "Model":
         except (OSError, UnicodeDecodeError) as exc:
             raise ModelError(f"{spec}: cannot read the model file ({type(exc).__name__}: {exc})")
         return parse_model(text, str(spec))
-    if str(spec) in scenario_names():
+    if _is_scenario(str(spec)):
         return parse_model(scenario_text(str(spec)), f"scenario {spec}")
-    raise ModelError(f"{spec}: no such model file or built-in scenario (built-in: {', '.join(scenario_names())})")
+    raise ModelError(f"{spec}: no such model file or built-in scenario (built-in: {', '.join(scenario_names())}; "
+                     "hidden-effect pairs: hidden/<effect id>, hidden/<effect id>-nominal, hidden/null-*)")
 
 
 def parse_model(text: str, source: str = "<model>") -> "Model":

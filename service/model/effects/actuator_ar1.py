@@ -11,7 +11,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from ..schema import nonnegative
-from .base import Effect, FitSpec, _g, parse_rho_tau, rho_tau_equivalents, parse_rho_tau
+from .base import Effect, FitSpec, _g, parse_rho_tau, rho_tau_equivalents
 
 
 class ActuatorAR1(Effect):

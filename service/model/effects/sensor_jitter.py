@@ -9,7 +9,8 @@ are sampled at the same instant). Valid while std_s is small against the plant's
 
 from __future__ import annotations
 
-from ..schema import nonnegative
+import numpy as np
+
 from .base import Effect, FitSpec, _g
 
 

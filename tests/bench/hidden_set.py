@@ -1,0 +1,247 @@
+"""A generator of hidden-effect cases like the independent evaluation set of issue 5: random plants
+(mass-spring-dampers and general A, B, C plants with one or two outputs), sample periods of 2 to
+20 ms, records of 1 to 10 minutes, one or two effects hidden from the nominal model (absent, or
+present with a wrong value), and null cases (nominal = truth).
+
+Magnitudes are set relative to the nominal model's own noise (its predicted var_y), so that a
+hidden effect is visible but not dominant: a test designer's "detectable" range, not ours to tune.
+Used by ``bench_diagnose.py`` (hit rates, times) and, with a few fixed seeds, by the tests.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from service.model import parse_model
+from service.model.model import dumps_toml
+
+PERIODS = (0.002, 0.005, 0.01, 0.02)
+NEEDS_COMMAND = ("actuator.lag", "actuator.saturation", "actuator.deadzone", "sensor.scale_factor",
+                 "sensor.jitter")
+HIDEABLE = ("process.white", "actuator.white", "actuator.ar1", "actuator.lag", "actuator.saturation",
+            "actuator.deadzone", "sensor.scale_factor", "sensor.bias_walk", "sensor.bias_markov",
+            "sensor.white", "sensor.tone", "sensor.jitter", "sensor.quantization")
+
+
+@dataclass
+class Case:
+    name: str
+    truth: str                 # model file text
+    nominal: str
+    hidden: dict               # effect id -> planted params ({} for a null case)
+    duration: float
+    seed: int
+
+
+def _plant(rng, Ts):
+    """A plant whose dynamics sit well inside the band [1/T, Nyquist]."""
+    kind = rng.choice(["msd", "msd", "general2", "general_two_outputs", "first_order", "two_mass"])
+    fmax = 0.08 / Ts                      # natural frequencies up to ~1/12 of the sample rate
+    if kind == "msd":
+        fn = float(np.exp(rng.uniform(np.log(0.2), np.log(min(3.0, fmax)))))
+        zeta = float(rng.uniform(0.05, 0.6))
+        m = float(np.exp(rng.uniform(np.log(0.3), np.log(5.0))))
+        k = m * (2 * np.pi * fn) ** 2
+        c = 2 * zeta * math.sqrt(k * m)
+        return {"m": round(m, 4), "c": round(c, 4), "k": round(k, 4)}, fn, 1
+    if kind == "first_order":
+        tau = float(np.exp(rng.uniform(np.log(0.05), np.log(3.0))))
+        gain = float(rng.uniform(0.5, 3.0))
+        return {"A": [[-1 / tau]], "B": [[gain / tau]], "C": [[1.0]], "L": [[1.0 / tau]]}, 1 / (2 * np.pi * tau), 1
+    if kind == "two_mass":
+        w1 = 2 * np.pi * float(rng.uniform(0.3, min(2.0, fmax)))
+        k1, k2, m1, m2, c1, c2 = w1**2, w1**2 * rng.uniform(0.5, 2), 1.0, rng.uniform(0.5, 2), 0.3 * w1, 0.2 * w1
+        A = [[0, 1, 0, 0], [-(k1 + k2) / m1, -(c1 + c2) / m1, k2 / m1, c2 / m1],
+             [0, 0, 0, 1], [k2 / m2, c2 / m2, -k2 / m2, -c2 / m2]]
+        return {"A": np.round(A, 5).tolist(), "B": [[0.0], [1.0], [0.0], [0.0]], "C": [[0.0, 0.0, 1.0, 0.0]],
+                "L": [[0.0], [0.0], [0.0], [1.0 / m2]]}, w1 / (2 * np.pi), 1
+    # general second order in modal-ish coordinates, one or two outputs
+    wn = 2 * np.pi * float(np.exp(rng.uniform(np.log(0.2), np.log(min(3.0, fmax)))))
+    zeta = float(rng.uniform(0.1, 0.8))
+    A = [[0.0, 1.0], [-wn**2, -2 * zeta * wn]]
+    B = [[0.0], [float(rng.uniform(0.5, 2.0)) * wn**2]]
+    L = [[float(rng.uniform(0.1, 1.0)) * wn], [0.0]]            # disturbance enters the first state
+    C = [[1.0, 0.0], [0.0, 0.1]] if kind == "general_two_outputs" else [[1.0, 0.0]]
+    return {"A": np.round(A, 5).tolist(), "B": np.round(B, 5).tolist(), "C": C, "L": np.round(L, 5).tolist()}, \
+        wn / (2 * np.pi), len(C)
+
+
+def _command(rng, fn, Ts, T, with_command):
+    if not with_command:
+        return {"kind": "none"}
+    kind = rng.choice(["sine", "sine", "chirp", "prbs"])
+    amp = float(rng.uniform(0.5, 2.0))
+    if kind == "sine":
+        return {"kind": "sine", "amplitude": amp, "frequency_hz": round(float(fn * rng.uniform(0.3, 1.5)), 4)}
+    if kind == "chirp":
+        return {"kind": "chirp", "amplitude": amp, "f0_hz": round(fn * 0.2, 4),
+                "f1_hz": round(min(fn * 3, 0.2 / Ts), 4), "duration_s": round(float(min(T / 3, 60.0)), 2)}
+    return {"kind": "prbs", "amplitude": amp, "bit_s": round(float(max(Ts * 2, 0.25 / fn)), 4), "order": 9}
+
+
+def _doc(name, Ts, plant, command, effects):
+    d = {"name": name, "sampling": {"Ts": Ts}, "plant": plant, "command": command}
+    for eid, params in effects.items():
+        g, s = eid.split(".")
+        d.setdefault(g, {})[s] = params
+    return dumps_toml(d)
+
+
+def _contribution(text, eid):
+    m = parse_model(text)
+    st = m.predictor().steady_state()
+    c = st.contributions.get(eid)
+    return None if c is None else float(np.max(c))
+
+
+def make_case(seed: int, n_hidden: int | None = None, null: bool | None = None) -> Case:
+    rng = np.random.default_rng(seed)
+    Ts = float(rng.choice(PERIODS))
+    T = float(np.round(rng.uniform(60, 600) / 10) * 10)
+    plant, fn, p = _plant(rng, Ts)
+    null = bool(rng.random() < 0.2) if null is None else null
+    n_hidden = (1 if rng.random() < 0.6 else 2) if n_hidden is None else n_hidden
+    with_command = bool(rng.random() < 0.85)
+    command = _command(rng, fn, Ts, T, with_command)
+    base = {"process.white": {"std": 1.0}, "sensor.white": {"std": 1.0}}
+    if rng.random() < 0.3:
+        base["actuator.white"] = {"std": 1.0}
+    # scale the nominal noise: process noise to a chosen output variance, sensor noise a fraction of it
+    text = _doc("case", Ts, plant, command, base)
+    c_proc = _contribution(text, "process.white")
+    target = 1e-4 * float(np.exp(rng.uniform(0, np.log(100))))
+    base["process.white"]["std"] = float(f"{math.sqrt(target / c_proc):.4g}")
+    base["sensor.white"]["std"] = float(f"{math.sqrt(target * rng.uniform(0.05, 0.5)):.4g}")
+    if "actuator.white" in base:
+        c_act = _contribution(_doc("case", Ts, plant, command, {"actuator.white": {"std": 1.0}}), "actuator.white")
+        base["actuator.white"]["std"] = float(f"{math.sqrt(target * rng.uniform(0.3, 1.0) / c_act):.4g}")
+    nominal = dict(base)
+    var0 = float(np.max(parse_model(_doc("case", Ts, plant, command, nominal)).predictor().steady_state().var_y))
+    sd0 = math.sqrt(var0)
+    truth = {k: dict(v) for k, v in nominal.items()}
+    hidden: dict = {}
+    if not null:
+        pool = [e for e in HIDEABLE if with_command or e not in NEEDS_COMMAND]
+        order = rng.permutation(pool)
+        for eid in order:
+            if len(hidden) >= n_hidden:
+                break
+            if eid in ("sensor.bias_walk", "sensor.bias_markov") and any(
+                    h in hidden for h in ("sensor.bias_walk", "sensor.bias_markov")):
+                continue
+            if eid in ("actuator.saturation", "actuator.deadzone") and any(
+                    h in hidden for h in ("actuator.saturation", "actuator.deadzone")):
+                continue
+            params = _hidden_params(rng, eid, Ts, T, plant, command, nominal, var0, sd0, fn)
+            if params is None:
+                continue
+            hidden[eid] = params
+            params = {k: v for k, v in params.items() if not k.startswith("_")}
+            if eid in ("process.white", "sensor.white") and eid in nominal:
+                # present with a wrong value: the truth's is larger
+                truth[eid] = params
+            elif eid == "actuator.ar1" and "actuator.white" in nominal and rng.random() < 0.5:
+                truth.pop("actuator.white")             # white actuator noise that is really colored
+                truth[eid] = params
+                hidden[eid] = dict(params, mode="replace:actuator.white")
+            else:
+                truth[eid] = params
+    for eid in ("process.white", "sensor.white"):
+        if eid in hidden and hidden[eid].get("_absent"):
+            nominal.pop(eid)
+            hidden[eid] = {k: v for k, v in hidden[eid].items() if k != "_absent"}
+            truth[eid] = hidden[eid]
+    name = f"case{seed}"
+    return Case(name, _doc("case", Ts, plant, command, truth), _doc("case", Ts, plant, command, nominal),
+                {k: {kk: vv for kk, vv in v.items() if not kk.startswith("_")} for k, v in hidden.items()},
+                T, seed + 1000)
+
+
+def _hidden_params(rng, eid, Ts, T, plant, command, nominal, var0, sd0, fn):
+    f = float(np.exp(rng.uniform(np.log(0.3), np.log(3.0))))       # contribution relative to var0
+    umax = float(command.get("amplitude", 0.0))
+    if eid == "sensor.white":
+        cur = nominal["sensor.white"]["std"]
+        if rng.random() < 0.5:                                      # absent from the nominal
+            return {"std": float(f"{math.sqrt(cur**2 + f * var0):.4g}"), "_absent": True}
+        return {"std": float(f"{math.sqrt(cur**2 + f * var0):.4g}")}
+    if eid == "process.white":
+        cur = nominal["process.white"]["std"]
+        return {"std": float(f"{cur * math.sqrt(1 + f):.4g}"), "_absent": rng.random() < 0.5}
+    if eid in ("actuator.white", "actuator.ar1"):
+        if "actuator.white" in nominal and eid == "actuator.white":
+            return None
+        tau = None
+        if eid == "actuator.ar1":
+            tau = float(np.exp(rng.uniform(np.log(5 * Ts), np.log(max(6 * Ts, 0.5 / fn)))))
+        params = {"std": 1.0} if tau is None else {"std": 1.0, "tau_s": float(f"{tau:.4g}")}
+        c = _contribution(_doc("c", Ts, plant, command, {eid: params}), eid)
+        params["std"] = float(f"{math.sqrt(f * var0 / c):.4g}")
+        return params
+    if eid == "sensor.bias_walk":
+        return {"std": float(f"{math.sqrt(f * var0 / T) * 2:.4g}")}
+    if eid == "sensor.bias_markov":
+        tau = float(np.exp(rng.uniform(np.log(T / 60), np.log(T / 6))))
+        return {"std": float(f"{math.sqrt(f * var0):.4g}"), "tau_s": float(f"{tau:.4g}")}
+    if eid == "sensor.tone":
+        nyq = 0.5 / Ts
+        ftone = float(rng.uniform(0.05, 0.8) * nyq)
+        return {"amplitude": float(f"{math.sqrt(2 * f * var0) * 0.5:.4g}"), "frequency_hz": float(f"{ftone:.4g}")}
+    if eid == "sensor.quantization":
+        return {"step": float(f"{sd0 * rng.uniform(0.2, 1.0):.3g}")}
+    if eid == "sensor.scale_factor":
+        return {"error": float(f"{rng.choice([-1, 1]) * rng.uniform(0.03, 0.15):.3g}")}
+    if eid == "actuator.lag":
+        fc = command.get("frequency_hz") or command.get("f1_hz") or (0.5 / command.get("bit_s", 1.0))
+        phi = np.deg2rad(rng.uniform(10, 40))
+        tau = max(math.tan(phi) / (2 * np.pi * fc), 2 * Ts)
+        return {"tau_s": float(f"{tau:.4g}")}
+    if eid == "actuator.saturation":
+        return {"limit": float(f"{umax * rng.uniform(0.5, 0.85):.4g}")} if umax else None
+    if eid == "actuator.deadzone":
+        return {"width": float(f"{umax * rng.uniform(0.05, 0.3):.4g}")} if umax else None
+    if eid == "sensor.jitter":
+        m = parse_model(_doc("c", Ts, plant, command, nominal))
+        yd = m.predictor().mean_response(int(min(T, 60) / Ts)).ydot
+        ydot2 = float(np.mean(yd**2))
+        sv = nominal["sensor.white"]["std"] ** 2
+        if ydot2 <= 0:
+            return None
+        std_s = math.sqrt(f * sv / ydot2)
+        if std_s > Ts / 3:
+            return None
+        return {"std_s": float(f"{std_s:.4g}")}
+    return None
+
+
+def score_case(case: Case, rep: dict) -> dict:
+    """The issue's criteria for one case."""
+    planted = set(case.hidden)
+    missing = rep["missing"]
+    top = [m["effect"] for m in missing[:max(len(planted), 1)]]
+    out = {"null": not planted, "reported": [m["effect"] for m in missing], "planted": sorted(planted),
+           "error_before": rep["error_before"], "error_after": rep["error_after"]}
+    if not planted:
+        out["ok"] = not missing
+        return out
+    out["ranked"] = set(top) == planted and len(missing) >= len(planted)
+    within = []
+    for m in missing:
+        if m["effect"] not in planted:
+            continue
+        for k, v in case.hidden[m["effect"]].items():
+            if k == "mode" or not isinstance(v, (int, float)):
+                continue
+            got = m["params"].get(k)
+            if got is None:
+                within.append(False)
+                continue
+            got = float(np.max(got)) if isinstance(got, list) else float(got)
+            within.append(abs(got / v - 1) <= 0.3)
+    out["params_ok"] = bool(within) and all(within)
+    out["error_ok"] = rep["error_after"] <= 1.5 and rep["error_after"] < rep["error_before"]
+    out["ok"] = out["ranked"] and out["params_ok"] and out["error_ok"]
+    return out
