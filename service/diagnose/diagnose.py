@@ -134,13 +134,22 @@ def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MA
         params = eff.param_dict()
         iv = _report_intervals(c.effect, intervals(S.H, cur, c.effect), model.Ts)
         band = _band(cur, c.effect, data)
+        alts = [{"effect": a.effect, "mode": a.mode, "score": float(a.score),
+                 "params": _report_params(a.effect, a.fit.model.effects[a.effect].param_dict(), model.Ts)}
+                for a in c.alternatives if a.effect in a.fit.model.effects]
+        evidence = CATALOGUE[c.effect].explain(params, model.Ts, {"band": band} if band else None)
+        if alts:
+            evidence += ("; the data support " + " and ".join(
+                f"{a['effect']} ({', '.join(f'{k} = {v:.3g}' for k, v in a['params'].items() if isinstance(v, float))})"
+                for a in alts[:2]) + " as well")
         missing.append({
             "effect": c.effect,
             "params": _report_params(c.effect, params, model.Ts),
             "interval": {k: [float(a) for a in v] for k, v in iv.items()},
             "score": float(c.score),
             "mode": c.mode,
-            "evidence": CATALOGUE[c.effect].explain(params, model.Ts, {"band": band} if band else None),
+            "evidence": evidence,
+            "alternatives": alts,
         })
     after = compare(cur.model, t, y, u, burn=burn, revision=len(comps) - 1) if accepted else before
     if accepted:

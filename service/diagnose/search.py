@@ -409,28 +409,40 @@ class Inner:
 
 # -- the jitter's modulation term ---------------------------------------------------------------------------
 class Modulation:
-    """Quasi log-likelihood of the squared differenced residual under mean a + b x_q (b = std_s^2
-    in s^2, x_q = ydot_{q+1}^2 + ydot_q^2), relative to the constant mean; a fixed so that the
-    average matches the data's (the level is the Whittle part's business)."""
+    """The jitter's second signature: the squared differenced residual z_q follows the squared
+    slope, z_q = c + b x_q + noise with x_q = ydot_{q+1}^2 + ydot_q^2 (Var(ydot dt) = std_s^2 ydot^2,
+    seed section 6.3) and b = std_s^2. The slope is estimated by least squares with a free
+    intercept (the level is the Whittle part's business) and its standard error from Var(z_q) =
+    2 mu_q^2 (chi-squared 1 times the local variance) inflated by the dependence factor; the term
+    is the Gaussian log-likelihood of that slope, relative to b = 0:
+    l_mod(b) = [s^2 - (s - b)^2] / (2 se^2)."""
 
     def __init__(self, d: np.ndarray, ydot: np.ndarray, k0: int, unit: float):
-        self.z = d**2                                               # (M, p)
+        z = d**2                                                    # (M, p)
         yd2 = ydot[k0:] ** 2
-        self.x = yd2[1:] + yd2[:-1]
-        self.zbar = self.z.mean(axis=0)
-        self.xc = self.x - self.x.mean(axis=0)
+        x = yd2[1:] + yd2[:-1]
         self.unit = unit                                            # v = b / unit
-        self.phi = np.array([_dependence(d[:, j]) for j in range(d.shape[1])])
-        self.base = -0.5 * np.sum((np.log(self.zbar) + 1.0) * self.z.shape[0] / self.phi)
+        num, den = 0.0, 0.0
+        for j in range(z.shape[1]):
+            xc = x[:, j] - x[:, j].mean()
+            sxx = float(np.dot(xc, xc))
+            if sxx <= 0:
+                continue
+            slope = float(np.dot(xc, z[:, j])) / sxx
+            mu = np.maximum(z[:, j].mean() + slope * xc, 1e-3 * z[:, j].mean())
+            var = 2.0 * float(np.sum(xc**2 * mu**2)) / sxx**2 * _dependence(d[:, j])
+            num += slope / var                                      # outputs combined by precision
+            den += 1.0 / var
+        self.slope = num / den if den > 0 else 0.0
+        self.se2 = 1.0 / den if den > 0 else np.inf
 
     def __call__(self, v: float):
         b = v * self.unit
-        mu = self.zbar + b * self.xc
-        if np.any(mu <= 0):
-            return -1e30, 0.0
-        l = -0.5 * np.sum((np.log(mu) + self.z / mu) / self.phi)
-        g = -0.5 * np.sum(self.xc * (1 / mu - self.z / mu**2) / self.phi) * self.unit
-        return float(l - self.base), float(g)
+        if not np.isfinite(self.se2):
+            return 0.0, 0.0
+        l = (self.slope**2 - (self.slope - b) ** 2) / (2 * self.se2)
+        g = (self.slope - b) / self.se2 * self.unit
+        return float(l), float(g)
 
 
 def _dependence(d: np.ndarray, H: int = 50) -> float:
@@ -652,6 +664,7 @@ class Candidate:
     k: int                          # free parameters it adds
     score: float = float("nan")     # Delta BIC against the current hypothesis
     loglik: float = float("nan")
+    alternatives: list = field(default_factory=list)   # other effects the data support as well
 
 
 def _scale_name(eff) -> tuple[str, int]:
@@ -683,6 +696,10 @@ def tone_peaks(I: np.ndarray, E: np.ndarray, M: int, Ts: float, max_peaks: int =
 
 MODE_RANK = {"replace": 0, "add": 1, "refit": 2}
 TIE = 2.0                 # Delta BIC within which candidates count as equally supported
+# Near-ties (the data cannot tell the candidates apart, e.g. white actuator and process noise through
+# the same input, or saturation, dead zone and scale factor under a two-level command) are ranked
+# by: a replacement, then an addition, then a changed value (the model the user wrote is kept where
+# the data allow), then the signal chain's order; the others are reported as alternatives.
 
 
 @dataclass
@@ -744,8 +761,9 @@ class Search:
         if out:
             top = out[0].score
             near = [c for c in out if c.score > top - TIE]
-            near.sort(key=lambda c: (MODE_RANK[c.mode.split(":")[0]], -c.score))
+            near.sort(key=lambda c: (MODE_RANK[c.mode.split(":")[0]], CATALOGUE[c.effect].chain_order, -c.score))
             first = near[0]
+            first.alternatives = [c for c in near[1:] if c.effect != first.effect]
             out.remove(first)
             out.insert(0, first)
         return out
@@ -855,6 +873,11 @@ def intervals(H: Hypotheses, fit: Fit, eid: str) -> dict:
     if eff is None:
         return out
     spec = CATALOGUE[eid].fit
+    if spec.kind == "line":
+        return _tone_intervals(H, fit)
+    if spec.kind == "grid":
+        step = eff.param_dict()["step"]
+        return {"step": [step, step] if not isinstance(step, list) else [min(step), max(step)]}
     shaped = [sh for sh in spec.shape if sh[0] in fit.free.get(eid, [])]
     if eid in fit.scale_ids:
         name, power = _scale_name(eff)
@@ -869,6 +892,33 @@ def intervals(H: Hypotheses, fit: Fit, eid: str) -> dict:
     for sh in shaped:
         out[sh[0]] = _profile_outer(H, fit, eid, sh)
     return out
+
+
+def _tone_intervals(H: Hypotheses, fit: Fit) -> dict:
+    """Least-squares amplitude (Var = 2 S / N) and the Cramer-Rao bound of the frequency
+    (Var(w) = 12 S / (A^2 N^3), Kay 1993 sec. 3.11), S the residual's per-sample spectral density
+    next to the line (the 40 bins on each side, the line's own +-3 bins left out)."""
+    d = H.data
+    tone = fit.model.effects["sensor.tone"]
+    amp = np.broadcast_to(tone.params["amplitude"], (d.p,)).astype(float)
+    freq = np.broadcast_to(tone.params["frequency_hz"], (d.p,)).astype(float)
+    r, _, _ = H.ev.residual(fit.model, True)
+    n = d.N - d.k0
+    lo_a, hi_a, lo_f, hi_f = [], [], [], []
+    for j in range(d.p):
+        x = r[d.k0:, j] - r[d.k0:, j].mean()
+        X = np.abs(np.fft.rfft(x)) ** 2 / n
+        b = int(round(freq[j] * n * d.Ts))
+        idx = np.r_[max(1, b - 43):max(1, b - 3), b + 4:min(X.size, b + 44)]
+        S = float(np.mean(X[idx])) if idx.size else float(np.var(x))
+        sa = math.sqrt(2 * S / n)
+        sf = math.sqrt(12 * S / (max(amp[j], 1e-300) ** 2 * n**3)) / (2 * np.pi * d.Ts) if amp[j] > 0 else 0.0
+        lo_a.append(max(amp[j] - 1.96 * sa, 0.0))
+        hi_a.append(amp[j] + 1.96 * sa)
+        lo_f.append(freq[j] - 1.96 * sf)
+        hi_f.append(freq[j] + 1.96 * sf)
+    k = int(np.argmax(amp))
+    return {"amplitude": [lo_a[k], hi_a[k]], "frequency_hz": [lo_f[k], hi_f[k]]}
 
 
 def _profile_scale_shaped(H: Hypotheses, fit: Fit, eid: str, name: str, val: float) -> list[float]:

@@ -1,0 +1,80 @@
+"""The diagnosis' likelihood (service/diagnose/whittle.py): the expected tapered periodogram of the
+differenced residual, exact for a finite record that starts at rest, checked against Monte Carlo
+ensembles; the modal mean response against the predictor's."""
+
+import numpy as np
+import pytest
+
+from service.diagnose import whittle as W
+from service.model import load_model, parse_model
+
+SEED = open(__file__.replace("tests/test_whittle.py", "service/scenarios/seed.toml")).read()
+
+
+def _ensemble(model, N, trials, seed):
+    rec = model.simulate(N, seed=seed, trials=trials)
+    mean = model.predictor().mean_response(N)
+    r = rec.y - mean.y[None]
+    I = np.mean([W.periodogram(r[i]) for i in range(trials)], axis=0)
+    return I, mean
+
+
+@pytest.mark.parametrize("text", [
+    SEED,                                                                        # euler, AR(1), walk, quantization
+    SEED.replace('discretization = "euler"', 'discretization = "zoh"')
+    + "\n[sensor.bias_markov]\nstd = 0.01\ntau_s = 3.0\n[actuator.lag]\ntau_s = 0.05\n",
+], ids=["seed", "zoh-markov-lag"])
+def test_expected_periodogram_matches_monte_carlo(text):
+    """Mean of the periodogram over 400 records from rest against E I_f: each bin's mean has sd
+    E_f / sqrt(400) (I_f is exponential for Gaussian data), so z = (mean - E) / (E / 20) is N(0, 1)
+    per bin; over ~1500 bins mean(z^2) = 1 +- 0.04 (2 sd: 0.07) and mean(z) = 0 +- 0.026 (3 sd: 0.08)."""
+    model = parse_model(text)
+    N, trials = 3000, 400
+    I, mean = _ensemble(model, N, trials, seed=5)
+    parts = W.expected_parts(model, N - 1, 0, True, ydot_sq=np.mean(mean.ydot**2, axis=0))
+    E = sum(parts.values())
+    z = (I - E) / (E / np.sqrt(trials))
+    assert abs(np.mean(z)) < 0.08
+    assert abs(np.mean(z**2) - 1) < 0.1
+    # and in 30 bands of ~50 bins: the ratio within 4 sd of the band mean (sd 1 / sqrt(50 * 400))
+    edges = np.linspace(0, I.shape[0], 31).astype(int)
+    ratio = np.array([I[a:b].mean() / E[a:b].mean() for a, b in zip(edges[:-1], edges[1:])])
+    sd = 1 / np.sqrt(np.diff(edges) * trials)
+    assert np.all(np.abs(ratio - 1) < 4 * sd + 0.01), ratio
+
+
+def test_from_rest_correction_is_needed_and_right():
+    """A lightly damped plant from rest: the first bins are lower than the stationary prediction;
+    the from-rest correction accounts for it (the 8 lowest bins pooled: 3200 exponential draws)."""
+    model = load_model("seed")
+    N, trials = 2000, 400
+    I, mean = _ensemble(model, N, trials, seed=9)
+    at_rest = sum(W.expected_parts(model, N - 1, 0, True, ydot_sq=np.mean(mean.ydot**2, axis=0)).values())
+    stationary = sum(W.expected_parts(model, N - 1, 0, False, ydot_sq=np.mean(mean.ydot**2, axis=0)).values())
+    low = slice(0, 8)
+    sd = 1 / np.sqrt(8 * trials)
+    assert abs(I[low].sum() / at_rest[low].sum() - 1) < 4 * sd
+    assert I[low].sum() / stationary[low].sum() < 1 - 6 * sd
+
+
+def test_walk_and_white_closed_forms():
+    """Differenced white noise: E I_f = (1/M)(c_w(0) 2 var - 2 c_w(1) var cos w); a walk: flat q."""
+    M = 1001
+    var, q = 0.3, 0.02
+    w, cw, kappa = W.taper(M)
+    f = 2 * np.pi * np.arange(1, W.n_freqs(M) + 1) / M
+    # (1e-9: the two terms cancel to ~1e-4 of each other at the lowest bins)
+    np.testing.assert_allclose(W.white_part(var, M)[:, 0], (cw[0] * 2 * var - 2 * cw[1] * var * np.cos(f)) / M,
+                               rtol=1e-9)
+    np.testing.assert_allclose(W.walk_part(q, M)[:, 0], q)
+    assert np.sum(w**2) == pytest.approx(M) and 1.0 < kappa < 1.2
+
+
+def test_modal_mean_response_equals_the_predictor():
+    for name in ("seed", "hidden/sensor.scale_factor", "hidden/actuator.lag"):
+        model = load_model(name)
+        N = 5000
+        u = model.command.values(0, N, model.Ts)
+        ref = model.predictor().mean_response(command=u)
+        y = W.lsim(model.Ad, model.Bd, model.Cy, model.Dy, u) * model.out_gain
+        np.testing.assert_allclose(y, ref.y, rtol=1e-9, atol=1e-12 * np.max(np.abs(ref.y)))
