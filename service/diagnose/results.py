@@ -39,6 +39,7 @@ class View:
     z: np.ndarray = None
     flagged: np.ndarray = None
     error: float = float("nan")
+    error_var: float = float("nan")    # variance of ``error`` under the model (weighs it in the model error)
     log_x: bool = False
     log_y: bool = False
     conf: float = 0.95
