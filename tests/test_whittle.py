@@ -62,7 +62,7 @@ def test_walk_and_white_closed_forms():
     M = 1001
     var, q = 0.3, 0.02
     w, cw, kappa = W.taper(M)
-    f = 2 * np.pi * np.arange(1, W.n_freqs(M) + 1) / M
+    f = 2 * np.pi * np.arange(W.n_freqs(M)) / M
     # (1e-9: the two terms cancel to ~1e-4 of each other at the lowest bins)
     np.testing.assert_allclose(W.white_part(var, M)[:, 0], (cw[0] * 2 * var - 2 * cw[1] * var * np.cos(f)) / M,
                                rtol=1e-9)

@@ -87,6 +87,9 @@ class Data:
         self.T = self.N * self.Ts
         self.starts = _group_starts(self.nf, REL_BW)
         self.sizes = np.diff(np.append(self.starts, self.nf)).astype(float)
+        # Whittle weights: bins per group; the DC bin (group 0, alone) is real: chi-squared 1, half weight
+        self.weights = self.sizes.copy()
+        self.weights[0] = 0.5
         self.grid = quantization_grid(self.y)
 
     def group(self, A: np.ndarray) -> np.ndarray:
@@ -109,11 +112,11 @@ def smooth_len(n: int) -> int:
 
 
 def _group_starts(nf: int, rel: float) -> np.ndarray:
-    """Bins one by one up to 1/rel, then groups at most rel * f wide (f in bins)."""
+    """Bins one by one up to 1/rel, then groups at most rel * f wide (f in bins; bin 0 is DC)."""
     starts, i = [], 0
     while i < nf:
         starts.append(i)
-        i += max(1, int((i + 1) * rel))
+        i += max(1, int(i * rel))
     return np.asarray(starts, np.int64)
 
 
@@ -308,7 +311,7 @@ class Inner:
 
     def _E(self, v):
         E = self.E0 + np.tensordot(v, self.U, axes=1) if len(v) else self.E0
-        return np.maximum(E, 1e-300)
+        return np.maximum(E, 1e-150)             # E**2 stays a normal float
 
     def value(self, v):
         v = np.asarray(v, float)
@@ -516,7 +519,7 @@ class Hypotheses:
             if "sensor.jitter" in scale_ids:
                 i = scale_ids.index("sensor.jitter")
                 mod, mod_index = Modulation(dd, ydot, d.k0, refs[i] ** 2), i
-        inner = Inner(Ig, d.sizes / W.taper(d.M)[2], E0, U, mod, mod_index)
+        inner = Inner(Ig, d.weights / W.taper(d.M)[2], E0, U, mod, mod_index)
         v0 = np.array([(c / ref) ** pw for c, ref, (_, _, pw) in zip(cur, refs, scales)]) if scales else None
         v, l = inner.optimize(v0)
         if "sensor.jitter" in model.effects and "sensor.jitter" not in scale_ids:
@@ -682,6 +685,7 @@ def tone_peaks(I: np.ndarray, E: np.ndarray, M: int, Ts: float, max_peaks: int =
     thr = math.log(nf / 1e-3)
     for j in range(I.shape[1]):
         ratio = I[:, j] / np.maximum(E[:, j], 1e-300)
+        ratio[0] = 0.0                                  # DC is no tone
         idx = np.flatnonzero(ratio > thr)
         chosen: list[int] = []
         for i in idx[np.argsort(-ratio[idx])]:
@@ -690,12 +694,13 @@ def tone_peaks(I: np.ndarray, E: np.ndarray, M: int, Ts: float, max_peaks: int =
             chosen.append(int(i))
             if len(chosen) >= max_peaks:
                 break
-        out += [(j, (c + 1) / (M * Ts)) for c in chosen]
+        out += [(j, c / (M * Ts)) for c in chosen]
     return out
 
 
 MODE_RANK = {"replace": 0, "add": 1, "refit": 2}
 TIE = 2.0                 # Delta BIC within which candidates count as equally supported
+EXACT_TIE = 0.5           # ... and within which they are the same fit (chain order decides)
 # Near-ties (the data cannot tell the candidates apart, e.g. white actuator and process noise through
 # the same input, or saturation, dead zone and scale factor under a two-level command) are ranked
 # by: a replacement, then an addition, then a changed value (the model the user wrote is kept where
@@ -732,7 +737,8 @@ class Search:
         """Every candidate screened (its own parameters searched, the rest refitted only in their
         variances), then the ``n_full`` best fitted jointly with everything freed so far; ranked by
         Delta BIC, near-ties (within :data:`TIE`) resolved towards fewer effects: a replacement
-        first, then an addition, then a changed value."""
+        first, then an addition, then a changed value; within a mode the best score, and the signal
+        chain's order on an exact tie (:data:`EXACT_TIE`)."""
         out: list[Candidate] = []
         for st in self.starts(cur):
             try:
@@ -761,8 +767,13 @@ class Search:
         if out:
             top = out[0].score
             near = [c for c in out if c.score > top - TIE]
-            near.sort(key=lambda c: (MODE_RANK[c.mode.split(":")[0]], CATALOGUE[c.effect].chain_order, -c.score))
-            first = near[0]
+            # the preferred mode first; within it the best score, and on an exact tie (identical
+            # spectra, e.g. process and actuator white noise through the same input) chain order
+            rank = min(MODE_RANK[c.mode.split(":")[0]] for c in near)
+            same = [c for c in near if MODE_RANK[c.mode.split(":")[0]] == rank]
+            best = max(c.score for c in same)
+            first = min((c for c in same if c.score > best - EXACT_TIE), key=lambda c: CATALOGUE[c.effect].chain_order)
+            near = [first] + [c for c in near if c is not first]
             first.alternatives = [c for c in near[1:] if c.effect != first.effect]
             out.remove(first)
             out.insert(0, first)

@@ -8,7 +8,7 @@ symbol         name            meaning
 =============  ==============  =================================================================
 r_k            ``r``           residual y_k - E[y_k] (measurement minus the model's mean response)
 d_q            ``d``           differenced residual r_{q+k0+1} - r_{q+k0}, q = 0..M-1
-I_f            ``I``           periodogram |sum_q d_q e^{-i 2 pi f q / M}|^2 / M, f = 1..nf
+I_f            ``I``           periodogram |sum_q w_q d_q e^{-i 2 pi f q / M}|^2 / M, f = 0..nf-1
 E_f            ``E``           its expectation under the model, per effect (``parts``)
 R(h), R_d(h)   ``R``, ``Rd``   autocovariance of r and of d at lag h samples
 =============  ==============  =================================================================
@@ -95,8 +95,9 @@ def lsim(Ad: np.ndarray, Bd: np.ndarray, C: np.ndarray, D: np.ndarray, u: np.nda
 
 # -- periodogram of the differenced residual ---------------------------------------------------------------
 def n_freqs(M: int) -> int:
-    """Fourier frequencies used: f = 1..(M-1)//2 (no DC, no Nyquist)."""
-    return (M - 1) // 2
+    """Fourier frequencies used: f = 0..(M-1)//2 (DC included: for the differenced series it is the
+    tapered total increment, the most direct evidence of a walk; no Nyquist). Index k is k / (M Ts)."""
+    return (M - 1) // 2 + 1
 
 
 _TAPERS: dict = {}
@@ -119,12 +120,12 @@ def taper(M: int) -> tuple[np.ndarray, np.ndarray, float]:
 
 
 def periodogram(r: np.ndarray, k0: int = 0) -> np.ndarray:
-    """I_f (nf, p) of the tapered d_q = r_{k0+q+1} - r_{k0+q}."""
+    """I_f (nf, p) of the tapered d_q = r_{k0+q+1} - r_{k0+q}, f = 0..nf-1."""
     d = np.diff(r[k0:], axis=0)
     M = d.shape[0]
     w = taper(M)[0]
     X = np.fft.rfft(d * w[:, None], axis=0)
-    return (np.abs(X[1:n_freqs(M) + 1]) ** 2) / M
+    return (np.abs(X[:n_freqs(M)]) ** 2) / M
 
 
 def _from_acf(Rd: np.ndarray, M: int) -> np.ndarray:
@@ -135,13 +136,13 @@ def _from_acf(Rd: np.ndarray, M: int) -> np.ndarray:
     a = Rd[:K] * (cw[:K, None] / M)
     nf = n_freqs(M)
     if K <= 8:                                   # short (white): the cosine sum directly
-        w = 2 * np.pi * np.arange(1, nf + 1) / M
+        w = 2 * np.pi * np.arange(nf) / M
         E = np.broadcast_to(a[0], (nf, a.shape[1])).copy()
         for h in range(1, K):
             E += 2.0 * np.cos(w * h)[:, None] * a[h]
         return E
     E = 2.0 * np.fft.rfft(a, n=M, axis=0).real - a[0]
-    return E[1:nf + 1]
+    return E[:nf]
 
 
 def white_part(var: np.ndarray, M: int) -> np.ndarray:
@@ -256,7 +257,7 @@ def linear_part(F, G, H, J, Pe, M: int, k0: int, at_rest: bool) -> np.ndarray:
             w = np.diff(v[k0:], axis=0)                              # w_q = v_{k0+q+1} - v_{k0+q}
             if w.shape[0]:
                 w = w * taper(M)[0][:w.shape[0], None, None]
-                Wf = np.fft.rfft(w, n=M, axis=0)[1:n_freqs(M) + 1]  # (nf, p, c)
+                Wf = np.fft.rfft(w, n=M, axis=0)[:n_freqs(M)]       # (nf, p, c)
                 E = E - np.sum(np.abs(Wf) ** 2, axis=2) / M
     return E
 
