@@ -23,6 +23,7 @@ from .compare import compare, transient_samples
 from .search import THRESHOLD, Data, Search, intervals
 
 MAX_EFFECTS = 3
+NONLINEAR = ("actuator.saturation", "actuator.deadzone")
 
 
 def _band(fit, eid: str, data: Data):
@@ -39,7 +40,7 @@ def _band(fit, eid: str, data: Data):
     end = idx[0]
     while end + 1 < share.size and share[end + 1] > 0.5:
         end += 1
-    f = (data.starts + 0.5 * data.sizes + 1) / (data.M * data.Ts)
+    f = (data.starts + 0.5 * (data.sizes - 1)) / (data.M * data.Ts)
     return float(f[idx[0]]), float(f[end])
 
 
@@ -66,6 +67,75 @@ def _prefer_replacements(S, cur, accepted, say):
                 c.mode = f"replace:{rep}"
                 cur = alt
     return cur
+
+
+def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
+    """Revisit the greedy order: an effect added early can stand in for another while a third is
+    still missing (a gain-like saturation for a scale factor that also scales the noise, while a
+    bias is missing; a walk for a Gauss-Markov bias). With every effect now in, each added effect
+    is exchanged for the best of the other additions its step ranked near the top, when the whole
+    model then fits better by more than the tie margin (Delta BIC, the parameter counts
+    accounted for). Returns the fit and whether anything was exchanged."""
+    import math
+
+    from ..model import ModelError
+    from .search import TIE, Fit
+
+    swapped = False
+    for i, c in enumerate(accepted):
+        if c.mode != "add" or c.effect not in cur.model.effects:
+            continue
+        best = None
+        for a in step_cands[i][:n_alt + 1]:
+            if a.mode != "add" or a.effect == c.effect or a.effect in cur.model.effects \
+                    or a.effect not in a.fit.model.effects:
+                continue
+            try:
+                m = cur.model.without_effect(c.effect).with_effect(a.effect, a.fit.model.effects[a.effect].param_dict())
+                free = {k: v for k, v in cur.free.items() if k != c.effect}
+                free[a.effect] = list(a.fit.free.get(a.effect, []))
+                alt = S.refit_all(Fit(m, free, -math.inf))
+            except (ModelError, ValueError, np.linalg.LinAlgError):
+                continue
+            gain = 2 * (alt.loglik - cur.loglik) - (a.k - c.k) * math.log(S.data.n_bic)
+            say(f"  exchange trial {c.effect} -> {a.effect}: {gain:.1f} {alt.model.effects[a.effect].param_dict()}")
+            if gain > TIE or (abs(gain) <= TIE and c.effect in NONLINEAR and a.effect not in NONLINEAR
+                              and a.k <= c.k):
+                # better; or as good and linear in place of a nonlinearity: a saturation or dead zone
+                # that the data cannot tell from a gain (a two-level command) shows no clipping
+                if best is None or gain > best[0]:
+                    best = (gain, a, alt)
+        if best is not None:
+            gain, a, alt = best
+            say(f"exchange: {a.effect} in place of {c.effect} (Delta BIC {gain:+.1f} with everything else in)")
+            a.score = float(c.score + gain)
+            a.alternatives = [x for x in c.alternatives if x.effect != a.effect]
+            if abs(gain) <= TIE:
+                a.alternatives = [c] + a.alternatives
+            accepted[i] = a
+            cur, swapped = alt, True
+    return cur, swapped
+
+
+def _replay(S, start, final, accepted):
+    """The fits after each step, in order, each effect at its final parameters then refitted with
+    those before it."""
+    from .search import Fit
+
+    cur, out = start, []
+    for c in accepted:
+        m = cur.model
+        free = dict(cur.free)
+        if c.mode.startswith("replace:"):
+            rep = c.mode.split(":", 1)[1]
+            m = m.without_effect(rep)
+            free.pop(rep, None)
+        params = final.model.effects[c.effect].param_dict()
+        m = m.with_params(c.effect, params) if c.effect in m.effects else m.with_effect(c.effect, params)
+        free[c.effect] = list(c.fit.free.get(c.effect, []))
+        cur = S.refit_all(Fit(m, free, float("-inf")))
+        out.append(cur)
+    return out
 
 
 def _report_intervals(eid: str, iv: dict, Ts: float) -> dict:
@@ -108,7 +178,8 @@ def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MA
     data = Data(y, u, model.Ts, at_rest, k0)
     S = Search(model, data, log=say)
     cur = S.start()
-    steps, accepted, first, comps = [], [], None, [before]
+    steps, accepted, first, comps, step_models = [], [], None, [before], [model]
+    start, step_cands = cur, []
     for _ in range(max_effects):
         cands = S.candidates(cur)
         if first is None:
@@ -117,6 +188,7 @@ def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MA
         if not cands or cands[0].score < THRESHOLD:
             break
         best = cands[0]
+        step_cands.append(cands)
         new = S.refit_all(best.fit)
         cmp = compare(new.model, t, y, u, burn=burn, revision=len(comps))
         cmp.model_name = f"+ {best.effect}"
@@ -125,8 +197,20 @@ def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MA
         steps.append({"effect": best.effect, "mode": best.mode, "score": float(best.score), "error": float(err),
                       "params": _report_params(best.effect, new.model.effects[best.effect].param_dict(), model.Ts)})
         accepted.append(best)
+        step_models.append(new.model)
         say(f"step {len(steps)}: {best.mode} {best.effect} (Delta BIC {best.score:.1f}): model error {err:.3g}")
         cur = new
+    cur, swapped = _exchange(S, cur, accepted, step_cands, say)
+    if swapped:      # the steps again, in order, with the exchanged effects
+        steps, comps, step_models = [], [before], [model]
+        for i, fit in enumerate(_replay(S, start, cur, accepted), 1):
+            c = accepted[i - 1]
+            cmp = compare(fit.model, t, y, u, burn=burn, revision=i)
+            cmp.model_name = f"+ {c.effect}"
+            comps.append(cmp)
+            step_models.append(fit.model)
+            steps.append({"effect": c.effect, "mode": c.mode, "score": float(c.score), "error": float(cmp.error),
+                          "params": _report_params(c.effect, fit.model.effects[c.effect].param_dict(), model.Ts)})
     cur = _prefer_replacements(S, cur, accepted, say)
     missing = []
     for c in accepted:
@@ -175,6 +259,7 @@ def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MA
         "seconds": round(time.perf_counter() - t0, 3),
         "fitted_model": fitted.to_toml(),
         "model": fitted,
+        "step_models": step_models,      # the model before any step, then after each step
         "before": before,
         "after": after,
         "comparisons": comps,
