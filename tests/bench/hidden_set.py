@@ -125,6 +125,11 @@ def make_case(seed: int, n_hidden: int | None = None, null: bool | None = None) 
     hidden: dict = {}
     if not null:
         pool = [e for e in HIDEABLE if with_command or e not in NEEDS_COMMAND]
+        if command.get("kind") == "prbs":
+            # a two-level command passes a saturation or a dead zone as a pure gain on the command
+            # (+-A -> +-L, +-(A - d)): a scale factor of the same size, so no data can tell them
+            # apart; such a case tests nothing but a tie-break
+            pool = [e for e in pool if e not in ("actuator.saturation", "actuator.deadzone")]
         order = rng.permutation(pool)
         for eid in order:
             if len(hidden) >= n_hidden:
