@@ -43,9 +43,10 @@ def _bad_input_types():
     from .nodes.transport import TransportError
     from .nodes.wire import WireError
     AnalysisError = _loaded("service.diagnose.compare", "AnalysisError")
+    DemoError = _loaded("service.demo", "DemoError")
     StatsError = _loaded("service.stats.errors", "StatsError")
     return (ModelError, UsageError, WireError, McapIoError, RecordingExistsError, TransportError,
-            AnalysisError, StatsError,
+            AnalysisError, StatsError, DemoError,
             FileNotFoundError, IsADirectoryError, PermissionError)
 
 
@@ -62,6 +63,18 @@ def _positive_float(name):
             raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}")
         if not math.isfinite(v) or v <= 0:
             raise argparse.ArgumentTypeError(f"{name} must be a finite number > 0, got {text!r}")
+        return v
+    return conv
+
+
+def _count(name):
+    def conv(text):
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be an integer >= 1, got {text!r}")
+        if v < 1:
+            raise argparse.ArgumentTypeError(f"{name} must be an integer >= 1, got {text!r}")
         return v
     return conv
 
@@ -248,7 +261,7 @@ def cmd_emulate(args) -> int:
               f"(listen {ends['listen']}, connect {ends['connect']})", file=sys.stderr, flush=True)
         s = run_emulator(model, session, duration=args.duration, seed=args.seed, stop=stop,
                          wait_subscribers=args.wait_subscribers, stale_s=args.stale, wait_peers=args.wait_peers,
-                         end_timeout=args.end_timeout)
+                         end_timeout=args.end_timeout, speed=args.speed)
     lat = s.lateness_us
     _emit(args, s.as_dict(), [f"emulated {s.samples} samples of {s.name} in {s.wall_s:.2f} s; lateness p50 "
                               f"{lat['p50']:.0f} us, p99 {lat['p99']:.0f} us, max {lat['max']:.0f} us; "
@@ -332,7 +345,7 @@ def cmd_run(args) -> int:
 
     model = load_model(args.model)              # bad input fails here, before any process starts
     rep = run_pipeline(args.model, model.name, duration=args.duration, seed=args.seed, out_dir=Path(args.out),
-                       force=args.force, analyze=not args.no_analyze)
+                       force=args.force, analyze=not args.no_analyze, speed=args.speed)
     emu, rec = rep["emulator"] or {}, rep["recorder"] or {}
     lines = [f"recording: {rep['recording']}"]
     for topic, b in sorted((rec.get("topics") or {}).items()):
@@ -437,6 +450,44 @@ def cmd_analyze(args) -> int:
     return 0
 
 
+# -- diagnosis ----------------------------------------------------------------------------------------
+def cmd_diagnose(args) -> int:
+    from .diagnose.diagnose import diagnose
+    from .diagnose.report import diagnosis_json, diagnosis_lines
+
+    model = load_model(args.model)
+    png = args.png or (str(Path(args.rrd).with_suffix(".png")) if args.rrd else None)
+    for out in (args.fit_out, args.rrd, png):
+        _check_out(out, args.force)
+    series = load_series(args, model, truth=bool(args.rrd or png))
+    log = (lambda s: print(f"noiselab diagnose: {s}", file=sys.stderr)) if args.verbose else None
+    rep = diagnose(model, series.t, series.y, series.u, at_rest=series.starts_at_rest,
+                   max_effects=args.max_effects, log=log)
+    extra = {}
+    if args.fit_out:
+        Path(args.fit_out).write_text(rep["fitted_model"])
+        extra["fit_out"] = args.fit_out
+    comps = rep["comparisons"]
+    if series.truth is not None:
+        for c in comps:
+            c.truth = series.truth
+    if args.rrd:
+        from viewers.rerun_log import log_comparisons
+        log_comparisons(comps, args.rrd)
+        extra["rrd"] = args.rrd
+    if png:
+        from viewers.summary_png import write_summary_png
+        write_summary_png(comps, png)
+        extra["png"] = png
+    _emit(args, diagnosis_json(rep, series, extra), diagnosis_lines(rep, series, extra))
+    return 0
+
+
+def cmd_demo(args) -> int:
+    from .demo import cmd_demo as run
+    return run(args)
+
+
 def _burn(text):
     if text == "auto":
         return text
@@ -484,6 +535,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="closed loop: a control input older than S seconds is stale, zero is applied (default 0.5)")
     se.add_argument("--end-timeout", type=_positive_float("--end-timeout"), default=10.0, metavar="S",
                     help="at the end, wait up to S seconds for the recorders to acknowledge every message (default 10)")
+    se.add_argument("--speed", type=_positive_float("--speed"), default=1.0, metavar="X",
+                    help="run X times faster than real time (sample times stay on the Ts grid; default 1)")
     se.add_argument("--json", action="store_true", help="machine-readable summary on stdout")
     add_transport_args(se)
     se.set_defaults(func=cmd_emulate)
@@ -543,12 +596,43 @@ def build_parser() -> argparse.ArgumentParser:
     add_transport_args(sa)
     sa.set_defaults(func=cmd_analyze)
 
+    sd = sub.add_parser("diagnose", help="which physical effect is missing from the model: rank, fit, add")
+    sd.add_argument("recording", help="the .mcap to diagnose")
+    sd.add_argument("--model", required=True, help="model file (TOML) or built-in scenario name")
+    sd.add_argument("--fit-out", metavar="FITTED.toml", help="write the extended model file here")
+    sd.add_argument("--rrd", help="write the Rerun recording (one revision per added effect) here")
+    sd.add_argument("--png", help="write the PNG summary here (default: next to --rrd)")
+    sd.add_argument("--max-effects", type=_count("--max-effects"), default=3, metavar="K",
+                    help="add at most K effects (default 3)")
+    sd.add_argument("--device", help="device name in a noiselab recording with several devices")
+    sd.add_argument("--measurement", metavar="TOPIC:FIELD", help="foreign recordings: topic and JSON field(s)")
+    sd.add_argument("--time", metavar="FIELD", help="foreign recordings: time field (s, or ns if it ends in _ns)")
+    sd.add_argument("--force", action="store_true", help="overwrite existing output files")
+    sd.add_argument("--verbose", action="store_true", help="log the search on stderr")
+    sd.add_argument("--json", action="store_true", help="machine-readable report")
+    sd.set_defaults(func=cmd_diagnose)
+
+    sm = sub.add_parser("demo", help="the seed lesson live (Zenoh, MCAP), diagnosed against the lesson's own model")
+    sm.add_argument("--duration", type=_positive_float("--duration"), default=1200.0,
+                    help="seconds of samples (default 1200: the bias walk needs ~20 min of data to show)")
+    sm.add_argument("--speed", type=_positive_float("--speed"), default=20.0, metavar="X",
+                    help="emulate X times faster than real time (default 20)")
+    sm.add_argument("--seed", type=_seed, default=1, help="random seed (default 1)")
+    sm.add_argument("--out", default="recordings", help="output directory (default recordings/)")
+    sm.add_argument("--max-effects", type=_count("--max-effects"), default=3, metavar="K",
+                    help="add at most K effects (default 3)")
+    sm.add_argument("--force", action="store_true", help="overwrite existing demo files")
+    sm.add_argument("--json", action="store_true", help="machine-readable summary")
+    sm.set_defaults(func=cmd_demo)
+
     sn = sub.add_parser("run", help="emulator and recorder as separate processes on loopback")
     sn.add_argument("model", help="model file (TOML) or built-in scenario name")
     sn.add_argument("--duration", type=_positive_float("--duration"), required=True, help="seconds of samples")
     sn.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
     sn.add_argument("--out", default="recordings", help="output directory (default recordings/)")
     sn.add_argument("--force", action="store_true", help="overwrite an existing output file")
+    sn.add_argument("--speed", type=_positive_float("--speed"), default=1.0, metavar="X",
+                    help="emulate X times faster than real time (default 1)")
     sn.add_argument("--no-analyze", action="store_true", help="do not start the live analysis node")
     sn.add_argument("--json", action="store_true", help="machine-readable summary")
     sn.set_defaults(func=cmd_run)

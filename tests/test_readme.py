@@ -35,7 +35,7 @@ def run_noiselab(cmd: str, cwd: Path):
     args = cmd.split()[1:]
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     return subprocess.run([sys.executable, "-m", "service.cli", *args], cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=300)
+                          capture_output=True, text=True, timeout=900)
 
 
 @pytest.fixture()
@@ -68,14 +68,18 @@ def test_main_command_steps(scratch):
     for cmd in main_command_steps():
         res = run_noiselab(cmd, scratch)
         assert res.returncode == 0, (cmd, res.stderr)
-    made = list((scratch / "recordings").glob("seed-*.mcap"))
-    assert len(made) == 1 and made[0].stat().st_size > 0
+    rec = scratch / "recordings"
+    for name in ("demo-seed.mcap", "demo-seed.rrd", "demo-seed.png", "demo-seed-diagnosis.rrd",
+                 "demo-seed-diagnosis.png", "demo-seed-fitted.toml"):
+        assert (rec / name).stat().st_size > 0, name
+    out = res.stdout
+    assert "the lesson's check" in out and "x off" in out and "model error" in out, out
 
 
 def test_python_example(scratch):
     code = blocks("python")[0]
     res = subprocess.run([sys.executable, "-c", code], cwd=scratch, env=dict(os.environ, PYTHONPATH=str(ROOT)),
-                         capture_output=True, text=True, timeout=300)
+                         capture_output=True, text=True, timeout=900)
     assert res.returncode == 0, res.stderr
 
 

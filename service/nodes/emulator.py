@@ -50,9 +50,10 @@ class EmulatorSummary:
     stale_control_events: int = 0
     keys: dict = field(default_factory=dict)
     end: dict = field(default_factory=dict)
+    speed: float = 1.0
 
     def as_dict(self) -> dict:
-        return {"node": "emulate", "name": self.name, "samples": self.samples, "Ts": self.Ts, "seed": self.seed,
+        return {"node": "emulate", "name": self.name, "samples": self.samples, "Ts": self.Ts, "seed": self.seed, "speed": self.speed,
                 "lateness_us": self.lateness_us, "overruns": self.overruns, "wall_s": self.wall_s,
                 "stale_control_events": self.stale_control_events, "keys": self.keys, "end": self.end}
 
@@ -92,7 +93,7 @@ def _percentiles(values_ns: list[int]) -> tuple[float, float, float]:
 def run_emulator(model, session: "zenoh.Session", *, duration: float | None, seed: int = 0,
                  stop: threading.Event | None = None, wait_subscribers: float = 0.0,
                  stale_s: float = 0.5, wait_peers: int = 0, end_timeout: float = 10.0,
-                 log=sys.stderr) -> EmulatorSummary:
+                 speed: float = 1.0, log=sys.stderr) -> EmulatorSummary:
     """Run the real-time loop until ``duration`` seconds of samples are out or ``stop`` is set.
 
     ``wait_subscribers`` > 0: wait up to that many seconds for a subscriber of the measurement
@@ -100,10 +101,15 @@ def run_emulator(model, session: "zenoh.Session", *, duration: float | None, see
     wait until that many peers are connected (several sinks on separate links: a match tells
     only that one of them has subscribed; their subscriptions come with their session).
     ``end_timeout``: longest wait for the recorders' acknowledgement of the end of stream (0: do
-    not wait; the last messages may then be lost when the session closes)."""
+    not wait; the last messages may then be lost when the session closes). ``speed``: samples come
+    every Ts / speed of wall time (a faster-than-real-time run; sample times t and publish_time
+    stay on the model's Ts grid, lateness and overruns are measured against the wall period)."""
     stop = stop or threading.Event()
     name, Ts = model.name, model.Ts
     Ts_ns = wire.period_ns(Ts)
+    if not (speed > 0 and np.isfinite(speed)):
+        raise ValueError(f"speed must be a finite number > 0, got {speed!r}")
+    wall_ns = Ts_ns / speed                       # wall-clock period (float ns; deadlines rounded per sample)
     n_total = None if duration is None else max(1, int(round(duration / Ts)))
     keys = {kind: wire.key(name, kind) for kind in (*wire.KINDS, wire.HEALTH, wire.CONTROL, wire.END)}
     pubs = {kind: session.declare_publisher(keys[kind], **transport.DATA_QOS) for kind in (*wire.KINDS, wire.END)}
@@ -124,7 +130,7 @@ def run_emulator(model, session: "zenoh.Session", *, duration: float | None, see
     overruns = 0
     stale_events = 0
     stale = False
-    health_every = max(1, int(round(1.0 / Ts)))
+    health_every = max(1, int(round(speed / Ts)))   # about 1 Hz of wall time
     health_seq = 0
     t0 = time.monotonic_ns() + 2_000_000          # first deadline 2 ms from now
     start_ns = t0
@@ -132,7 +138,7 @@ def run_emulator(model, session: "zenoh.Session", *, duration: float | None, see
     mono = time.monotonic_ns
     try:
         while not stop.is_set() and (n_total is None or k < n_total):
-            deadline = t0 + k * Ts_ns
+            deadline = t0 + int(round(k * wall_ns))
             now = mono()
             if deadline - now > SPIN_NS:
                 time.sleep((deadline - now - SPIN_NS) / 1e9)
@@ -162,7 +168,7 @@ def run_emulator(model, session: "zenoh.Session", *, duration: float | None, see
             pubs["truth"].put(wire.encode(k, tk, x, kind="truth"))
             pubs["command"].put(wire.encode(k, tk, u_applied, kind="command"))
             pubs["measurement"].put(wire.encode(k, tk, y, kind="measurement"))
-            if mono() > deadline + Ts_ns:
+            if mono() > deadline + wall_ns:
                 overruns += 1
             k += 1
             if k % health_every == 0:
@@ -184,7 +190,7 @@ def run_emulator(model, session: "zenoh.Session", *, duration: float | None, see
                                end_timeout)
     _report_end(name, end, counts, end_timeout, log)
     p50, p99, mx = _percentiles(lat_all)
-    return EmulatorSummary(name=name, samples=k, Ts=Ts, seed=seed,
+    return EmulatorSummary(name=name, samples=k, Ts=Ts, seed=seed, speed=speed,
                            lateness_us={"p50": p50, "p99": p99, "max": mx}, overruns=overruns,
                            wall_s=wall_s, stale_control_events=stale_events,
                            keys={k_: v for k_, v in keys.items()}, end=end)

@@ -116,12 +116,17 @@ class _Child:
 
 
 def run_pipeline(model_spec: str, model_name: str, *, duration: float, seed: int, out_dir: Path,
-                 force: bool = False, analyze: bool = True, log=sys.stderr) -> dict:
+                 force: bool = False, analyze: bool = True, speed: float = 1.0,
+                 analyze_model: str | None = None, window: float | None = None, out_name: str | None = None,
+                 log=sys.stderr) -> dict:
+    """Run the pipeline; ``speed`` > 1 runs the emulator faster than real time, ``analyze_model``
+    is the model the live analyzer compares with (default the emulated one), ``window`` its
+    rolling window in s of samples (default the whole run), ``out_name`` the recording's stem."""
     from .analyzer import READY_MARK as ANALYZER_READY
 
     out_dir.mkdir(parents=True, exist_ok=True)
     stamp = time.strftime("%Y%m%d-%H%M%S")
-    out = out_dir / f"{model_name}-{stamp}.mcap"
+    out = out_dir / f"{out_name or f'{model_name}-{stamp}'}.mcap"
     rrd = out.with_suffix(".rrd")
     rec_ep = f"tcp/127.0.0.1:{free_port()}"
     an_ep = f"tcp/127.0.0.1:{free_port()}"
@@ -134,8 +139,8 @@ def run_pipeline(model_spec: str, model_name: str, *, duration: float, seed: int
         children.append(rec)
         an = None
         if analyze:
-            an = _Child(_cli("analyze", "--live", "--model", model_spec, "--device", model_name, "--listen", an_ep,
-                             "--window", repr(max(60.0, duration + 5)), "--rrd", str(rrd), "--json", *force_flag),
+            an = _Child(_cli("analyze", "--live", "--model", analyze_model or model_spec, "--device", model_name,
+                             "--listen", an_ep, "--window", repr(window or max(60.0, duration + 5)), "--rrd", str(rrd), "--json", *force_flag),
                         ANALYZER_READY, env)
             children.append(an)
         rec.wait_ready("recorder")
@@ -143,6 +148,7 @@ def run_pipeline(model_spec: str, model_name: str, *, duration: float, seed: int
             an.wait_ready("analyzer")
         connect = ["--connect", rec_ep] + (["--connect", an_ep] if an is not None else [])
         emu = subprocess.run(_cli("emulate", model_spec, "--duration", repr(duration), "--seed", str(seed),
+                                  "--speed", repr(speed),
                                   *connect, "--wait-peers", str(len(connect) // 2), "--wait-subscribers", "10",
                                   "--json"),
                              capture_output=True, text=True, env=env)
