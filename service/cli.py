@@ -67,6 +67,18 @@ def _positive_float(name):
     return conv
 
 
+def _nonneg_float(name):
+    def conv(text):
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}")
+        if not math.isfinite(v) or v < 0:
+            raise argparse.ArgumentTypeError(f"{name} must be a finite number >= 0, got {text!r}")
+        return v
+    return conv
+
+
 def _count(name):
     def conv(text):
         try:
@@ -593,6 +605,8 @@ def build_parser() -> argparse.ArgumentParser:
     sa.add_argument("--update", type=_positive_float("--update"), default=0.5, metavar="S",
                     help="live: seconds between updates (default 0.5)")
     sa.add_argument("--duration", type=_positive_float("--duration"), help="live: stop after S seconds")
+    sa.add_argument("--rank-every", type=_nonneg_float("--rank-every"), default=10.0, metavar="S",
+                    help="live: re-rank the candidate missing effects on the window every S s (0: never; default 10)")
     add_transport_args(sa)
     sa.set_defaults(func=cmd_analyze)
 

@@ -335,3 +335,40 @@ def test_replay_interleaves_the_topics_of_a_file(tmp_path, spawn, layout):
     assert [(k, s) for k, s, _ in got] == [(k, s) for s in range(n) for k in ("command", "measurement")]
     for kind in ("command", "measurement"):
         assert [d for k, _, d in got if k == kind] == in_file[f"noiselab/seed/{kind}"]
+
+
+def test_live_ranking_names_the_missing_effect_like_the_offline_diagnosis(tmp_path, spawn):
+    """Issue 5 item 4: the live analyzer re-ranks the candidate missing effects on its window; fed
+    a replay of a file (window longer than the file), its final ranking is the offline diagnosis'
+    first step on the same samples (same floats), and the summaries on Zenoh carry it."""
+    from service.diagnose.diagnose import diagnose
+    from service.diagnose.load import load_noiselab
+
+    rec_path = tmp_path / "ar1.mcap"
+    r = cli("simulate", "hidden/actuator.ar1", "--duration", "60", "--seed", FILE_SEED, "--out", rec_path)
+    assert r.returncode == 0, r.stderr
+    count = 6000
+    nominal = load_model("hidden/actuator.ar1-nominal")
+    s = load_noiselab(str(rec_path), truth=False, Ts=nominal.Ts)
+    off = diagnose(nominal, s.t, s.y, s.u, at_rest=True, max_effects=1)
+    assert off["missing"] and off["missing"][0]["effect"] == "actuator.ar1"
+
+    p, q = free_port(), free_port()
+    got = Summaries()
+    with listening_session(q) as session:
+        sub = session.declare_subscriber("noiselab/msd/analysis", got)
+        an = spawn("analyze", "analyze", "--live", "--model", "hidden/actuator.ar1-nominal", "--connect", ep(p),
+                   "--connect", ep(q), "--connect-timeout", "30", "--window", "1000", "--rank-every", "1", "--json")
+        rp = spawn("replay", "replay", rec_path, "--speed", "10", "--listen", ep(p), "--wait-subscribers", "20")
+        assert rp.finish() == 0, rp.stderr_text()
+        _, _, last = got.wait(lambda x: "ranking" in x and x["samples"] == count and x["ranking"]["samples"] == count,
+                              "a summary ranked on every sample")
+        assert an.interrupt() == 0, an.stderr_text()
+        sub.undeclare()
+    live = an.json()
+    rk = live["ranking"]
+    assert rk["samples"] == count and rk["revision"] == 0
+    m, o = rk["missing"][0], off["missing"][0]
+    assert m["effect"] == o["effect"] == "actuator.ar1" and m["mode"] == o["mode"]
+    assert m["params"] == o["params"] and m["score"] == o["score"]
+    assert last["ranking"]["missing"][0]["effect"] == "actuator.ar1"

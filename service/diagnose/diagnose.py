@@ -75,30 +75,69 @@ def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
     bias is missing; a walk for a Gauss-Markov bias). With every effect now in, each added effect
     is exchanged for the best of the other additions its step ranked near the top, when the whole
     model then fits better by more than the tie margin (Delta BIC, the parameter counts
-    accounted for). Returns the fit and whether anything was exchanged."""
+    accounted for) and the new effect is significant by itself (Delta BIC > THRESHOLD given the
+    rest). Before that, a backward pass drops the least needed addition while it is not significant
+    given the others (a walk added after a Gauss-Markov bias can make the bias redundant). Returns
+    the fit and whether anything changed."""
     import math
 
     from ..model import ModelError
     from .search import TIE, Fit
 
     swapped = False
-    for i, c in enumerate(accepted):
+    log_n = math.log(S.data.n_bic)
+    step_of = {id(c): i for i, c in enumerate(accepted)}       # the step that ranked each addition
+
+    def without(c):
+        free = {k: v for k, v in cur.free.items() if k != c.effect}
+        return S.refit_all(Fit(cur.model.without_effect(c.effect), free, -math.inf))
+
+    # backward: while the least needed addition is not significant given the others, drop it
+    while True:
+        owns = []
+        for c in accepted:
+            if c.mode != "add" or c.effect not in cur.model.effects:
+                continue
+            try:
+                d = without(c)
+            except (ModelError, ValueError, np.linalg.LinAlgError):
+                continue
+            owns.append((2 * (cur.loglik - d.loglik) - c.k * log_n, c, d))
+        if not owns:
+            break
+        own, c, d = min(owns, key=lambda x: x[0])
+        if own >= THRESHOLD:
+            break
+        say(f"drop: {c.effect} (Delta BIC {own:.1f} once the others are in)")
+        accepted.remove(c)
+        cur, swapped = d, True
+    # exchange
+    for c in list(accepted):
+        i = accepted.index(c)
         if c.mode != "add" or c.effect not in cur.model.effects:
             continue
+        try:        # everything else in, without c: c's own Delta BIC given the rest
+            drop = without(c)
+        except (ModelError, ValueError, np.linalg.LinAlgError):
+            continue
+        own = 2 * (cur.loglik - drop.loglik) - c.k * log_n
         best = None
-        for a in step_cands[i][:n_alt + 1]:
+        for a in step_cands[step_of[id(c)]][:n_alt + 1]:
             if a.mode != "add" or a.effect == c.effect or a.effect in cur.model.effects \
                     or a.effect not in a.fit.model.effects:
                 continue
             try:
-                m = cur.model.without_effect(c.effect).with_effect(a.effect, a.fit.model.effects[a.effect].param_dict())
-                free = {k: v for k, v in cur.free.items() if k != c.effect}
+                m = drop.model.with_effect(a.effect, a.fit.model.effects[a.effect].param_dict())
+                free = dict(drop.free)
                 free[a.effect] = list(a.fit.free.get(a.effect, []))
                 alt = S.refit_all(Fit(m, free, -math.inf))
             except (ModelError, ValueError, np.linalg.LinAlgError):
                 continue
-            gain = 2 * (alt.loglik - cur.loglik) - (a.k - c.k) * math.log(S.data.n_bic)
-            say(f"  exchange trial {c.effect} -> {a.effect}: {gain:.1f} {alt.model.effects[a.effect].param_dict()}")
+            a_own = 2 * (alt.loglik - drop.loglik) - a.k * log_n
+            gain = a_own - own
+            say(f"  exchange trial {c.effect} -> {a.effect}: {gain:.1f} (own Delta BIC {a_own:.1f})")
+            if _vanished(alt.model.effects[a.effect]) or a_own < THRESHOLD:
+                continue            # not significant by itself with the rest in
             if gain > TIE or (abs(gain) <= TIE and c.effect in NONLINEAR and a.effect not in NONLINEAR
                               and a.k <= c.k):
                 # better; or as good and linear in place of a nonlinearity: a saturation or dead zone
@@ -113,8 +152,15 @@ def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
             if abs(gain) <= TIE:
                 a.alternatives = [c] + a.alternatives
             accepted[i] = a
+            step_of[id(a)] = step_of[id(c)]
             cur, swapped = alt, True
     return cur, swapped
+
+
+def _vanished(eff) -> bool:
+    """The effect's size parameters are all zero (a noise of std 0, a tone of amplitude 0, ...)."""
+    sizes = [np.asarray(v, float) for k, v in eff.params.items() if k in ("std", "psd", "std_s", "amplitude", "error")]
+    return bool(sizes) and all(not np.any(v) for v in sizes)
 
 
 def _replay(S, start, final, accepted):

@@ -197,6 +197,8 @@ class LiveAnalyzer:
             burn = None                                   # from rest, exactly as offline
         else:
             burn = min(self.warmup, n // 2)
+        self.last_data = {"t": t, "y": y, "u": u, "at_rest": first == 0, "revision": self.revision,
+                          "model": self.model}
         try:
             return compare(self.model, t, y, u, burn=burn, revision=self.revision,
                            notes=[] if not bad.size else [f"analysed seq {first}..{top} (incomplete samples before)"])
@@ -205,8 +207,56 @@ class LiveAnalyzer:
             return None
 
 
-def summary_of(cmp, analyzer: LiveAnalyzer) -> dict:
-    return {"revision": cmp.revision, "model_source": cmp.model_source, "error": cmp.error,
+def rank(data: dict) -> dict:
+    """The diagnosis' ranking on a window (``noiselab diagnose`` with one step): the most likely
+    missing effect with its fitted parameters, intervals and evidence, and the top candidates."""
+    from ..diagnose.diagnose import diagnose
+
+    rep = diagnose(data["model"], data["t"], data["y"], data["u"], at_rest=data["at_rest"], max_effects=1)
+    return {"revision": data["revision"], "t": float(data["t"][-1]), "samples": int(data["t"].size),
+            "missing": [{k: m[k] for k in ("effect", "mode", "params", "interval", "score", "evidence")}
+                        for m in rep["missing"]],
+            "candidates": [{k: c[k] for k in ("effect", "mode", "score")} for c in rep["candidates"][:5]],
+            "threshold": rep["threshold"], "seconds": rep["seconds"]}
+
+
+class _Ranker(threading.Thread):
+    """Re-ranks the candidate missing effects on the latest window every ``every_s`` seconds (in
+    the background: the 2 Hz updates go on), skipping a window already ranked."""
+
+    def __init__(self, an: "LiveAnalyzer", every_s: float, stop: threading.Event, log):
+        super().__init__(daemon=True, name="noiselab-ranker")
+        self.an, self.every_s, self.stop, self.log = an, every_s, stop, log
+        self.latest = None
+        self.done_key = None
+
+    def once(self):
+        data = getattr(self.an, "last_data", None)
+        if data is None:
+            return
+        key = (data["revision"], float(data["t"][-1]), int(data["t"].size))
+        if key == self.done_key:
+            return
+        try:
+            self.latest = _clean(rank(data))
+        except Exception as exc:          # a ranking failure must not stop the analysis: say it
+            print(f"noiselab analyze: ranking failed: {exc}", file=self.log, flush=True)
+            return
+        self.done_key = key
+
+    def run(self):
+        while not self.stop.wait(self.every_s):
+            self.once()
+
+
+def _clean(v):
+    from ..diagnose.report import _clean as c
+    return c(v)
+
+
+def summary_of(cmp, analyzer: LiveAnalyzer, ranking: dict | None = None) -> dict:
+    extra = {"ranking": ranking} if ranking is not None and ranking["revision"] == cmp.revision else {}
+    return {**extra, "revision": cmp.revision, "model_source": cmp.model_source, "error": cmp.error,
             "error_per_view": cmp.error_per_view, "samples": int(cmp.t.size),
             "regions": [{"view": r.view, "output": r.output, "from": r.x_lo, "to": r.x_hi,
                          "max_abs_z": r.max_abs_z, "direction": r.direction}
@@ -216,9 +266,13 @@ def summary_of(cmp, analyzer: LiveAnalyzer) -> dict:
 
 def run_live(session, model_spec: str, *, device: str | None, window_s: float, update_s: float,
              duration: float | None, stop: threading.Event, rrd: str | None, quiet: bool = False,
-             log=sys.stderr) -> dict:
+             rank_s: float = 10.0, log=sys.stderr) -> dict:
     an = LiveAnalyzer(model_spec, device=device, window_s=window_s, log=log)
     an.warm()
+    rank_stop = threading.Event()
+    ranker = _Ranker(an, rank_s, rank_stop, log) if rank_s > 0 else None
+    if ranker is not None:
+        ranker.start()
     keys = [wire.key(an.device, k) for k in ("measurement", "command")]
     subs = [session.declare_subscriber(k, an.on_sample) for k in keys]
     pub = session.declare_publisher(wire.key(an.device, wire.ANALYSIS))
@@ -242,7 +296,7 @@ def run_live(session, model_spec: str, *, device: str | None, window_s: float, u
             if cmp is not None:
                 last = cmp
                 an.latest[cmp.revision] = cmp
-                summ = summary_of(cmp, an)
+                summ = summary_of(cmp, an, ranker.latest if ranker is not None else None)
                 an.add_history({"t": float(cmp.t[-1]), "revision": cmp.revision, "error": cmp.error,
                                 "error_per_view": dict(cmp.error_per_view)})
                 pub.put(wire.encode_analysis(seq, float(cmp.t[-1]), summ))
@@ -262,10 +316,15 @@ def run_live(session, model_spec: str, *, device: str | None, window_s: float, u
     finally:
         for s in subs:
             s.undeclare()
+        if ranker is not None:
+            rank_stop.set()
+            ranker.join()
+    if ranker is not None and last is not None:
+        ranker.once()                    # the final window ranked too (a no-op if it already is)
     out = {"node": "analyze", "live": True, "updates": seq, "received": an.received, "malformed": an.bad,
            "revisions": an.revision + 1, "late_ticks": late}
     if last is not None:
-        out.update(summary_of(last, an))
+        out.update(summary_of(last, an, ranker.latest if ranker is not None else None))
         out["notes"] = last.notes
         if rrd:
             from viewers.rerun_log import log_comparisons
@@ -290,7 +349,8 @@ def cmd_analyze_live(args) -> int:
     stop = _stop_on_signals()
     with transport.open_session(args, "sink") as session:
         rep = run_live(session, args.model, device=args.device, window_s=args.window, update_s=args.update,
-                       duration=args.duration, stop=stop, rrd=args.rrd, quiet=args.json)
+                       duration=args.duration, stop=stop, rrd=args.rrd, quiet=args.json,
+                       rank_s=args.rank_every)
     if args.json:
         print(json.dumps(rep), flush=True)
     else:
