@@ -211,8 +211,12 @@ def rank(data: dict) -> dict:
     """The diagnosis' ranking on a window (``noiselab diagnose`` with one step): the most likely
     missing effect with its fitted parameters, intervals and evidence, and the top candidates."""
     from ..diagnose.diagnose import diagnose
+    from ..model import parse_model
 
-    rep = diagnose(data["model"], data["t"], data["y"], data["u"], at_rest=data["at_rest"], max_effects=1)
+    # a model object of its own: predictions are cached on the model, and the 2 Hz updates use
+    # theirs concurrently on the other thread
+    model = parse_model(data["model"].to_toml(), data["model"].source)
+    rep = diagnose(model, data["t"], data["y"], data["u"], at_rest=data["at_rest"], max_effects=1)
     return {"revision": data["revision"], "t": float(data["t"][-1]), "samples": int(data["t"].size),
             "missing": [{k: m[k] for k in ("effect", "mode", "params", "interval", "score", "evidence")}
                         for m in rep["missing"]],
