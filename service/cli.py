@@ -605,8 +605,8 @@ def build_parser() -> argparse.ArgumentParser:
     sa.add_argument("--update", type=_positive_float("--update"), default=0.5, metavar="S",
                     help="live: seconds between updates (default 0.5)")
     sa.add_argument("--duration", type=_positive_float("--duration"), help="live: stop after S seconds")
-    sa.add_argument("--rank-every", type=_nonneg_float("--rank-every"), default=10.0, metavar="S",
-                    help="live: re-rank the candidate missing effects on the window every S s (0: never; default 10)")
+    sa.add_argument("--rank-every", type=_nonneg_float("--rank-every"), default=0.0, metavar="S",
+                    help="live: re-rank the candidate missing effects on the window every S s (default 0: never)")
     add_transport_args(sa)
     sa.set_defaults(func=cmd_analyze)
 

@@ -216,12 +216,16 @@ def rank(data: dict) -> dict:
     # a model object of its own: predictions are cached on the model, and the 2 Hz updates use
     # theirs concurrently on the other thread
     model = parse_model(data["model"].to_toml(), data["model"].source)
-    rep = diagnose(model, data["t"], data["y"], data["u"], at_rest=data["at_rest"], max_effects=1)
+    with COMPUTE:       # the prediction caches are shared by model text: one computation at a time
+        rep = diagnose(model, data["t"], data["y"], data["u"], at_rest=data["at_rest"], max_effects=1)
     return {"revision": data["revision"], "t": float(data["t"][-1]), "samples": int(data["t"].size),
             "missing": [{k: m[k] for k in ("effect", "mode", "params", "interval", "score", "evidence")}
                         for m in rep["missing"]],
             "candidates": [{k: c[k] for k in ("effect", "mode", "score")} for c in rep["candidates"][:5]],
             "threshold": rep["threshold"], "seconds": rep["seconds"]}
+
+
+COMPUTE = threading.Lock()
 
 
 class _Ranker(threading.Thread):
@@ -270,7 +274,7 @@ def summary_of(cmp, analyzer: LiveAnalyzer, ranking: dict | None = None) -> dict
 
 def run_live(session, model_spec: str, *, device: str | None, window_s: float, update_s: float,
              duration: float | None, stop: threading.Event, rrd: str | None, quiet: bool = False,
-             rank_s: float = 10.0, log=sys.stderr) -> dict:
+             rank_s: float = 0.0, log=sys.stderr) -> dict:
     an = LiveAnalyzer(model_spec, device=device, window_s=window_s, log=log)
     an.warm()
     rank_stop = threading.Event()
@@ -296,7 +300,8 @@ def run_live(session, model_spec: str, *, device: str | None, window_s: float, u
                 (duration is not None and time.monotonic() - t_start >= duration)
             an.drain()
             an.maybe_reload()
-            cmp = an.analyse()
+            with COMPUTE:
+                cmp = an.analyse()
             if cmp is not None:
                 last = cmp
                 an.latest[cmp.revision] = cmp
