@@ -352,6 +352,22 @@ def cmd_router(args) -> int:
     return 0
 
 
+def pipeline_lines(emu: dict, rec: dict) -> list[str]:
+    """Per-topic message counts and gaps, and the loop's timing, of a `run`."""
+    lines = []
+    for topic, b in sorted((rec.get("topics") or {}).items()):
+        gaps = "no gaps" if not b["gaps"] and not b["missing_at_start"] else \
+            f"{b['missing']} missing in {len(b['gaps'])} gaps, first seq {b['first_seq']}"
+        lines.append(f"  {topic}: {b['count']} messages, {gaps}")
+    if emu:
+        lat = emu["lateness_us"]
+        speed = f", {emu['speed']:g}x real time" if emu.get("speed", 1) != 1 else ""
+        lines.append(f"loop: {emu['samples']} samples at Ts = {emu['Ts']:g} s{speed} ({emu['wall_s']:.1f} s wall), "
+                     f"lateness p50 {lat['p50']:.0f} us, p99 {lat['p99']:.0f} us, max {lat['max']:.0f} us, "
+                     f"{emu['overruns']} overruns")
+    return lines
+
+
 def cmd_run(args) -> int:
     from .nodes.runner import run_pipeline
 
@@ -359,15 +375,7 @@ def cmd_run(args) -> int:
     rep = run_pipeline(args.model, model.name, duration=args.duration, seed=args.seed, out_dir=Path(args.out),
                        force=args.force, analyze=not args.no_analyze, speed=args.speed)
     emu, rec = rep["emulator"] or {}, rep["recorder"] or {}
-    lines = [f"recording: {rep['recording']}"]
-    for topic, b in sorted((rec.get("topics") or {}).items()):
-        gaps = "no gaps" if not b["gaps"] and not b["missing_at_start"] else \
-            f"{b['missing']} missing in {len(b['gaps'])} gaps, first seq {b['first_seq']}"
-        lines.append(f"  {topic}: {b['count']} messages, {gaps}")
-    if emu:
-        lat = emu["lateness_us"]
-        lines.append(f"loop: {emu['samples']} samples at Ts = {emu['Ts']:g} s, lateness p50 {lat['p50']:.0f} us, "
-                     f"p99 {lat['p99']:.0f} us, max {lat['max']:.0f} us, {emu['overruns']} overruns")
+    lines = [f"recording: {rep['recording']}"] + pipeline_lines(emu, rec)
     an = rep.get("analysis") or {}
     if an.get("error") is not None:
         lines.append(f"analysis: model error {an['error']:.3g} against {args.model} ("
@@ -395,21 +403,13 @@ def analysis_report(cmp, series, extra: dict | None = None) -> dict:
     return rep
 
 
-UNITS = {"variance": "s", "acf": "s", "psd": "Hz", "allan": "s"}
-
-
 def report_lines(cmp, series) -> list[str]:
+    from .diagnose.report import region_lines
+
     lines = [f"{series.source}: {cmp.t.size} samples against model {cmp.model_name} ({cmp.model_source})",
              f"model error {cmp.error:.3g} (about 1 when the model explains the data; per view: "
              + ", ".join(f"{k} {v:.3g}" for k, v in cmp.error_per_view.items()) + ")"]
-    if cmp.regions:
-        lines.append("where the data leave the model:")
-        for r in sorted(cmp.regions, key=lambda r: -r.max_abs_z)[:12]:
-            lines.append("  " + r.describe(UNITS[r.view]))
-        if len(cmp.regions) > 12:
-            lines.append(f"  (+{len(cmp.regions) - 12} more regions)")
-    else:
-        lines.append("no region leaves the model's confidence band")
+    lines += region_lines(cmp.regions, 12) or ["no region leaves the model's confidence band"]
     for note in series.notes + cmp.notes:
         lines.append(f"note: {note}")
     return lines

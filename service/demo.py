@@ -137,16 +137,9 @@ def _lines(s: dict, rep: dict) -> list[str]:
     L = []
     emu, rec, an = s["live"]["emulator"], s["live"]["recorder"], s["live"]["analysis"]
     L.append("== 1. live: seed lesson emulated, published over Zenoh (127.0.0.1), recorded to MCAP ==")
+    from .cli import pipeline_lines
     L.append(f"recording: {s['recording']}")
-    for topic, b in sorted((rec.get("topics") or {}).items()):
-        gaps = "no gaps" if not b["gaps"] and not b["missing_at_start"] else \
-            f"{b['missing']} missing in {len(b['gaps'])} gaps"
-        L.append(f"  {topic}: {b['count']} messages, {gaps}")
-    if emu:
-        lat = emu["lateness_us"]
-        L.append(f"  loop: {emu['samples']} samples at Ts = {emu['Ts']:g} s, {emu.get('speed', 1):g}x real time "
-                 f"({emu['wall_s']:.1f} s wall), lateness p50 {lat['p50']:.0f} us, p99 {lat['p99']:.0f} us, "
-                 f"{emu['overruns']} overruns")
+    L += pipeline_lines(emu, rec)
     if an and an.get("error") is not None:
         L.append(f"  live analysis against seed-nominal (last {an.get('window_s', 120):g} s window): model error "
                  f"{an['error']:.3g}" + "".join(f"; wrote {an[k]}" for k in ("rrd", "png") if an.get(k)))

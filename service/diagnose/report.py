@@ -38,18 +38,24 @@ def diagnosis_json(rep: dict, series=None, extra: dict | None = None) -> dict:
     return _clean(out)
 
 
+def region_lines(regions, limit: int) -> list[str]:
+    """Where the data leave the model, the strongest first (at most ``limit`` lines)."""
+    if not regions:
+        return []
+    lines = ["where the data leave the model:"]
+    lines += ["  " + r.describe(UNITS[r.view]) for r in sorted(regions, key=lambda r: -r.max_abs_z)[:limit]]
+    if len(regions) > limit:
+        lines.append(f"  (+{len(regions) - limit} more regions)")
+    return lines
+
+
 def diagnosis_lines(rep: dict, series=None, extra: dict | None = None) -> list[str]:
     b, a = rep["before"], rep["after"]
     src = f"{series.source}: " if series is not None else ""
     lines = [f"{src}{rep['samples']} samples against model {b.model_name} ({b.model_source})",
              f"model error before: {b.error:.3g} (about 1 when the model explains the data; per view: "
              + ", ".join(f"{k} {v:.3g}" for k, v in b.error_per_view.items()) + ")"]
-    if b.regions:
-        lines.append("where the data leave the model:")
-        for r in sorted(b.regions, key=lambda r: -r.max_abs_z)[:8]:
-            lines.append("  " + r.describe(UNITS[r.view]))
-        if len(b.regions) > 8:
-            lines.append(f"  (+{len(b.regions) - 8} more regions)")
+    lines += region_lines(b.regions, 8)
     if not rep["missing"]:
         lines.append(f"nothing missing: no effect of the catalogue improves the fit by Delta BIC > {rep['threshold']:g}")
         if rep["candidates"]:
