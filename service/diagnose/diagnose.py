@@ -58,7 +58,7 @@ def _prefer_replacements(S, cur, accepted, say):
             if rep not in cur.model.effects or rep in cur.free:
                 continue
             try:
-                alt = S.refit_all(type(cur)(cur.model.without_effect(rep), cur.free, 0.0))
+                alt = S.refit_all(type(cur)(cur.model.without_effect(rep), cur.free, 0.0), thorough=True)
             except (ModelError, ValueError, np.linalg.LinAlgError):
                 continue
             if 2 * (alt.loglik - cur.loglik) > -TIE:
@@ -74,29 +74,36 @@ def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
     still missing (a gain-like saturation for a scale factor that also scales the noise, while a
     bias is missing; a walk for a Gauss-Markov bias). With every effect now in, each added effect
     is exchanged for the best of the other additions its step ranked near the top, when the whole
-    model then fits better by more than the tie margin (Delta BIC, the parameter counts
-    accounted for) and the new effect is significant by itself (Delta BIC > THRESHOLD given the
-    rest). Before that, a backward pass drops the least needed addition while it is not significant
-    given the others (a walk added after a Gauss-Markov bias can make the bias redundant). Returns
+    model then fits better by more than the tie margin (in the units of ``Search.choice``: twice
+    the log-likelihood gain less chi2_1(95 %) per extra parameter) and the new effect is significant by itself (Delta BIC > THRESHOLD given the
+    rest). Before that, a backward pass undoes the least needed addition or changed value while it
+    is not significant given the others (a refitted process noise that stood in for a colored
+    actuator noise before that was fitted; a walk added after a Gauss-Markov bias can make the bias
+    redundant). Returns
     the fit and whether anything changed."""
     import math
 
     from ..model import ModelError
-    from .search import TIE, Fit
+    from .search import CHI2_95, EXACT_TIE, MODE_RANK, TIE, Fit
 
     swapped = False
     log_n = math.log(S.data.n_bic)
     step_of = {id(c): i for i, c in enumerate(accepted)}       # the step that ranked each addition
 
     def without(c):
+        """The fit with ``c`` undone: an added effect removed, a refitted one back at the user's values."""
         free = {k: v for k, v in cur.free.items() if k != c.effect}
-        return S.refit_all(Fit(cur.model.without_effect(c.effect), free, -math.inf))
+        if c.mode == "refit":
+            m = cur.model.with_params(c.effect, S.nominal.effects[c.effect].param_dict())
+        else:
+            m = cur.model.without_effect(c.effect)
+        return S.refit_all(Fit(m, free, -math.inf), thorough=True)
 
     # backward: while the least needed addition is not significant given the others, drop it
     while True:
         owns = []
         for c in accepted:
-            if c.mode != "add" or c.effect not in cur.model.effects:
+            if c.mode not in ("add", "refit") or c.effect not in cur.model.effects:
                 continue
             try:
                 d = without(c)
@@ -121,20 +128,22 @@ def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
         except (ModelError, ValueError, np.linalg.LinAlgError):
             continue
         own = 2 * (cur.loglik - drop.loglik) - c.k * log_n
-        best = None
+        trials = []
         for a in step_cands[step_of[id(c)]][:n_alt + 1]:
-            if a.mode != "add" or a.effect == c.effect or a.effect in cur.model.effects \
-                    or a.effect not in a.fit.model.effects:
+            if a.mode not in ("add", "refit") or a.effect == c.effect or a.effect not in a.fit.model.effects \
+                    or (a.mode == "add" and a.effect in cur.model.effects) or a.effect in cur.free:
                 continue
             try:
-                m = drop.model.with_effect(a.effect, a.fit.model.effects[a.effect].param_dict())
+                params = a.fit.model.effects[a.effect].param_dict()
+                m = drop.model.with_params(a.effect, params) if a.mode == "refit" else \
+                    drop.model.with_effect(a.effect, params)
                 free = dict(drop.free)
                 free[a.effect] = list(a.fit.free.get(a.effect, []))
-                alt = S.refit_all(Fit(m, free, -math.inf))
+                alt = S.refit_all(Fit(m, free, -math.inf), thorough=True)
             except (ModelError, ValueError, np.linalg.LinAlgError):
                 continue
             a_own = 2 * (alt.loglik - drop.loglik) - a.k * log_n
-            gain = a_own - own
+            gain = 2 * (alt.loglik - cur.loglik) - (a.k - c.k) * CHI2_95    # Search.choice's units
             say(f"  exchange trial {c.effect} -> {a.effect}: {gain:.1f} (own Delta BIC {a_own:.1f})")
             if _vanished(alt.model.effects[a.effect]) or a_own < THRESHOLD:
                 continue            # not significant by itself with the rest in
@@ -142,12 +151,15 @@ def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
                               and a.k <= c.k):
                 # better; or as good and linear in place of a nonlinearity: a saturation or dead zone
                 # that the data cannot tell from a gain (a two-level command) shows no clipping
-                if best is None or gain > best[0]:
-                    best = (gain, a, alt)
-        if best is not None:
-            gain, a, alt = best
-            say(f"exchange: {a.effect} in place of {c.effect} (Delta BIC {gain:+.1f} with everything else in)")
-            a.score = float(c.score + gain)
+                trials.append((gain, a, alt, a_own - own))
+        if trials:
+            # the best; among equally good (identical spectra) the preferred mode, then chain order
+            top = max(x[0] for x in trials)
+            gain, a, alt, d_bic = min((x for x in trials if x[0] > top - EXACT_TIE), key=lambda x: (
+                MODE_RANK[x[1].mode.split(":")[0]], CATALOGUE[x[1].effect].chain_order))
+            say(f"exchange: {a.effect} in place of {c.effect} (2 Delta l - Delta k chi2 = {gain:+.1f}, "
+                f"Delta BIC {d_bic:+.1f}, with everything else in)")
+            a.score = float(c.score + d_bic)
             a.alternatives = [x for x in c.alternatives if x.effect != a.effect]
             if abs(gain) <= TIE:
                 a.alternatives = [c] + a.alternatives
@@ -235,7 +247,7 @@ def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MA
             break
         best = cands[0]
         step_cands.append(cands)
-        new = S.refit_all(best.fit)
+        new = S.refit_all(best.fit, thorough=True)
         cmp = compare(new.model, t, y, u, burn=burn, revision=len(comps))
         cmp.model_name = f"+ {best.effect}"
         err = cmp.error

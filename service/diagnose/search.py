@@ -229,6 +229,7 @@ class Evaluator:
         self._mean: dict = {}
         self._parts: dict = {}
         self._grouped: dict = {}
+        self._pgram: dict = {}
         self.evals = 0
 
     def mean(self, model):
@@ -252,6 +253,19 @@ class Evaluator:
                 self._grouped[key] = (v, d.group(v))
             out[k] = self._grouped[key][1]
         return out
+
+    def grouped_periodogram(self, model, free_tone: bool):
+        """:meth:`residual` and the group means of its periodogram, cached: only the mean effects
+        and the tone change them, not the noise parameters most evaluations vary."""
+        tone = model.effects.get("sensor.tone")
+        key = (_mean_key(model), repr(tone.param_dict()) if tone is not None else None, free_tone)
+        if key not in self._pgram:
+            if len(self._pgram) > 8:
+                self._pgram.clear()
+            r, yd, fitted = self.residual(model, free_tone)
+            self._pgram[key] = (r, yd, fitted, self.data.group(W.periodogram(r, self.data.k0)))
+        r, yd, fitted, Ig = self._pgram[key]
+        return r, yd, None if fitted is None else fitted.copy(), Ig
 
     def residual(self, model, free_tone: bool):
         """r (N, p) with the tones removed, and the tone parameters fitted (amplitude per output)."""
@@ -503,13 +517,12 @@ class Hypotheses:
             cur.append(val)
             refs.append(ref)
             canon = _set(canon, e, {sname: ref})
-        r, ydot, tone_amp = self.ev.residual(model, "sensor.tone" in free)
+        r, ydot, tone_amp, Ig = self.ev.grouped_periodogram(model, "sensor.tone" in free)
         if tone_amp is not None and "sensor.tone" in free:
             model = _set(model, "sensor.tone", {"amplitude": _vec(tone_amp)})
             canon = _set(canon, "sensor.tone", {"amplitude": _vec(tone_amp)})
         ydot_sq = np.mean(ydot[d.k0:] ** 2, axis=0)
         parts = self.ev.parts(canon, ydot_sq)
-        Ig = d.group(W.periodogram(r, d.k0))
         E0 = sum((v for k, v in parts.items() if k not in scale_ids), np.zeros_like(Ig))
         U = [parts.get(e, np.zeros_like(Ig)) for e in scale_ids]
         mod = None
@@ -587,8 +600,7 @@ class Hypotheses:
     def _search(self, fit: Fit, e: str, spec, coarse: bool, n_grid: int = 9, n_golden: int = 10) -> Fit:
         lo, hi, spacing = self._bounds(spec)
         name = spec[0]
-        cur = fit.model.effects[e].param_dict().get(name)
-        cur = float(np.mean(cur)) if cur is not None else None
+        cur = _shape_value(fit.model.effects[e], name, self.data.Ts)
         tr = (np.log, np.exp) if spacing == "log" else (lambda x: x, lambda x: x)
         a, b = tr[0](lo), tr[0](hi)
         best = fit
@@ -601,8 +613,10 @@ class Hypotheses:
             step = (b - a) / (n_grid - 1)
         else:
             step = (b - a) / 40
-        c = best.model.effects[e].param_dict().get(name)
-        x0 = tr[0](float(np.mean(c)))
+        c = _shape_value(best.model.effects[e], name, self.data.Ts)
+        if c is None:                  # nothing on the grid was valid and the effect has no value yet
+            return fit
+        x0 = tr[0](c)
         a2, b2 = max(a, x0 - step), min(b, x0 + step)
         gr = (math.sqrt(5) - 1) / 2
         cache = {}
@@ -640,6 +654,17 @@ class Hypotheses:
         return f if f.loglik >= fit.loglik - 1e-9 else fit
 
 
+def _shape_value(eff, name: str, Ts: float) -> float | None:
+    """The current value of a searched parameter (a correlation time given as rho: -Ts / ln rho)."""
+    pd = eff.param_dict()
+    v = pd.get(name)
+    if v is None and name == "tau_s" and "rho" in pd:
+        rho = np.atleast_1d(np.asarray(pd["rho"], float))
+        if np.all((rho > 0) & (rho < 1)):
+            v = -Ts / np.log(rho)
+    return None if v is None else float(np.mean(v))
+
+
 def _radius(A: np.ndarray) -> float:
     return float(np.max(np.abs(np.linalg.eigvals(A)), initial=0.0))
 
@@ -666,6 +691,7 @@ class Candidate:
     fit: Fit
     k: int                          # free parameters it adds
     score: float = float("nan")     # Delta BIC against the current hypothesis
+    sel: float = float("nan")       # choice score among the significant (Search.choice)
     loglik: float = float("nan")
     alternatives: list = field(default_factory=list)   # other effects the data support as well
 
@@ -698,13 +724,14 @@ def tone_peaks(I: np.ndarray, E: np.ndarray, M: int, Ts: float, max_peaks: int =
     return out
 
 
-MODE_RANK = {"replace": 0, "add": 1, "refit": 2}
+MODE_RANK = {"replace": 0, "refit": 1, "add": 2}
 TIE = 2.0                 # Delta BIC within which candidates count as equally supported
 EXACT_TIE = 0.5           # ... and within which they are the same fit (chain order decides)
 # Near-ties (the data cannot tell the candidates apart, e.g. white actuator and process noise through
 # the same input, or saturation, dead zone and scale factor under a two-level command) are ranked
-# by: a replacement, then an addition, then a changed value (the model the user wrote is kept where
-# the data allow), then the signal chain's order; the others are reported as alternatives.
+# by: a replacement, then a changed value, then an addition (the fewest effects: a wrong value of
+# an effect the user has explains the data with no new physics), then the signal chain's order;
+# the others are reported as alternatives.
 
 
 @dataclass
@@ -731,14 +758,26 @@ class Search:
         return self.H.inner_fit(self.nominal, {})
 
     def score(self, fit: Fit, cur: Fit, k: int) -> float:
+        """Delta BIC: whether the data support adding the candidate at all."""
         return 2 * (fit.loglik - cur.loglik) - k * math.log(self.data.n_bic)
+
+    @staticmethod
+    def choice(fit: Fit, cur: Fit, k: int) -> float:
+        """Which of the significant candidates: 2 Delta l - k chi2_1(95 %). Between nested
+        alternatives (a walk and a Gauss-Markov bias, its long-tau limit; white and AR(1) actuator
+        noise, its short-tau limit) this is the likelihood-ratio test of the extra parameter at 5 %;
+        Delta BIC would ask ln n ~ 12 per parameter of it and keep the limit case, wrongly, for a
+        correlation time that a record of 20 of them shows clearly."""
+        return 2 * (fit.loglik - cur.loglik) - k * CHI2_95
 
     def candidates(self, cur: Fit) -> list[Candidate]:
         """Every candidate screened (its own parameters searched, the rest refitted only in their
-        variances), then the ``n_full`` best fitted jointly with everything freed so far; ranked by
-        Delta BIC, near-ties (within :data:`TIE`) resolved towards fewer effects: a replacement
-        first, then an addition, then a changed value; within a mode the best score, and the signal
-        chain's order on an exact tie (:data:`EXACT_TIE`)."""
+        variances), then the ``n_full`` best fitted jointly with everything freed so far (every
+        searched parameter from a coarse grid). The significant ones (Delta BIC > THRESHOLD) come
+        first, ranked by :meth:`choice`, the others by Delta BIC; near-ties (within :data:`TIE`)
+        resolved towards fewer effects: a replacement first, then a changed value, then an
+        addition; within a mode the best score, and the signal chain's order on an exact tie
+        (:data:`EXACT_TIE`)."""
         out: list[Candidate] = []
         for st in self.starts(cur):
             try:
@@ -755,7 +794,7 @@ class Search:
             if c.score < THRESHOLD - 30:
                 continue
             try:
-                full = self.H.fit(c.fit.model, c.fit.free, rounds=2, new=())
+                full = self.refit_all(c.fit, thorough=True)
             except (ModelError, ValueError, np.linalg.LinAlgError):
                 continue
             if full.loglik > c.fit.loglik:
@@ -763,16 +802,19 @@ class Search:
                 c.score = self.score(full, cur, c.k)
         for c in out:
             c.loglik = c.fit.loglik
-        out.sort(key=lambda c: -c.score)
+            c.sel = self.choice(c.fit, cur, c.k)
+        # significant candidates first, ranked by the choice score; the rest by Delta BIC
+        out.sort(key=lambda c: (c.score < THRESHOLD, -(c.sel if c.score >= THRESHOLD else c.score)))
         if out:
-            top = out[0].score
-            near = [c for c in out if c.score > top - TIE]
+            key = (lambda c: c.sel) if out[0].score >= THRESHOLD else (lambda c: c.score)
+            top = key(out[0])
+            near = [c for c in out if key(c) > top - TIE and (c.score >= THRESHOLD) == (out[0].score >= THRESHOLD)]
             # the preferred mode first; within it the best score, and on an exact tie (identical
             # spectra, e.g. process and actuator white noise through the same input) chain order
             rank = min(MODE_RANK[c.mode.split(":")[0]] for c in near)
             same = [c for c in near if MODE_RANK[c.mode.split(":")[0]] == rank]
-            best = max(c.score for c in same)
-            first = min((c for c in same if c.score > best - EXACT_TIE), key=lambda c: CATALOGUE[c.effect].chain_order)
+            best = max(key(c) for c in same)
+            first = min((c for c in same if key(c) > best - EXACT_TIE), key=lambda c: CATALOGUE[c.effect].chain_order)
             near = [first] + [c for c in near if c is not first]
             first.alternatives = [c for c in near[1:] if c.effect != first.effect]
             out.remove(first)
@@ -826,12 +868,7 @@ class Search:
             names.append(sh[0])
             cur_v = None
             if mode == "refit":
-                pd = model.effects[eid].param_dict()
-                cur_v = pd.get(sh[0])
-                if cur_v is None and sh[0] == "tau_s" and "rho" in pd:
-                    rho = np.atleast_1d(model.effects[eid].params["rho"]).astype(float)
-                    cur_v = float(np.mean(-d.Ts / np.log(rho)))
-                cur_v = None if cur_v is None else float(np.mean(cur_v))
+                cur_v = _shape_value(model.effects[eid], sh[0], d.Ts)
             init[sh[0]] = cur_v if cur_v is not None else \
                 (math.sqrt(lo * hi) if spacing == "log" else 0.5 * (lo + hi))
         m = _set(model, eid, init) if init else model
@@ -870,8 +907,13 @@ class Search:
             out.append(Start("sensor.tone", "add", m, free, 3))
         return out
 
-    def refit_all(self, cur: Fit) -> Fit:
-        return self.H.fit(cur.model, cur.free, rounds=2, new=())
+    def refit_all(self, cur: Fit, thorough: bool = False) -> Fit:
+        """Refit every free parameter jointly. Searched parameters move locally from their current
+        values; ``thorough``: each first gets a coarse grid over its whole range (after an effect is
+        added or removed, where an earlier effect may have taken its power with a very different
+        shape, e.g. an AR(1) that stretched its correlation time to stand in for a missing walk)."""
+        new = tuple(e for e in cur.free if CATALOGUE[e].fit.shape) if thorough else ()
+        return self.H.fit(cur.model, cur.free, rounds=2, new=new)
 
 
 # -- intervals ----------------------------------------------------------------------------------------------
@@ -944,24 +986,47 @@ def _profile_scale_shaped(H: Hypotheses, fit: Fit, eid: str, name: str, val: flo
             return -1e300
 
     def edge(direction):
-        inside, factor = val, 1.05
+        inside, l_in, factor = val, fit.loglik, 1.05
         outside = val * factor ** direction
         for _ in range(30):
-            if l_at(outside) < target:
+            l_out = l_at(outside)
+            if l_out < target:
                 break
-            inside, factor = outside, factor ** 2
+            inside, l_in, factor = outside, l_out, factor ** 2
             outside = inside * factor ** direction
         else:
             return outside
-        for _ in range(8):
-            mid = math.sqrt(inside * outside)
-            if l_at(mid) > target:
-                inside = mid
-            else:
-                outside = mid
-        return math.sqrt(inside * outside)
+        return _crossing(l_at, inside, l_in, outside, l_out, target)
 
     return [edge(-1), edge(+1)]
+
+
+def _crossing(l_at, x_in, l_in, x_out, l_out, target, tol=0.02, max_iter=10):
+    """Where the profile log-likelihood crosses ``target`` between x_in (above) and x_out (below),
+    x > 0: regula falsi on ln x with the Illinois modification (Dowell & Jarratt 1971), to
+    |l - target| < tol (0.04 in 2 Delta l against the 3.84 that defines the edge; every step is a
+    full refit, so a bisection's 8 steps cost twice as much for no useful digit)."""
+    a, fa = math.log(x_in), l_in - target           # fa > 0
+    b, fb = math.log(x_out), l_out - target         # fb < 0
+    side = 0
+    for _ in range(max_iter):
+        c = b - fb * (b - a) / (fb - fa) if fb != fa else 0.5 * (a + b)
+        if not (min(a, b) < c < max(a, b)):
+            c = 0.5 * (a + b)
+        fc = l_at(math.exp(c)) - target
+        if abs(fc) < tol:
+            return math.exp(c)
+        if fc > 0:
+            a, fa = c, fc
+            if side == -1:
+                fb *= 0.5
+            side = -1
+        else:
+            b, fb = c, fc
+            if side == 1:
+                fa *= 0.5
+            side = 1
+    return math.exp(b - fb * (b - a) / (fb - fa)) if fb != fa else math.exp(0.5 * (a + b))
 
 
 def _extra(H: Hypotheses, fit: Fit) -> float:
