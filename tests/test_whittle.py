@@ -2,6 +2,8 @@
 differenced residual, exact for a finite record that starts at rest, checked against Monte Carlo
 ensembles; the modal mean response against the predictor's."""
 
+import math
+
 import numpy as np
 import pytest
 
@@ -78,3 +80,28 @@ def test_modal_mean_response_equals_the_predictor():
         ref = model.predictor().mean_response(command=u)
         y = W.lsim(model.Ad, model.Bd, model.Cy, model.Dy, u) * model.out_gain
         np.testing.assert_allclose(y, ref.y, rtol=1e-9, atol=1e-12 * np.max(np.abs(ref.y)))
+
+
+def test_profile_edge_root_finder_hits_the_chi2_crossing():
+    """The profile intervals' root finder (regula falsi, Illinois) on a profile whose edges are
+    known: l(x) = -(ln x - m)^2 / (2 s^2) crosses l_max - 3.84 / 2 at ln x = m -+ 1.96 s. It stops at
+    |l - target| < 0.02, i.e. |ln x - edge| < 0.02 / |dl/d ln x| = 0.02 s / 1.96; and it must not
+    take more refits than a bisection's 8."""
+    from service.diagnose.search import CHI2_95, _crossing
+
+    m, s = 0.7, 0.3
+    calls = []
+
+    def l_at(x):
+        calls.append(x)
+        return -((math.log(x) - m) ** 2) / (2 * s**2)
+
+    target = -CHI2_95 / 2
+    for direction in (-1, +1):
+        calls.clear()
+        x_in = math.exp(m)
+        x_out = math.exp(m + direction * 5 * s)
+        x = _crossing(l_at, x_in, 0.0, x_out, l_at(x_out), target)
+        edge = m + direction * math.sqrt(CHI2_95) * s
+        assert abs(math.log(x) - edge) < 0.02 * s / math.sqrt(CHI2_95) + 1e-12, (x, math.exp(edge))
+        assert len(calls) - 1 <= 8, len(calls)

@@ -132,8 +132,12 @@ def _from_acf(Rd: np.ndarray, M: int) -> np.ndarray:
     """E I_f from the differenced autocovariance Rd (K, p), K <= M (zero beyond):
     (1/M) sum_h c_w(|h|) Rd(h) e^{-i w h}."""
     K = min(Rd.shape[0], M)
-    cw = taper(M)[1]
-    a = Rd[:K] * (cw[:K, None] / M)
+    return _spectrum(Rd[:K] * (taper(M)[1][:K, None] / M), M)
+
+
+def _spectrum(a: np.ndarray, M: int) -> np.ndarray:
+    """a(0) + 2 sum_{h>=1} a(h) cos(w_f h) at the Fourier frequencies w_f = 2 pi f / M, f < nf."""
+    K = a.shape[0]
     nf = n_freqs(M)
     if K <= 8:                                   # short (white): the cosine sum directly
         w = 2 * np.pi * np.arange(nf) / M
@@ -149,10 +153,14 @@ def white_part(var: np.ndarray, M: int) -> np.ndarray:
     """E I_f of white noise of variance ``var`` (p,) after differencing: 2 var (1 - cos w)(1 - ...)
     exactly for the finite record: Rd(0) = 2 var, Rd(1) = -var."""
     var = np.atleast_1d(np.asarray(var, float))
-    Rd = np.zeros((2, var.size))
-    Rd[0] = 2 * var
-    Rd[1] = -var
-    return _from_acf(Rd, M)
+    if M not in _WHITE:                      # linear in var: the unit shape once per length
+        if len(_WHITE) > 8:
+            _WHITE.clear()
+        _WHITE[M] = _from_acf(np.array([[2.0], [-1.0]]), M)[:, 0]
+    return _WHITE[M][:, None] * var[None, :]
+
+
+_WHITE: dict = {}
 
 
 def walk_part(q: np.ndarray, M: int) -> np.ndarray:
@@ -248,7 +256,9 @@ def linear_part(F, G, H, J, Pe, M: int, k0: int, at_rest: bool) -> np.ndarray:
     Rd = np.empty((K + 1, p))
     Rd[0] = 2 * (R[0] - R[1])
     Rd[1:] = 2 * R[1:K + 1] - R[:K] - R[2:K + 2]
-    E = _from_acf(Rd, M)
+    # a(h) = c_w(h) Rd(h) / M, the from-rest correction folded in (below): one transform per source
+    K = min(Rd.shape[0], M)
+    a = Rd[:K] * (taper(M)[1][:K, None] / M)
     if at_rest:
         Gs = psd_sqrt(Pe)
         if Gs.shape[1]:
@@ -256,10 +266,17 @@ def linear_part(F, G, H, J, Pe, M: int, k0: int, at_rest: bool) -> np.ndarray:
             v = modes.series(H, Gs, Kr)                              # (Kr, p, c): v_k = H F^k P^(1/2)
             w = np.diff(v[k0:], axis=0)                              # w_q = v_{k0+q+1} - v_{k0+q}
             if w.shape[0]:
+                # sum_c |W_c(f)|^2 = sum_h rho(h) e^{-i w h}, rho the autocorrelation of the tapered
+                # w summed over c: subtracted from a(h) it leaves E I_f = transform of a, exactly
                 w = w * taper(M)[0][:w.shape[0], None, None]
-                Wf = np.fft.rfft(w, n=M, axis=0)[:n_freqs(M)]       # (nf, p, c)
-                E = E - np.sum(np.abs(Wf) ** 2, axis=2) / M
-    return E
+                Lw = w.shape[0]
+                n2 = 1 << int(2 * Lw - 1).bit_length()
+                Wf = np.fft.rfft(w, n=n2, axis=0)
+                rho = np.fft.irfft(np.sum(np.abs(Wf) ** 2, axis=2), n=n2, axis=0)[:Lw]    # (Lw, p)
+                if Lw > K:
+                    a = np.concatenate([a, np.zeros((Lw - K, p))])
+                a[:Lw] -= rho / M
+    return _spectrum(a, M)
 
 
 def expected_parts(model, M: int, k0: int, at_rest: bool, ydot_sq: np.ndarray | None = None,
