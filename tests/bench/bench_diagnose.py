@@ -133,6 +133,11 @@ def render(meta, bigr, rows, nrows) -> str:
               f"{sum(r['ranked'] for r in hid)}/{len(hid)} | {sum(r['params_ok'] for r in hid)}/{len(hid)} | "
               f"{sum(r['error_ok'] for r in hid)}/{len(hid)} | {sum(r['ok'] for r in nul)}/{len(nul)} | "
               f"{np.median([r['seconds'] for r in rows]):.1f} s |", ""]
+        tied = [r for r in hid if not r["ok"] and r.get("tied")]
+        L += [f"Of the failed cases, {len(tied)} missed a planted effect that the report names as an exact-tie "
+              "alternative (identical likelihood to 0.5: the data cannot tell them apart, e.g. process and "
+              "actuator white noise through the same input; which one is reported is the tie rule's): "
+              + (", ".join(f"seed {r['seed']} ({', '.join(r['tied'])})" for r in tied) or "none") + ".", ""]
         miss = Counter(e for r in hid if not r["ok"] for e in r["planted"])
         per = Counter(e for r in hid for e in r["planted"])
         L += ["Per planted effect (cases where it was planted: all criteria met):", "",

@@ -249,4 +249,9 @@ def score_case(case: Case, rep: dict) -> dict:
     out["params_ok"] = bool(within) and all(within)
     out["error_ok"] = rep["error_after"] <= 1.5 and rep["error_after"] < rep["error_before"]
     out["ok"] = out["ranked"] and out["params_ok"] and out["error_ok"]
+    # planted effects not reported but named as an exact-tie alternative of a reported one (the same
+    # likelihood to 0.5: identical spectra, e.g. process and actuator white noise through one input)
+    got = {m["effect"] for m in missing}
+    out["tied"] = sorted(e for e in planted - got if any(
+        a["effect"] == e and abs(a["score"] - m["score"]) <= 0.5 for m in missing for a in m.get("alternatives", [])))
     return out
