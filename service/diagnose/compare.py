@@ -563,7 +563,6 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
     pr = predictor_of(model)
     try:
         mean = pr.mean_response(command=u) if u is not None else pr.mean_response(len(y))
-        cov_tail = None
     except ModelError as exc:
         raise AnalysisError(str(exc))
     n = len(y)

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..nodes import mcapio, wire
+from ..nodes import mcapio
 from .compare import AnalysisError
 
 
@@ -70,7 +70,7 @@ def load_noiselab(path: str, device: str | None = None, truth: bool = True, Ts: 
                             "recordings give --measurement TOPIC:FIELD")
     try:
         dev = rec.device(device)
-    except (KeyError, ValueError, mcapio.McapIoError) as exc:
+    except (KeyError, ValueError, mcapio.McapIoError):
         names = ", ".join(sorted(rec.devices))
         raise AnalysisError(f"{path}: device {device!r} not found or ambiguous (devices: {names})") from None
     meas = dev.measurement

@@ -138,7 +138,6 @@ def render(meta, bigr, rows, nrows) -> str:
               "alternative (identical likelihood to 0.5: the data cannot tell them apart, e.g. process and "
               "actuator white noise through the same input; which one is reported is the tie rule's): "
               + (", ".join(f"seed {r['seed']} ({', '.join(r['tied'])})" for r in tied) or "none") + ".", ""]
-        miss = Counter(e for r in hid if not r["ok"] for e in r["planted"])
         per = Counter(e for r in hid for e in r["planted"])
         L += ["Per planted effect (cases where it was planted: all criteria met):", "",
               "| effect | cases | ok |", "|---|---|---|"]
@@ -152,7 +151,6 @@ def render(meta, bigr, rows, nrows) -> str:
                          f"planted {r['planted_params']}, reported {r['got']}, error {r['error_before']:.3g} → "
                          f"{r['error_after']:.3g}")
         L += ["", "</details>", ""]
-        del miss
     if nrows:
         L += ["Null scenarios (3 min each): false positives (anything reported):", "",
               "| scenario | seeds | false positives |", "|---|---|---|"]
