@@ -105,3 +105,29 @@ def test_profile_edge_root_finder_hits_the_chi2_crossing():
         edge = m + direction * math.sqrt(CHI2_95) * s
         assert abs(math.log(x) - edge) < 0.02 * s / math.sqrt(CHI2_95) + 1e-12, (x, math.exp(edge))
         assert len(calls) - 1 <= 8, len(calls)
+
+
+@pytest.mark.parametrize("M", [199680, 1_000_000])
+def test_group_means_without_the_full_transform_are_exact(M):
+    """Groups.spectrum (chirp z transform below F_low, folded blocks above) against the group means
+    of the full length-M transform, for short and long a(h); and every source's grouped part against
+    the grouped full part, from rest, with a long-memory (tau = T / 3) and a short Gauss-Markov bias."""
+    g = W.Groups(M, 0.01)
+    assert g.n > 1 and M % g.n == 0 and g.F_low < g.nf          # the fast path is the one tested
+    assert np.all(g.sizes[1:] <= np.maximum(1, 0.01 * g.starts[1:]))      # groups at most 1 % wide
+    above = g.starts >= g.F_low
+    assert np.all(g.starts[above] % g.n == 0)
+    rng = np.random.default_rng(3)
+    for K in (2, 700, 9000):
+        a = rng.standard_normal((K, 2)) * np.exp(-np.arange(K) / (K / 4))[:, None]
+        ref = g.mean(W._spectrum(a, M))
+        np.testing.assert_allclose(g.spectrum(a), ref, rtol=0, atol=1e-11 * np.max(np.abs(ref)))
+    Ts = 0.01
+    for tau in (2.0, M * Ts / 3):
+        model = parse_model(SEED + f"\n[sensor.bias_markov]\nstd = 0.01\ntau_s = {tau}\n")
+        full = W.expected_parts(model, M, 0, True, ydot_sq=np.ones(1))
+        grouped = W.expected_parts(model, M, 0, True, ydot_sq=np.ones(1), groups=g)
+        assert full.keys() == grouped.keys()
+        for k in full:
+            ref = g.mean(full[k])
+            np.testing.assert_allclose(grouped[k], ref, rtol=0, atol=1e-9 * np.max(np.abs(ref)), err_msg=k)

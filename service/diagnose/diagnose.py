@@ -102,14 +102,17 @@ def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
     # backward: while the least needed addition is not significant given the others, drop it
     while True:
         owns = []
-        for c in accepted:
-            if c.mode not in ("add", "refit") or c.effect not in cur.model.effects:
-                continue
+        todo = [c for c in accepted if c.mode in ("add", "refit") and c.effect in cur.model.effects]
+
+        def try_without(c):
             try:
-                d = without(c)
+                return without(c)
             except (ModelError, ValueError, np.linalg.LinAlgError):
-                continue
-            owns.append((2 * (cur.loglik - d.loglik) - c.k * log_n, c, d))
+                return None
+
+        for c, d in zip(todo, S._map(try_without, todo)):
+            if d is not None:
+                owns.append((2 * (cur.loglik - d.loglik) - c.k * log_n, c, d))
         if not owns:
             break
         own, c, d = min(owns, key=lambda x: x[0])
@@ -129,18 +132,23 @@ def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
             continue
         own = 2 * (cur.loglik - drop.loglik) - c.k * log_n
         trials = []
-        for a in step_cands[step_of[id(c)]][:n_alt + 1]:
-            if a.mode not in ("add", "refit") or a.effect == c.effect or a.effect not in a.fit.model.effects \
-                    or (a.mode == "add" and a.effect in cur.model.effects) or a.effect in cur.free:
-                continue
+        alts = [a for a in step_cands[step_of[id(c)]][:n_alt + 1]
+                if not (a.mode not in ("add", "refit") or a.effect == c.effect or a.effect not in a.fit.model.effects
+                        or (a.mode == "add" and a.effect in cur.model.effects) or a.effect in cur.free)]
+
+        def exchanged(a, drop=drop):
             try:
                 params = a.fit.model.effects[a.effect].param_dict()
                 m = drop.model.with_params(a.effect, params) if a.mode == "refit" else \
                     drop.model.with_effect(a.effect, params)
                 free = dict(drop.free)
                 free[a.effect] = list(a.fit.free.get(a.effect, []))
-                alt = S.refit_all(Fit(m, free, -math.inf), thorough=True)
+                return S.refit_all(Fit(m, free, -math.inf), thorough=True)
             except (ModelError, ValueError, np.linalg.LinAlgError):
+                return None
+
+        for a, alt in zip(alts, S._map(exchanged, alts)):
+            if alt is None:
                 continue
             a_own = 2 * (alt.loglik - drop.loglik) - a.k * log_n
             gain = 2 * (alt.loglik - cur.loglik) - (a.k - c.k) * CHI2_95    # Search.choice's units

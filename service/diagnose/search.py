@@ -38,6 +38,7 @@ it back). How each effect is fitted is declared by the effect itself (``Effect.f
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -49,6 +50,8 @@ from . import whittle as W
 THRESHOLD = 10.0          # Delta BIC to add an effect
 REL_BW = 0.01             # frequency groups: at most 1 % of their frequency wide (Whittle on group means)
 CHI2_95 = 3.841
+WORKERS = 2               # candidates fitted concurrently (threads) on long records
+PARALLEL_MIN = 50_000     # samples x outputs from which they are
 GRID_TOL = 1e-6           # values within GRID_TOL * step of the grid count as on it
 
 
@@ -85,8 +88,8 @@ class Data:
         self.has_command = self.u is not None and bool(np.any(np.ptp(self.u, axis=0) > 0))
         self.umax = float(np.max(np.abs(self.u))) if self.u is not None and self.u.size else 0.0
         self.T = self.N * self.Ts
-        self.starts = _group_starts(self.nf, REL_BW)
-        self.sizes = np.diff(np.append(self.starts, self.nf)).astype(float)
+        self.groups = W.Groups(self.M, REL_BW)
+        self.starts, self.sizes = self.groups.starts, self.groups.sizes
         # Whittle weights: bins per group; the DC bin (group 0, alone) is real: chi-squared 1, half weight
         self.weights = self.sizes.copy()
         self.weights[0] = 0.5
@@ -94,7 +97,7 @@ class Data:
 
     def group(self, A: np.ndarray) -> np.ndarray:
         """Means over the frequency groups (nb, ...)."""
-        return np.add.reduceat(A, self.starts, axis=0) / self.sizes.reshape((-1,) + (1,) * (A.ndim - 1))
+        return self.groups.mean(A)
 
 
 def smooth_len(n: int) -> int:
@@ -109,15 +112,6 @@ def smooth_len(n: int) -> int:
             return m
         m -= 1
     return max(n, 1)
-
-
-def _group_starts(nf: int, rel: float) -> np.ndarray:
-    """Bins one by one up to 1/rel, then groups at most rel * f wide (f in bins; bin 0 is DC)."""
-    starts, i = [], 0
-    while i < nf:
-        starts.append(i)
-        i += max(1, int(i * rel))
-    return np.asarray(starts, np.int64)
 
 
 def quantization_grid(y: np.ndarray) -> list:
@@ -141,8 +135,9 @@ def quantization_grid(y: np.ndarray) -> list:
 
 
 # -- mean response and residual ----------------------------------------------------------------------------
-def mean_response(model, data: Data):
-    """E[y_k] and E[ydot_k] (N, p) for the recorded command (seed section 3, fast modal form)."""
+def mean_response(model, data: Data, gain: bool = True):
+    """E[y_k] and E[ydot_k] (N, p) for the recorded command (seed section 3, fast modal form);
+    ``gain=False``: before the sensor gain."""
     pr = model.predictor()
     N = data.N
     u = np.asarray(data.u if data.u is not None else model.command.values(0, N, model.Ts), float)
@@ -150,6 +145,8 @@ def mean_response(model, data: Data):
     C = np.vstack([model.Cy, model.Cy @ model.Ac])
     D = np.vstack([model.Dy, model.Cy @ model.Bc])
     yy = W.lsim(model.Ad, model.Bd, C, D, drive)
+    if not gain:
+        return yy[:, :model.p], yy[:, model.p:]
     g = model.out_gain
     return yy[:, :model.p] * g, yy[:, model.p:] * g
 
@@ -228,43 +225,39 @@ class Evaluator:
         self.data = data
         self._mean: dict = {}
         self._parts: dict = {}
-        self._grouped: dict = {}
         self._pgram: dict = {}
         self.evals = 0
 
     def mean(self, model):
-        key = _mean_key(model)
-        if key not in self._mean:
+        """E[y] and E[ydot]: cached without the sensor gain (a scale factor's trials share one
+        response), the gain applied per model."""
+        key = _mean_key(model, gain=False)
+        got = self._mean.get(key)          # get-then-set: safe when candidates are fitted in threads
+        if got is None:
             if len(self._mean) > 16:
                 self._mean.clear()
-            self._mean[key] = mean_response(model, self.data)
-        return self._mean[key]
+            got = self._mean[key] = mean_response(model, self.data, gain=False)
+        y, yd = got
+        g = model.out_gain
+        return (y, yd) if np.all(g == 1.0) else (y * g, yd * g)
 
     def parts(self, model, ydot_sq):
         """Per effect, the expected periodogram averaged over the frequency groups."""
         d = self.data
-        raw = W.expected_parts(model, d.M, d.k0, d.at_rest, ydot_sq=ydot_sq, cache=self._parts)
-        out = {}
-        for k, v in raw.items():
-            key = id(v)
-            if key not in self._grouped or self._grouped[key][0] is not v:
-                if len(self._grouped) > 512:
-                    self._grouped.clear()
-                self._grouped[key] = (v, d.group(v))
-            out[k] = self._grouped[key][1]
-        return out
+        return W.expected_parts(model, d.M, d.k0, d.at_rest, ydot_sq=ydot_sq, cache=self._parts, groups=d.groups)
 
     def grouped_periodogram(self, model, free_tone: bool):
         """:meth:`residual` and the group means of its periodogram, cached: only the mean effects
         and the tone change them, not the noise parameters most evaluations vary."""
         tone = model.effects.get("sensor.tone")
         key = (_mean_key(model), repr(tone.param_dict()) if tone is not None else None, free_tone)
-        if key not in self._pgram:
+        got = self._pgram.get(key)
+        if got is None:
             if len(self._pgram) > 8:
                 self._pgram.clear()
             r, yd, fitted = self.residual(model, free_tone)
-            self._pgram[key] = (r, yd, fitted, self.data.group(W.periodogram(r, self.data.k0)))
-        r, yd, fitted, Ig = self._pgram[key]
+            got = self._pgram[key] = (r, yd, fitted, self.data.group(W.periodogram(r, self.data.k0)))
+        r, yd, fitted, Ig = got
         return r, yd, None if fitted is None else fitted.copy(), Ig
 
     def residual(self, model, free_tone: bool):
@@ -292,10 +285,13 @@ class Evaluator:
         return r, yd, fitted
 
 
-def _mean_key(model) -> str:
+def _mean_key(model, gain: bool = True) -> str:
     """The part of a model the mean response depends on: plant, sampling, command and the mean
-    effects; actuator noise only through the nonlinearities' statistical linearization."""
+    effects; actuator noise only through the nonlinearities' statistical linearization.
+    ``gain=False``: without the sensor gain (the scale factor)."""
     d = model.to_dict()
+    if not gain:
+        d.get("sensor", {}).pop("scale_factor", None)
     nonlin = any(hasattr(e, "knots") for e in model.effects.values())
     for g in ("process", "sensor", "actuator"):
         sub = d.get(g, {})
@@ -753,6 +749,8 @@ class Search:
         self.log = log or (lambda s: None)
         self.nominal = model
         self.n_full = n_full
+        # threads pay off once an evaluation's arrays are large (their setup is ~1 ms)
+        self.workers = min(WORKERS, os.cpu_count() or 1) if data.N * data.p >= PARALLEL_MIN else 1
 
     def start(self) -> Fit:
         return self.H.inner_fit(self.nominal, {})
@@ -779,25 +777,33 @@ class Search:
         addition; within a mode the best score, and the signal chain's order on an exact tie
         (:data:`EXACT_TIE`)."""
         out: list[Candidate] = []
-        for st in self.starts(cur):
+        starts = self.starts(cur)
+
+        def screen(st):
             try:
-                fit = self.H.fit(st.model, st.free, new=(st.effect,), screen=True)
+                return self.H.fit(st.model, st.free, new=(st.effect,), screen=True)
             except (ModelError, ValueError, np.linalg.LinAlgError) as exc:
-                self.log(f"candidate {st.mode} {st.effect}: skipped ({exc})")
+                return exc
+
+        for st, fit in zip(starts, self._map(screen, starts)):
+            if isinstance(fit, Exception):
+                self.log(f"candidate {st.mode} {st.effect}: skipped ({fit})")
                 continue
             c = Candidate(st.effect, st.mode, fit, st.k)
             c.score = self.score(fit, cur, st.k)
             c.start = st
             out.append(c)
         out.sort(key=lambda c: -c.score)
-        for c in out[:self.n_full]:
-            if c.score < THRESHOLD - 30:
-                continue
+        leaders = [c for c in out[:self.n_full] if c.score >= THRESHOLD - 30]
+
+        def full_fit(c):
             try:
-                full = self.refit_all(c.fit, thorough=True)
+                return self.refit_all(c.fit, thorough=True)
             except (ModelError, ValueError, np.linalg.LinAlgError):
-                continue
-            if full.loglik > c.fit.loglik:
+                return None
+
+        for c, full in zip(leaders, self._map(full_fit, leaders)):
+            if full is not None and full.loglik > c.fit.loglik:
                 c.fit = full
                 c.score = self.score(full, cur, c.k)
         for c in out:
@@ -820,6 +826,15 @@ class Search:
             out.remove(first)
             out.insert(0, first)
         return out
+
+    def _map(self, fn, items: list) -> list:
+        """fn over items, in :data:`WORKERS` threads on long records (the transforms and array
+        arithmetic release the GIL; the caches they share are get-then-set); in order."""
+        if self.workers <= 1 or len(items) < 2:
+            return [fn(x) for x in items]
+        from concurrent.futures import ThreadPoolExecutor
+        with ThreadPoolExecutor(max_workers=self.workers) as pool:
+            return list(pool.map(fn, items))
 
     def starts(self, cur: Fit) -> list[Start]:
         d = self.data

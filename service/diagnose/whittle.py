@@ -44,6 +44,8 @@ products of F.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.signal import lfilter
 
@@ -106,7 +108,8 @@ _TAPERS: dict = {}
 def taper(M: int) -> tuple[np.ndarray, np.ndarray, float]:
     """Tukey taper w (M,) with sum w^2 = M, its autocorrelation c_w(h) = sum_q w_q w_{q+h}
     (h = 0..M-1) and kappa = M sum w^4 / (sum w^2)^2."""
-    if M not in _TAPERS:
+    got = _TAPERS.get(M)                 # get-then-set: safe when candidates are fitted in threads
+    if got is None:
         from scipy.signal.windows import tukey
         w = tukey(M, TAPER) if M > 2 else np.ones(M)
         w *= np.sqrt(M / np.sum(w**2))
@@ -115,8 +118,8 @@ def taper(M: int) -> tuple[np.ndarray, np.ndarray, float]:
         kappa = float(M * np.sum(w**4) / np.sum(w**2) ** 2)
         if len(_TAPERS) > 8:
             _TAPERS.clear()
-        _TAPERS[M] = (w, cw, kappa)
-    return _TAPERS[M]
+        got = _TAPERS[M] = (w, cw, kappa)
+    return got
 
 
 def periodogram(r: np.ndarray, k0: int = 0) -> np.ndarray:
@@ -149,25 +152,139 @@ def _spectrum(a: np.ndarray, M: int) -> np.ndarray:
     return E[:nf]
 
 
-def white_part(var: np.ndarray, M: int) -> np.ndarray:
+# -- frequency groups: the expected periodogram's group means without the full transform ------------------
+class Groups:
+    """Fourier bins f = 0..nf-1 in groups at most ``rel`` f wide (single bins up to 1/rel), and the
+    group means of an expected periodogram E_f = a(0) + 2 sum_{h>=1} a(h) cos(2 pi f h / M) computed
+    exactly from a(h) without the length-M transform when a(h) is short:
+
+    * above F_low = n / rel the groups are made of whole aligned blocks of n bins (n a divisor of
+      M near sqrt(rel M)). The mean over block b (bins bn..bn+n-1) is
+      a(0) + 2 Re sum_h a(h) D(h) e^{-i 2 pi b h / L}, L = M / n, D(h) = (1/n) sum_{j<n}
+      e^{-i 2 pi j h / M}: the exponential is L-periodic in h, so a(h) D(h) folded modulo L and one
+      length-L transform give every block mean;
+    * the single bins below F_low (and the < n bins after the last whole block) by the chirp z
+      transform (Bluestein 1970): a transform of length ~ K + F_low for a(h) of K lags.
+
+    Every M gets the same group layout whatever the part, so the periodogram is grouped alike."""
+
+    def __init__(self, M: int, rel: float):
+        self.M, self.rel = M, rel
+        nf = self.nf = n_freqs(M)
+        target = math.sqrt(rel * M)
+        n = max((d for d in range(1, int(target) + 1) if M % d == 0), default=1)
+        if n < 4 or n / rel >= nf:
+            n = 1
+        self.n = n
+        self.F_low = int(round(n / rel)) if n > 1 else nf
+        F_low = self.F_low
+        starts, i = [], 0
+        while i < nf:
+            starts.append(i)
+            if i < F_low:
+                i = min(i + max(1, int(i * rel)), F_low)
+            else:
+                i += n * max(1, int(i * rel) // n)
+        self.starts = np.asarray(starts, np.int64)
+        self.sizes = np.diff(np.append(self.starts, nf)).astype(float)
+        if n > 1:
+            self.L = M // n
+            self.b0 = F_low // n                       # first block above F_low
+            self.b1 = nf // n                          # one past the last whole block
+            self.tail = nf - self.b1 * n               # bins after the last whole block
+            # the units the groups are sums of: low bins (1 bin), blocks (n bins), tail bins (1 bin)
+            unit_f = np.concatenate([np.arange(F_low), np.arange(self.b0, self.b1) * n,
+                                     np.arange(self.b1 * n, nf)])
+            self.unit_w = np.concatenate([np.ones(F_low), np.full(self.b1 - self.b0, float(n)),
+                                          np.ones(self.tail)])
+            self.unit_starts = np.searchsorted(unit_f, self.starts)
+        self._D = np.ones(1, complex)
+        self._chirps: dict = {}
+        self.white_unit = self.mean(_from_acf(np.array([[2.0], [-1.0]]), M))[:, 0]
+
+    def mean(self, A: np.ndarray) -> np.ndarray:
+        """Group means (nb, ...) of a full array (nf, ...)."""
+        return np.add.reduceat(A, self.starts, axis=0) / self.sizes.reshape((-1,) + (1,) * (A.ndim - 1))
+
+    def spectrum(self, a: np.ndarray) -> np.ndarray:
+        """Group means of E_f (nb, p) from a(h) (K, p), as ``mean(_spectrum(a, M))``."""
+        K = a.shape[0]
+        M = self.M
+        if self.n == 1 or K + self.F_low > M // 8:
+            return self.mean(_spectrum(a, M))
+        p = a.shape[1]
+        units = np.empty((self.unit_w.size, p))
+        units[:self.F_low] = 2.0 * self._czt(a, 0, self.F_low).real - a[0]
+        # block means: a(h) D(h) folded modulo L, one transform
+        D = self._kernel(K)
+        g = np.zeros((-(-K // self.L) * self.L, p), complex)
+        g[1:K] = a[1:K] * D[1:K, None]
+        G = np.fft.fft(g.reshape(-1, self.L, p).sum(axis=0), axis=0)
+        nb = self.b1 - self.b0
+        units[self.F_low:self.F_low + nb] = a[0] + 2.0 * G[self.b0:self.b1].real
+        if self.tail:
+            units[self.F_low + nb:] = 2.0 * self._czt(a, self.b1 * self.n, self.tail).real - a[0]
+        return np.add.reduceat(units * self.unit_w[:, None], self.unit_starts, axis=0) / self.sizes[:, None]
+
+    def _kernel(self, K: int) -> np.ndarray:
+        """D(h) = (1/n) sum_{j<n} e^{-i 2 pi j h / M}, h = 0..K-1 (cached, extended on demand)."""
+        if self._D.size < K:
+            size = 1 << int(K - 1).bit_length()
+            h = np.arange(1, size)
+            th = 2 * np.pi * h / self.M
+            D = np.ones(size, complex)
+            D[1:] = (1 - np.exp(-1j * self.n * th)) / (self.n * (1 - np.exp(-1j * th)))
+            self._D = D
+        return self._D
+
+    def _czt(self, a: np.ndarray, f0: int, m: int) -> np.ndarray:
+        """X_f = sum_h a(h) e^{-i 2 pi f h / M} for f = f0..f0+m-1 (m, p): Bluestein's chirp
+        (f h = (f^2 + h^2 - (f - h)^2) / 2), the phases reduced modulo 2M in integers."""
+        K = a.shape[0]
+        size = 1 << int(K + m - 2).bit_length()
+        M2 = 2 * self.M
+        key = (f0, m, size)
+        got = self._chirps.get(key)
+        if got is None:
+            if len(self._chirps) > 16:
+                self._chirps.clear()
+            # filter c(j) = e^{i pi j^2 / M} for j = f - h in [f0 - size + m, f0 + m); index j - (f0 - size + m)
+            j = np.arange(f0 - size + m, f0 + m, dtype=np.int64)
+            c = np.exp(1j * np.pi * ((j * j) % M2) / self.M)
+            f = np.arange(f0, f0 + m, dtype=np.int64)
+            got = self._chirps[key] = (np.fft.fft(c), np.exp(-1j * np.pi * ((f * f) % M2) / self.M))
+        Cf, post = got
+        h = np.arange(K, dtype=np.int64)
+        x = np.zeros((size, a.shape[1]), complex)
+        x[:K] = a * np.exp(-1j * np.pi * ((h * h) % M2) / self.M)[:, None]
+        # y(f0 + i) = sum_h x(h) c(f0 + i - h): a circular convolution of length size >= K + m - 1,
+        # free of wrap-around at the outputs i + size - m
+        y = np.fft.ifft(np.fft.fft(x, axis=0) * Cf[:, None], axis=0)
+        return y[size - m:] * post[:, None]
+
+
+def white_part(var: np.ndarray, M: int, groups: Groups | None = None) -> np.ndarray:
     """E I_f of white noise of variance ``var`` (p,) after differencing: 2 var (1 - cos w)(1 - ...)
-    exactly for the finite record: Rd(0) = 2 var, Rd(1) = -var."""
+    exactly for the finite record: Rd(0) = 2 var, Rd(1) = -var. ``groups``: their means instead."""
     var = np.atleast_1d(np.asarray(var, float))
-    if M not in _WHITE:                      # linear in var: the unit shape once per length
+    if groups is not None:
+        return groups.white_unit[:, None] * var[None, :]
+    unit = _WHITE.get(M)                     # linear in var: the unit shape once per length
+    if unit is None:
         if len(_WHITE) > 8:
             _WHITE.clear()
-        _WHITE[M] = _from_acf(np.array([[2.0], [-1.0]]), M)[:, 0]
-    return _WHITE[M][:, None] * var[None, :]
+        unit = _WHITE[M] = _from_acf(np.array([[2.0], [-1.0]]), M)[:, 0]
+    return unit[:, None] * var[None, :]
 
 
 _WHITE: dict = {}
 
 
-def walk_part(q: np.ndarray, M: int) -> np.ndarray:
+def walk_part(q: np.ndarray, M: int, groups: Groups | None = None) -> np.ndarray:
     """A random walk with increment variance q (p,) per sample: white after differencing
     (c_w(0) / M = 1)."""
     q = np.atleast_1d(np.asarray(q, float))
-    return np.broadcast_to(q, (n_freqs(M), q.size)).copy()
+    return np.broadcast_to(q, (n_freqs(M) if groups is None else groups.starts.size, q.size)).copy()
 
 
 # -- sums of exponentials --------------------------------------------------------------------------------------
@@ -209,14 +326,23 @@ class Modes:
         if self.ok:
             L = left @ self.V                      # (a, n)
             Rm = self.Vi @ right                   # (n, b)
-            coef = L[:, :, None] * Rm[None, :, :]  # (a, n, b)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                logl = np.log(self.lam.astype(complex))
-            for h0 in range(0, K, block):
-                h = np.arange(h0, min(K, h0 + block))
-                pw = np.exp(np.outer(h, logl))      # (nb, n)
-                pw[:, self.lam == 0] = (h == 0)[:, None]
-                out[h0:h0 + h.size] = np.einsum("hn,anb->hab", pw, coef).real
+            coef = (L[:, :, None] * Rm[None, :, :]).transpose(1, 0, 2).reshape(self.n, a * b)   # (n, a b)
+            cr, ci = np.ascontiguousarray(coef.real), np.ascontiguousarray(coef.imag)
+            lam = self.lam.astype(complex)
+            nb = min(K, block)
+            P = np.empty((nb, self.n), complex)      # lam^j, j < nb, by products (no exponentials)
+            P[0] = 1.0
+            if nb > 1:
+                P[1:] = lam
+                np.cumprod(P, axis=0, out=P)
+            for h0 in range(0, K, nb):
+                m = min(K, h0 + nb) - h0
+                if h0:
+                    base = np.where(lam == 0, 0.0, np.exp(h0 * np.log(np.where(lam == 0, 1.0, lam))))
+                    pw = P[:m] * base
+                else:
+                    pw = P[:m]
+                out[h0:h0 + m] = (pw.real @ cr - pw.imag @ ci).reshape(m, a, b)
             return out
         X = right.astype(float)
         for h in range(K):                          # defective F: plain products
@@ -240,8 +366,9 @@ def _sub_system(ls, Pe, cols, n_x: int):
     return ls.F[np.ix_(S, S)], G[S], ls.H[:, S], Pe[np.ix_(S, S)]
 
 
-def linear_part(F, G, H, J, Pe, M: int, k0: int, at_rest: bool) -> np.ndarray:
-    """E I_f (nf, p) of one source of the augmented linear system (see the module docstring)."""
+def linear_part(F, G, H, J, Pe, M: int, k0: int, at_rest: bool, groups: Groups | None = None) -> np.ndarray:
+    """E I_f (nf, p) of one source of the augmented linear system (see the module docstring);
+    ``groups``: their means (nb, p)."""
     p = H.shape[0]
     modes = Modes(F)
     K = modes.horizon(M + 1)
@@ -256,38 +383,48 @@ def linear_part(F, G, H, J, Pe, M: int, k0: int, at_rest: bool) -> np.ndarray:
     Rd = np.empty((K + 1, p))
     Rd[0] = 2 * (R[0] - R[1])
     Rd[1:] = 2 * R[1:K + 1] - R[:K] - R[2:K + 2]
-    # a(h) = c_w(h) Rd(h) / M, the from-rest correction folded in (below): one transform per source
+    # a(h) = c_w(h) Rd(h) / M
     K = min(Rd.shape[0], M)
     a = Rd[:K] * (taper(M)[1][:K, None] / M)
+    w = None
     if at_rest:
         Gs = psd_sqrt(Pe)
         if Gs.shape[1]:
             Kr = min(modes.horizon(k0 + M + 1), k0 + M + 1)
             v = modes.series(H, Gs, Kr)                              # (Kr, p, c): v_k = H F^k P^(1/2)
             w = np.diff(v[k0:], axis=0)                              # w_q = v_{k0+q+1} - v_{k0+q}
-            if w.shape[0]:
-                # sum_c |W_c(f)|^2 = sum_h rho(h) e^{-i w h}, rho the autocorrelation of the tapered
-                # w summed over c: subtracted from a(h) it leaves E I_f = transform of a, exactly
-                w = w * taper(M)[0][:w.shape[0], None, None]
-                Lw = w.shape[0]
-                n2 = 1 << int(2 * Lw - 1).bit_length()
-                Wf = np.fft.rfft(w, n=n2, axis=0)
-                rho = np.fft.irfft(np.sum(np.abs(Wf) ** 2, axis=2), n=n2, axis=0)[:Lw]    # (Lw, p)
-                if Lw > K:
-                    a = np.concatenate([a, np.zeros((Lw - K, p))])
-                a[:Lw] -= rho / M
-    return _spectrum(a, M)
+            w = w * taper(M)[0][:w.shape[0], None, None] if w.shape[0] else None
+    Lw = 0 if w is None else w.shape[0]
+    short = groups is not None and groups.n > 1 and max(K, Lw) + groups.F_low <= M // 8
+    if w is not None and short:
+        # sum_c |W_c(f)|^2 = sum_h rho(h) e^{-i w h}, rho the autocorrelation of the tapered w summed
+        # over c: subtracted from a(h) it leaves E I_f = the group transform of a, exactly
+        n2 = 1 << int(2 * Lw - 1).bit_length()
+        Wf = np.fft.rfft(w, n=n2, axis=0)
+        rho = np.fft.irfft(np.sum(np.abs(Wf) ** 2, axis=2), n=n2, axis=0)[:Lw]    # (Lw, p)
+        if Lw > K:
+            a = np.concatenate([a, np.zeros((Lw - K, p))])
+        a[:Lw] -= rho / M
+        return groups.spectrum(a)
+    if short:
+        return groups.spectrum(a)
+    # long memory (a correlation time near the record's): every bin, the correction as |W_c(f)|^2
+    E = _spectrum(a, M)
+    if w is not None:
+        E -= np.sum(np.abs(np.fft.rfft(w, n=M, axis=0)[:E.shape[0]]) ** 2, axis=2) / M
+    return E if groups is None else groups.mean(E)
 
 
 def expected_parts(model, M: int, k0: int, at_rest: bool, ydot_sq: np.ndarray | None = None,
-                   skip: tuple = ("sensor.tone",), cache: dict | None = None) -> dict:
+                   skip: tuple = ("sensor.tone",), cache: dict | None = None,
+                   groups: Groups | None = None) -> dict:
     """{effect id: E I_f (nf, p)} for every effect of ``model`` that owns noise, for the
     differenced residual of M samples starting after sample k0. ``at_rest``: the record starts at
     rest at sample 0 (the from-rest correction applies). ``ydot_sq``: mean square of the predicted
     mean slope per output over the record (for the jitter; default: the predictor's). Tones are
     deterministic in a record and handled by the caller (``skip``). ``cache``: a dict reused across
     calls, keyed by each source's own sub-system (an effect whose transfer did not change is not
-    recomputed)."""
+    recomputed). ``groups``: the parts as group means (nb, p) (:class:`Groups`, fast on long records)."""
     pr = model.predictor()
     pr.steady_state()
     ls = pr._ls
@@ -305,11 +442,12 @@ def expected_parts(model, M: int, k0: int, at_rest: bool, ydot_sq: np.ndarray | 
         J = ls.J[:, cols]
         key = None
         if cache is not None:
-            key = (eid, M, k0, at_rest, F.tobytes(), G.tobytes(), H.tobytes(), J.tobytes())
-            if key in cache:
-                parts[eid] = cache[key]
+            key = (eid, M, k0, at_rest, groups is not None, F.tobytes(), G.tobytes(), H.tobytes(), J.tobytes())
+            got = cache.get(key)
+            if got is not None:
+                parts[eid] = got
                 continue
-        E = linear_part(F, G, H, J, Ps, M, k0, at_rest)
+        E = linear_part(F, G, H, J, Ps, M, k0, at_rest, groups)
         if cache is not None:
             if len(cache) > 256:
                 cache.clear()
@@ -322,11 +460,11 @@ def expected_parts(model, M: int, k0: int, at_rest: bool, ydot_sq: np.ndarray | 
         if eid in skip:
             continue
         if kind == "white":
-            parts[eid] = parts.get(eid, 0) + white_part(np.broadcast_to(prm[0], (p,)), M)
+            parts[eid] = parts.get(eid, 0) + white_part(np.broadcast_to(prm[0], (p,)), M, groups)
         elif kind == "walk":
-            parts[eid] = parts.get(eid, 0) + walk_part(np.broadcast_to(prm[0], (p,)), M)
+            parts[eid] = parts.get(eid, 0) + walk_part(np.broadcast_to(prm[0], (p,)), M, groups)
         elif kind == "jitter":
-            parts[eid] = white_part(prm[0] * (ydot_sq + ydot_var), M)
+            parts[eid] = white_part(prm[0] * (ydot_sq + ydot_var), M, groups)
     return parts
 
 

@@ -88,6 +88,26 @@ def parse_model(text: str, source: str = "<model>") -> "Model":
         # TOMLDecodeError, or tomllib's bare ValueError for an integer literal of more than
         # sys.get_int_max_str_digits() digits
         raise ModelError(f"{source}: invalid TOML: {exc}")
+    return _from_data(data, source, text)
+
+
+def _plain(v):
+    """TOML's own types for a value built in code (numpy scalars and arrays to floats and lists),
+    so a model built from a dict validates exactly as one parsed from its text."""
+    if isinstance(v, dict):
+        return {k: _plain(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return [_plain(x) for x in v]
+    if isinstance(v, (bool, np.bool_)):
+        return bool(v)
+    if isinstance(v, (int, np.integer)):
+        return int(v)
+    if isinstance(v, (float, np.floating)):
+        return float(v)
+    return v
+
+
+def _from_data(data: dict, source: str, text: str) -> "Model":
     top = Table(data, "", source)
     name = top.string("name", pattern=lambda s: bool(NAME_RE.fullmatch(s)),
                       expect="a device name of letters, digits, '_' or '-'")
@@ -238,8 +258,11 @@ class Model:
         _check_effect_id(eid)
         d = self.to_dict()
         g, s = eid.split(".")
-        d.setdefault(g, {})[s] = params
-        return parse_model(dumps_toml(d), self.source if "[" in self.source else f"{self.source} + fit")
+        d.setdefault(g, {})[s] = _plain(params)
+        # validated from the dict itself (the same checks as its text; no TOML parse per trial)
+        model = _from_data(d, self.source if "[" in self.source else f"{self.source} + fit", dumps_toml(d))
+        model._asm["plant"] = d["plant"]
+        return model
 
     def without_effect(self, eid: str) -> "Model":
         _check_effect_id(eid)
