@@ -73,7 +73,8 @@ def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
     """Revisit the greedy order: an effect added early can stand in for another while a third is
     still missing (a gain-like saturation for a scale factor that also scales the noise, while a
     bias is missing; a walk for a Gauss-Markov bias). With every effect now in, each added effect
-    is exchanged for the best of the other additions its step ranked near the top, when the whole
+    is exchanged for the best of the other candidates its step ranked near the top and found
+    significant, when the whole
     model then fits better by more than the tie margin (in the units of ``Search.choice``: twice
     the log-likelihood gain less chi2_1(95 %) per extra parameter) and the new effect is significant by itself (Delta BIC > THRESHOLD given the
     rest). Before that, a backward pass undoes the least needed addition or changed value while it
@@ -90,14 +91,20 @@ def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
     log_n = math.log(S.data.n_bic)
     step_of = {id(c): i for i, c in enumerate(accepted)}       # the step that ranked each addition
 
+    undone: dict = {}          # (id(cur), id(c)) -> (cur, fit): cur kept so its id is not reused
+
     def without(c):
-        """The fit with ``c`` undone: an added effect removed, a refitted one back at the user's values."""
-        free = {k: v for k, v in cur.free.items() if k != c.effect}
-        if c.mode == "refit":
-            m = cur.model.with_params(c.effect, S.nominal.effects[c.effect].param_dict())
-        else:
-            m = cur.model.without_effect(c.effect)
-        return S.refit_all(Fit(m, free, -math.inf), thorough=True)
+        """The fit with ``c`` undone: an added effect removed, a refitted one back at the user's values
+        (once per current fit: the backward pass and the exchange ask for the same ones)."""
+        key = (id(cur), id(c))
+        if key not in undone:
+            free = {k: v for k, v in cur.free.items() if k != c.effect}
+            if c.mode == "refit":
+                m = cur.model.with_params(c.effect, S.nominal.effects[c.effect].param_dict())
+            else:
+                m = cur.model.without_effect(c.effect)
+            undone[key] = (cur, S.refit_all(Fit(m, free, -math.inf), thorough=True))
+        return undone[key][1]
 
     # backward: while the least needed addition is not significant given the others, drop it
     while True:
@@ -132,8 +139,10 @@ def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
             continue
         own = 2 * (cur.loglik - drop.loglik) - c.k * log_n
         trials = []
-        alts = [a for a in step_cands[step_of[id(c)]][:n_alt + 1]
-                if not (a.mode not in ("add", "refit") or a.effect == c.effect or a.effect not in a.fit.model.effects
+        # the other candidates its step found significant (one the data did not support then, with
+        # fewer effects in, is not a competing explanation of what c explains)
+        alts = [a for a in step_cands[step_of[id(c)]][:n_alt + 1] if a.score >= THRESHOLD
+                and not (a.mode not in ("add", "refit") or a.effect == c.effect or a.effect not in a.fit.model.effects
                         or (a.mode == "add" and a.effect in cur.model.effects) or a.effect in cur.free)]
 
         def exchanged(a, drop=drop):

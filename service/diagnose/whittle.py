@@ -47,6 +47,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import scipy.fft as sfft
 from scipy.signal import lfilter
 
 TAPER = 0.2              # Tukey taper: the cosine parts cover 10 % of the record at each end
@@ -79,19 +80,30 @@ def lsim(Ad: np.ndarray, Bd: np.ndarray, C: np.ndarray, D: np.ndarray, u: np.nda
         if done[i]:
             continue
         done[i] = True
-        pair = False
-        if abs(lam[i].imag) > 0:
-            # its conjugate partner: take the real part twice
-            j = [k for k in range(n) if not done[k] and np.isclose(lam[k], np.conj(lam[i]), rtol=1e-10, atol=1e-14)]
+        lam_i = complex(lam[i])
+        j = []
+        if abs(lam_i.imag) > 0:
+            # its conjugate partner: the pair is one real second-order section
+            j = [k for k in range(n) if not done[k] and np.isclose(lam[k], np.conj(lam_i), rtol=1e-10, atol=1e-14)]
             if j:
                 done[j[0]] = True
-                pair = True
-        drive = u @ Bm[i]
-        if not np.any(drive):
-            continue
-        z = lfilter([0.0, 1.0], [1.0, -lam[i]], drive.astype(complex))     # x_k = sum_{j<k} lam^(k-1-j) b u_j
-        contrib = np.outer(z, Cm[:, i])
-        y += 2.0 * contrib.real if pair else contrib.real
+        for c in range(u.shape[1]):
+            g = Cm[:, i] * Bm[i, c]                      # (p,) output weights of this mode and input
+            if not np.any(g) or not np.any(u[:, c]):
+                continue
+            if j:
+                # g z^-1 / (1 - lam z^-1) + conj: (2 Re g z^-1 - 2 Re(g conj lam) z^-2) / (1 - 2 Re lam z^-1 + |lam|^2 z^-2)
+                s_ = lfilter([1.0], [1.0, -2.0 * lam_i.real, abs(lam_i) ** 2], u[:, c])
+                b1, b2 = 2.0 * g.real, -2.0 * (g * np.conj(lam_i)).real
+                y[1:] += np.outer(s_[:-1], b1)
+                y[2:] += np.outer(s_[:-2], b2)
+            elif lam_i.imag == 0:
+                # x_k = sum_{l<k} lam^(k-1-l) u_l (a real mode: g real up to rounding)
+                s_ = lfilter([1.0], [1.0, -lam_i.real], u[:, c])
+                y[1:] += np.outer(s_[:-1], g.real)
+            else:                      # a complex mode without its partner (not from a real A): as is
+                z = lfilter([0.0, 1.0], [1.0, -lam_i], u[:, c].astype(complex))
+                y += np.outer(z, g).real
     return y
 
 
@@ -127,7 +139,7 @@ def periodogram(r: np.ndarray, k0: int = 0) -> np.ndarray:
     d = np.diff(r[k0:], axis=0)
     M = d.shape[0]
     w = taper(M)[0]
-    X = np.fft.rfft(d * w[:, None], axis=0)
+    X = sfft.rfft(np.ascontiguousarray((d * w[:, None]).T), axis=-1).T      # rows: one output each
     return (np.abs(X[:n_freqs(M)]) ** 2) / M
 
 
@@ -148,7 +160,7 @@ def _spectrum(a: np.ndarray, M: int) -> np.ndarray:
         for h in range(1, K):
             E += 2.0 * np.cos(w * h)[:, None] * a[h]
         return E
-    E = 2.0 * np.fft.rfft(a, n=M, axis=0).real - a[0]
+    E = 2.0 * sfft.rfft(np.ascontiguousarray(a.T), n=M, axis=-1).real.T - a[0]
     return E[:nf]
 
 
@@ -219,7 +231,7 @@ class Groups:
         D = self._kernel(K)
         g = np.zeros((-(-K // self.L) * self.L, p), complex)
         g[1:K] = a[1:K] * D[1:K, None]
-        G = np.fft.fft(g.reshape(-1, self.L, p).sum(axis=0), axis=0)
+        G = sfft.fft(g.reshape(-1, self.L, p).sum(axis=0), axis=0)
         nb = self.b1 - self.b0
         units[self.F_low:self.F_low + nb] = a[0] + 2.0 * G[self.b0:self.b1].real
         if self.tail:
@@ -252,14 +264,14 @@ class Groups:
             j = np.arange(f0 - size + m, f0 + m, dtype=np.int64)
             c = np.exp(1j * np.pi * ((j * j) % M2) / self.M)
             f = np.arange(f0, f0 + m, dtype=np.int64)
-            got = self._chirps[key] = (np.fft.fft(c), np.exp(-1j * np.pi * ((f * f) % M2) / self.M))
+            got = self._chirps[key] = (sfft.fft(c), np.exp(-1j * np.pi * ((f * f) % M2) / self.M))
         Cf, post = got
         h = np.arange(K, dtype=np.int64)
         x = np.zeros((size, a.shape[1]), complex)
         x[:K] = a * np.exp(-1j * np.pi * ((h * h) % M2) / self.M)[:, None]
         # y(f0 + i) = sum_h x(h) c(f0 + i - h): a circular convolution of length size >= K + m - 1,
         # free of wrap-around at the outputs i + size - m
-        y = np.fft.ifft(np.fft.fft(x, axis=0) * Cf[:, None], axis=0)
+        y = sfft.ifft(sfft.fft(x, axis=0) * Cf[:, None], axis=0)
         return y[size - m:] * post[:, None]
 
 
@@ -306,6 +318,26 @@ class Modes:
         self.Vi = np.linalg.inv(V) if self.ok else None
         self.rho = float(np.max(np.abs(lam), initial=0.0))
 
+    @staticmethod
+    def _pairs(lam: np.ndarray, coef: np.ndarray):
+        """Conjugate pairs once: Re(c lam^h + conj(c) conj(lam)^h) = Re(2 c lam^h) (F and the
+        weights are real). Returns the modes kept and their coefficients."""
+        n = lam.size
+        keep = np.ones(n, bool)
+        coef = coef.copy()
+        used = np.zeros(n, bool)
+        for i in range(n):
+            if used[i] or lam[i].imag <= 0:
+                continue
+            j = [k for k in range(n) if not used[k] and k != i and lam[k].imag < 0
+                 and np.isclose(lam[k], np.conj(lam[i]), rtol=1e-12, atol=1e-15)
+                 and np.allclose(coef[k], np.conj(coef[i]), rtol=1e-9, atol=1e-300)]
+            if j:
+                used[i] = used[j[0]] = True
+                keep[j[0]] = False
+                coef[i] = 2.0 * coef[i]
+        return keep, coef
+
     def horizon(self, M: int) -> int:
         """Lags until every mode has decayed below DECAY, capped at M."""
         if self.n == 0:
@@ -327,22 +359,29 @@ class Modes:
             L = left @ self.V                      # (a, n)
             Rm = self.Vi @ right                   # (n, b)
             coef = (L[:, :, None] * Rm[None, :, :]).transpose(1, 0, 2).reshape(self.n, a * b)   # (n, a b)
-            cr, ci = np.ascontiguousarray(coef.real), np.ascontiguousarray(coef.imag)
             lam = self.lam.astype(complex)
+            keep, coef = self._pairs(lam, coef)
+            lam, coef = lam[keep], coef[keep]
+            # each mode only up to its own horizon (a fast plant mode beside a slow bias)
+            mag = np.abs(lam)
+            with np.errstate(divide="ignore"):
+                hz = np.where(mag == 0, 1.0, np.where(mag < 1, np.log(DECAY) / np.log(np.maximum(mag, 1e-300)) + 2, np.inf))
             nb = min(K, block)
-            P = np.empty((nb, self.n), complex)      # lam^j, j < nb, by products (no exponentials)
+            P = np.empty((nb, lam.size), complex)    # lam^j, j < nb, by products (no exponentials)
             P[0] = 1.0
             if nb > 1:
                 P[1:] = lam
                 np.cumprod(P, axis=0, out=P)
             for h0 in range(0, K, nb):
                 m = min(K, h0 + nb) - h0
+                act = np.flatnonzero(hz > h0)
+                if act.size == 0:
+                    out[h0:] = 0.0
+                    break
+                pw = P[:m, act]
                 if h0:
-                    base = np.where(lam == 0, 0.0, np.exp(h0 * np.log(np.where(lam == 0, 1.0, lam))))
-                    pw = P[:m] * base
-                else:
-                    pw = P[:m]
-                out[h0:h0 + m] = (pw.real @ cr - pw.imag @ ci).reshape(m, a, b)
+                    pw = pw * np.exp(h0 * np.log(lam[act]))
+                out[h0:h0 + m] = (pw.real @ coef[act].real - pw.imag @ coef[act].imag).reshape(m, a, b)
             return out
         X = right.astype(float)
         for h in range(K):                          # defective F: plain products
@@ -400,8 +439,8 @@ def linear_part(F, G, H, J, Pe, M: int, k0: int, at_rest: bool, groups: Groups |
         # sum_c |W_c(f)|^2 = sum_h rho(h) e^{-i w h}, rho the autocorrelation of the tapered w summed
         # over c: subtracted from a(h) it leaves E I_f = the group transform of a, exactly
         n2 = 1 << int(2 * Lw - 1).bit_length()
-        Wf = np.fft.rfft(w, n=n2, axis=0)
-        rho = np.fft.irfft(np.sum(np.abs(Wf) ** 2, axis=2), n=n2, axis=0)[:Lw]    # (Lw, p)
+        Wf = sfft.rfft(w, n=n2, axis=0)
+        rho = sfft.irfft(np.sum(np.abs(Wf) ** 2, axis=2), n=n2, axis=0)[:Lw]    # (Lw, p)
         if Lw > K:
             a = np.concatenate([a, np.zeros((Lw - K, p))])
         a[:Lw] -= rho / M
@@ -411,7 +450,8 @@ def linear_part(F, G, H, J, Pe, M: int, k0: int, at_rest: bool, groups: Groups |
     # long memory (a correlation time near the record's): every bin, the correction as |W_c(f)|^2
     E = _spectrum(a, M)
     if w is not None:
-        E -= np.sum(np.abs(np.fft.rfft(w, n=M, axis=0)[:E.shape[0]]) ** 2, axis=2) / M
+        Wf = sfft.rfft(np.ascontiguousarray(w.transpose(1, 2, 0)), n=M, axis=-1)[:, :, :E.shape[0]]   # (p, c, nf)
+        E -= (np.sum(Wf.real ** 2 + Wf.imag ** 2, axis=1) / M).T
     return E if groups is None else groups.mean(E)
 
 
