@@ -15,14 +15,12 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import subprocess
 import sys
 import threading
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 import zenoh
 
@@ -38,86 +36,6 @@ FILE_SEED = 3            # see test_hot_reload for why this seed's numbers are w
 
 
 # ------------------------------------------------------------------------------------ helpers
-class Child:
-    """A ``python -m service.cli ...`` process; stdout/stderr lines collected by threads."""
-
-    def __init__(self, label: str, *args: str):
-        self.label = label
-        self.proc = subprocess.Popen([sys.executable, "-m", "service.cli", *map(str, args)],
-                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
-                                     env=dict(os.environ, PYTHONUNBUFFERED="1"))
-        self.out: list[str] = []
-        self.err: list[str] = []
-        self.cond = threading.Condition()
-        self.err_eof = False
-        self.threads = [threading.Thread(target=self._pump, args=(self.proc.stdout, self.out, False), daemon=True),
-                        threading.Thread(target=self._pump, args=(self.proc.stderr, self.err, True), daemon=True)]
-        for t in self.threads:
-            t.start()
-
-    def _pump(self, stream, sink, is_err):
-        for line in stream:
-            with self.cond:
-                sink.append(line.rstrip("\n"))
-                self.cond.notify_all()
-        with self.cond:
-            self.err_eof = self.err_eof or is_err
-            self.cond.notify_all()
-
-    def wait_line(self, text: str, timeout: float = T_EVENT) -> str:
-        def found():
-            return next((ln for ln in self.err if text in ln), None)
-        with self.cond:
-            self.cond.wait_for(lambda: found() is not None or self.err_eof, timeout)
-            line = found()
-        assert line is not None, f"{self.label}: no stderr line with {text!r}: {self.stderr_text()}"
-        return line
-
-    def finish(self, timeout: float = T_EVENT) -> int:
-        try:
-            rc = self.proc.wait(timeout)
-        except subprocess.TimeoutExpired:
-            pytest.fail(f"{self.label} did not exit within {timeout} s: {self.stderr_text()}")
-        for t in self.threads:
-            t.join(T_EVENT)
-        return rc
-
-    def interrupt(self, timeout: float = T_EVENT) -> int:
-        self.proc.send_signal(signal.SIGINT)
-        return self.finish(timeout)
-
-    def json(self) -> dict:
-        for line in reversed(self.out):
-            if line.startswith("{"):
-                return json.loads(line)
-        pytest.fail(f"{self.label}: no JSON on stdout: {self.out} {self.stderr_text()}")
-
-    def stderr_text(self) -> str:
-        with self.cond:
-            return " | ".join(self.err)[-3000:]
-
-    def kill(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.kill()
-        self.proc.wait()
-        for t in self.threads:
-            t.join(5)
-
-
-@pytest.fixture
-def spawn():
-    children: list[Child] = []
-
-    def start(label: str, *args: str) -> Child:
-        c = Child(label, *args)
-        children.append(c)
-        return c
-
-    yield start
-    for c in children:
-        c.kill()
-
-
 def ep(port: int) -> str:
     return f"tcp/127.0.0.1:{port}"
 

@@ -32,6 +32,7 @@ import psutil
 import pytest
 import zenoh
 
+from livechild import Child
 from service.model import load_model
 from service.nodes import mcapio, transport, wire
 from service.nodes.recorder import Ingest, TopicBook
@@ -81,94 +82,6 @@ std = 0.002
 [sensor.quantization]
 step = 0.001
 """
-
-
-class Child:
-    """A ``noiselab`` (or helper) process with its stdout/stderr lines collected by threads."""
-
-    def __init__(self, args: list[str], label: str):
-        env = dict(os.environ, PYTHONUNBUFFERED="1")
-        self.label = label
-        self.proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                     env=env, cwd=ROOT)
-        self.out: list[str] = []
-        self.err: list[str] = []
-        self.cond = threading.Condition()
-        self.err_eof = False
-        self.threads = [threading.Thread(target=self._pump, args=(self.proc.stdout, self.out, False), daemon=True),
-                        threading.Thread(target=self._pump, args=(self.proc.stderr, self.err, True), daemon=True)]
-        for t in self.threads:
-            t.start()
-
-    def _pump(self, stream, sink, is_err):
-        for line in stream:
-            with self.cond:
-                sink.append(line.rstrip("\n"))
-                self.cond.notify_all()
-        with self.cond:
-            if is_err:
-                self.err_eof = True
-            self.cond.notify_all()
-
-    def wait_line(self, text: str, timeout: float = T_EVENT) -> str:
-        """The first stderr line containing ``text``; fails if the child exits first or on timeout."""
-        def found():
-            return next((ln for ln in self.err if text in ln), None)
-        with self.cond:
-            self.cond.wait_for(lambda: found() is not None or self.err_eof, timeout)
-            line = found()
-        assert line is not None, (f"{self.label}: no stderr line with {text!r} "
-                                  f"({'exited' if self.err_eof else 'timeout'}): {self.stderr_text()}")
-        return line
-
-    def finish(self, timeout: float = T_EVENT) -> int:
-        """Wait for exit (fail on timeout), then for the output threads; the exit code."""
-        try:
-            rc = self.proc.wait(timeout)
-        except subprocess.TimeoutExpired:
-            pytest.fail(f"{self.label} did not exit within {timeout} s: {self.stderr_text()}")
-        for t in self.threads:
-            t.join(T_EVENT)
-        return rc
-
-    def interrupt(self, timeout: float = T_EVENT) -> int:
-        """SIGINT (the nodes' clean stop) and wait for exit."""
-        self.proc.send_signal(signal.SIGINT)
-        return self.finish(timeout)
-
-    def json(self) -> dict:
-        for line in reversed(self.out):
-            if line.startswith("{"):
-                return json.loads(line)
-        pytest.fail(f"{self.label}: no JSON summary on stdout: {self.out} {self.stderr_text()}")
-
-    def stderr_text(self) -> str:
-        with self.cond:
-            return " | ".join(self.err)[-2000:]
-
-    def kill(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.kill()
-        self.proc.wait()
-        for t in self.threads:
-            t.join(5)
-
-
-@pytest.fixture
-def spawn():
-    """``spawn(label, *cli_args)`` starts ``python -m service.cli ...``; ``spawn(label, script, ...,
-    script=True)`` a helper script. Every child is killed at teardown."""
-    children: list[Child] = []
-
-    def start(label: str, *args: str, script: bool = False) -> Child:
-        cmd = [sys.executable, *args] if script else [sys.executable, "-m", "service.cli", *args]
-        child = Child([str(a) for a in cmd], label)
-        children.append(child)
-        return child
-
-    yield start
-    for child in children:
-        child.kill()
 
 
 def waited_for_subscribers(child: Child) -> bool:

@@ -85,7 +85,7 @@ def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
     import math
 
     from ..model import ModelError
-    from .search import CHI2_95, EXACT_TIE, MODE_RANK, TIE, Fit
+    from .search import CHI2_95, EXACT_RANK, EXACT_TIE, TIE, Fit
 
     swapped = False
     log_n = math.log(S.data.n_bic)
@@ -101,6 +101,9 @@ def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
             free = {k: v for k, v in cur.free.items() if k != c.effect}
             if c.mode == "refit":
                 m = cur.model.with_params(c.effect, S.nominal.effects[c.effect].param_dict())
+            elif c.mode.startswith("replace:"):           # the user's effect back, at the user's values
+                old = c.mode.split(":", 1)[1]
+                m = cur.model.without_effect(c.effect).with_effect(old, S.nominal.effects[old].param_dict())
             else:
                 m = cur.model.without_effect(c.effect)
             undone[key] = (cur, S.refit_all(Fit(m, free, -math.inf), thorough=True))
@@ -109,7 +112,8 @@ def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
     # backward: while the least needed addition is not significant given the others, drop it
     while True:
         owns = []
-        todo = [c for c in accepted if c.mode in ("add", "refit") and c.effect in cur.model.effects]
+        todo = [c for c in accepted if c.mode.split(":")[0] in ("add", "refit", "replace") and c.effect in cur.model.effects
+                and not (c.mode.startswith("replace:") and c.mode.split(":", 1)[1] in cur.model.effects)]
 
         def try_without(c):
             try:
@@ -125,7 +129,9 @@ def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
         own, c, d = min(owns, key=lambda x: x[0])
         if own >= THRESHOLD:
             break
-        say(f"drop: {c.effect} (Delta BIC {own:.1f} once the others are in)")
+        what = {"refit": f"{c.effect} back at the model's values",
+                "replace": f"{c.mode.split(':', 1)[-1]} back in place of {c.effect}"}.get(c.mode.split(":")[0], c.effect)
+        say(f"drop: {what} (Delta BIC {own:.1f} once the others are in)")
         accepted.remove(c)
         cur, swapped = d, True
     # exchange
@@ -173,7 +179,7 @@ def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
             # the best; among equally good (identical spectra) the preferred mode, then chain order
             top = max(x[0] for x in trials)
             gain, a, alt, d_bic = min((x for x in trials if x[0] > top - EXACT_TIE), key=lambda x: (
-                MODE_RANK[x[1].mode.split(":")[0]], CATALOGUE[x[1].effect].chain_order))
+                EXACT_RANK[x[1].mode.split(":")[0]], CATALOGUE[x[1].effect].chain_order))
             say(f"exchange: {a.effect} in place of {c.effect} (2 Delta l - Delta k chi2 = {gain:+.1f}, "
                 f"Delta BIC {d_bic:+.1f}, with everything else in)")
             a.score = float(c.score + d_bic)

@@ -23,7 +23,8 @@ it back). How each effect is fitted is declared by the effect itself (``Effect.f
 * ``mean`` effects (scale factor, lag, saturation, dead zone) change the predicted response to the
   recorded command: the residual is recomputed for each value of their parameter;
 * ``line`` (tone): a deterministic sinusoid in a record; peaks of I_f / E_f beyond what the
-  exponential distribution allows over all bins (P < 1e-3) are candidates, the frequency refined by
+  exponential distribution allows over all bins (P < 1e-3) are candidates (except at a line of the
+  recorded command or one of its first :data:`HARMONICS` harmonics: the mean response's error), the frequency refined by
   maximizing the periodogram, amplitude and phase by least squares; 3 parameters;
 * ``grid`` (quantization): every value on a grid of step Delta. Under any continuous model the
   chance that a value falls within 1e-6 Delta of a grid point is 2e-6, so l_grid = n ln(1/2e-6);
@@ -42,6 +43,7 @@ import os
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.fft as sfft
 
 from ..model import ModelError
 from ..model.effects import CATALOGUE
@@ -50,6 +52,7 @@ from . import whittle as W
 THRESHOLD = 10.0          # Delta BIC to add an effect
 REL_BW = 0.01             # frequency groups: at most 1 % of their frequency wide (Whittle on group means)
 CHI2_95 = 3.841
+HARMONICS = 7             # a residual line at up to the 7th harmonic of a command line is the mean response's
 WORKERS = 2               # candidates fitted concurrently (threads) on long records
 PARALLEL_MIN = 50_000     # samples x outputs from which they are
 GRID_TOL = 1e-6           # values within GRID_TOL * step of the grid count as on it
@@ -94,6 +97,25 @@ class Data:
         self.weights = self.sizes.copy()
         self.weights[0] = 0.5
         self.grid = quantization_grid(self.y)
+        self._lines = None
+
+    def command_lines(self) -> np.ndarray:
+        """Frequencies (Hz) of the recorded command's spectral lines (a sine, a square wave's
+        harmonics): bins 100x above the median of their 20 neighbours and above 1e-8 of the
+        largest, local maxima. Empty without a command."""
+        if self._lines is None:
+            self._lines = np.zeros(0)
+            if self.has_command:
+                from scipy.ndimage import median_filter
+                x = self.u[self.k0:] - np.mean(self.u[self.k0:], axis=0)
+                P = np.sum(np.abs(sfft.rfft(np.ascontiguousarray(x.T), axis=-1)) ** 2, axis=0)
+                P[0] = 0.0
+                med = median_filter(P, size=21, mode="nearest")
+                peak = np.zeros(P.size, bool)
+                peak[1:-1] = (P[1:-1] >= P[:-2]) & (P[1:-1] >= P[2:])
+                idx = np.flatnonzero(peak & (P > 100 * med) & (P > 1e-8 * P.max()))
+                self._lines = idx / (x.shape[0] * self.Ts)
+        return self._lines
 
     def group(self, A: np.ndarray) -> np.ndarray:
         """Means over the frequency groups (nb, ...)."""
@@ -576,14 +598,16 @@ class Hypotheses:
         return l
 
     # outer parameters: grid then golden section, coordinate ascent
-    def fit(self, model, free: dict, rounds: int = 2, new: tuple = (), screen: bool = False) -> Fit:
+    def fit(self, model, free: dict, rounds: int = 2, new: tuple = (), screen: bool = False,
+            only: tuple | None = None) -> Fit:
         """Fit the free parameters of ``model``. ``new``: effects whose searched parameters get a
         coarse grid over their whole range first (the others start from their current values).
         ``screen``: a cheap pass that searches only the new effects' parameters, once, with a
-        coarser grid (candidates are ranked by it, then the leaders are fitted in full)."""
+        coarser grid (candidates are ranked by it, then the leaders are fitted in full).
+        ``only``: search only these effects' parameters (the variances are always fitted)."""
         best = self.inner_fit(model, free)
         outer = [(e, spec) for e in free for spec in CATALOGUE[e].fit.shape if spec[0] in free[e]
-                 and (not screen or e in new)]
+                 and (not screen or e in new) and (only is None or e in only)]
         if "sensor.tone" in free and "frequency_hz" in free["sensor.tone"] and (not screen or "sensor.tone" in new):
             best = self._fit_tone_frequency(best)
         for rnd in range(1 if screen else rounds):
@@ -741,13 +765,15 @@ def tone_peaks(I: np.ndarray, E: np.ndarray, M: int, Ts: float, max_peaks: int =
 
 
 MODE_RANK = {"replace": 0, "refit": 1, "add": 2}
+EXACT_RANK = {"replace": 0, "add": 1, "refit": 2}     # on an exact tie: the user's values kept
 TIE = 2.0                 # Delta BIC within which candidates count as equally supported
 EXACT_TIE = 0.5           # ... and within which they are the same fit (chain order decides)
 # Near-ties (the data cannot tell the candidates apart, e.g. white actuator and process noise through
 # the same input, or saturation, dead zone and scale factor under a two-level command) are ranked
 # by: a replacement, then a changed value, then an addition (the fewest effects: a wrong value of
 # an effect the user has explains the data with no new physics), then the signal chain's order;
-# the others are reported as alternatives.
+# the others are reported as alternatives. An exact tie (identical spectra) between a new effect and
+# a changed value goes to the new effect: nothing in the data contradicts the user's value.
 
 
 @dataclass
@@ -801,6 +827,13 @@ class Search:
 
         def screen(st):
             try:
+                # a mean effect beside mean effects already fitted: searched jointly with them (a lag
+                # fitted alone takes the amplitude loss a saturation causes; adding the saturation to
+                # that lag only makes it worse until the lag gives it back)
+                others = tuple(e for e in cur.free if e != st.effect and CATALOGUE[e].fit.kind == "mean"
+                               and CATALOGUE[e].fit.shape)
+                if CATALOGUE[st.effect].fit.kind == "mean" and others:
+                    return self.H.fit(st.model, st.free, new=(st.effect,) + others, only=(st.effect,) + others)
                 return self.H.fit(st.model, st.free, new=(st.effect,), screen=True)
             except (ModelError, ValueError, np.linalg.LinAlgError) as exc:
                 return exc
@@ -841,6 +874,12 @@ class Search:
             same = [c for c in near if MODE_RANK[c.mode.split(":")[0]] == rank]
             best = max(key(c) for c in same)
             first = min((c for c in same if key(c) > best - EXACT_TIE), key=lambda c: CATALOGUE[c.effect].chain_order)
+            exact = [c for c in near if key(c) > max(key(x) for x in near) - EXACT_TIE]
+            modes = {c.mode.split(":")[0] for c in exact}
+            if {"add", "refit"} <= modes:
+                # an exact tie between a new effect and a changed value (identical spectra): the data
+                # do not contradict the user's value, so it is kept and the effect is added
+                first = min(exact, key=lambda c: (EXACT_RANK[c.mode.split(":")[0]], CATALOGUE[c.effect].chain_order))
             near = [first] + [c for c in near if c is not first]
             first.alternatives = [c for c in near[1:] if c.effect != first.effect]
             out.remove(first)
@@ -935,7 +974,15 @@ class Search:
         E = sum(W.expected_parts(cur.model, d.M, d.k0, d.at_rest, cache=self.H.ev._parts,
                                  ydot_sq=np.mean(self.H.ev.mean(cur.model)[1][d.k0:] ** 2, axis=0)).values())
         out = []
+        lines = d.command_lines()
+        df = 1.0 / (d.M * d.Ts)
         for j, f in tone_peaks(I, E, d.M, d.Ts):
+            if lines.size and np.any(np.abs(f - np.outer(lines, np.arange(1, HARMONICS + 1))) <= 1.5 * df):
+                # a line at a frequency (or harmonic) of the command's own lines is the mean response's
+                # error (a lag, a gain, a saturation's odd harmonics), not an interference tone
+                self.log(f"candidate sensor.tone at {f:.4g} Hz: skipped (a line of the command or its harmonics: "
+                         "left to the mean effects)")
+                continue
             amp = np.zeros(d.p)
             amp[j] = 1.0
             m = _set(cur.model, "sensor.tone", {"amplitude": _vec(amp), "frequency_hz": _vec(np.full(d.p, f))})
