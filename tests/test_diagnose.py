@@ -15,7 +15,7 @@ import pytest
 
 from service.diagnose.compare import compare
 from service.diagnose.diagnose import diagnose
-from service.diagnose.search import THRESHOLD, quantization_grid
+from service.diagnose.search import THRESHOLD, Data, Search, quantization_grid
 from service.model import load_model, parse_model
 from service.model.effects import CATALOGUE
 from service.model.model import scenario_names
@@ -109,6 +109,31 @@ def test_quantization_grid_detected():
     y = step * np.round(np.random.default_rng(1).normal(0, 0.01, (5000, 1)) / step)
     assert quantization_grid(y) == [pytest.approx(step, rel=1e-9)]
     assert quantization_grid(np.random.default_rng(2).normal(0, 1, (5000, 1))) == [None]
+
+
+def test_command_lines_and_their_harmonics_are_no_tone():
+    """A sine command has one line (its frequency, to a bin); a chirp and PRBS none; a residual
+    line at the sine's 3rd harmonic (a saturation's) is not offered as a tone, one elsewhere is."""
+    Ts, N = 0.01, 20000
+    t = np.arange(N) * Ts
+    f0 = 0.7
+    for u, lines in [(0.8 * np.sin(2 * np.pi * f0 * t), [f0]),
+                     (np.sin(2 * np.pi * (0.1 + 0.02 * t) * t), []),
+                     (np.where(np.random.default_rng(4).random(N // 50).repeat(50) > 0.5, 1.0, -1.0), [])]:
+        d = Data(np.zeros((N, 1)), u[:, None], Ts, True)
+        got = d.command_lines()
+        assert len(got) == len(lines) and np.allclose(got, lines, atol=1.0 / (N * Ts)), got
+    model = parse_model("name = \"c\"\n[sampling]\nTs = 0.01\n[plant]\nm = 1.0\nc = 2.0\nk = 20.0\n"
+                        "[command]\nkind = \"sine\"\namplitude = 0.8\nfrequency_hz = 0.7\n"
+                        "[sensor.white]\nstd = 0.01\n")
+    rng = np.random.default_rng(5)
+    mean = model.predictor().mean_response(N)
+    for f, offered in [(3 * f0, False), (5.3, True)]:
+        y = mean.y + 0.01 * rng.standard_normal((N, 1)) + 0.02 * np.sin(2 * np.pi * f * t)[:, None]
+        S = Search(model, Data(y, model.command.values(0, N, Ts), Ts, True))
+        tones = S._tones(S.start(), "add")
+        assert bool(tones) == offered and all(abs(st.model.effects["sensor.tone"].params["frequency_hz"] - f) < 0.01
+                                              for st in tones)
 
 
 # -- generated cases like the independent set -----------------------------------------------------------------

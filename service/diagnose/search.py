@@ -743,24 +743,42 @@ def _scale_name(eff) -> tuple[str, int]:
     return type(eff).fit.scale, 2
 
 
-def tone_peaks(I: np.ndarray, E: np.ndarray, M: int, Ts: float, max_peaks: int = 3) -> list[tuple[int, float]]:
+def tone_peaks(I: np.ndarray, E: np.ndarray, M: int, Ts: float, max_peaks: int = 3,
+               exclude: tuple | None = None) -> list[tuple[int, float]]:
     """(output, frequency Hz) of bins whose I/E exceeds what Exp(1) allows over all bins (P < 1e-3),
-    strongest first, at least 5 bins apart."""
+    strongest first, at least 5 bins apart, and not a sidelobe (within 50 bins of a peak or an
+    excluded line and under 1 % of its I/E: a strong line leaks through the taper's sidelobes).
+    ``exclude``: frequencies (Hz) that are no tones (the command's lines and harmonics) and the
+    half-widths (bins) of their zones, the main lobe of an off-bin line and the uncertainty of the
+    frequency included; their leakage beyond is skipped as sidelobes."""
     out = []
     nf = I.shape[0]
     thr = math.log(nf / 1e-3)
+    ex_bins, ex_half = (np.zeros(0), np.zeros(0)) if exclude is None else \
+        (np.asarray(exclude[0], float) * M * Ts, np.asarray(exclude[1], float))
     for j in range(I.shape[1]):
         ratio = I[:, j] / np.maximum(E[:, j], 1e-300)
         ratio[0] = 0.0                                  # DC is no tone
         idx = np.flatnonzero(ratio > thr)
-        chosen: list[int] = []
+        # the excluded lines' own peaks (their strongest bin within 1.5) count as chosen, not offered
+        lines = []
+        for b, hw in zip(ex_bins, ex_half):
+            lo, hi = max(1, int(math.floor(b - hw))), min(nf - 1, int(math.ceil(b + hw)))
+            if lo <= hi:
+                k = lo + int(np.argmax(ratio[lo:hi + 1]))
+                lines.append((k, float(ratio[k])))
+        chosen: list[tuple[int, float]] = []
         for i in idx[np.argsort(-ratio[idx])]:
-            if any(abs(i - c) < 5 for c in chosen):
+            if np.any(np.abs(i - ex_bins) <= ex_half):
                 continue
-            chosen.append(int(i))
+            if any(abs(i - c) < 5 for c, _ in chosen):
+                continue
+            if any(abs(i - c) <= 50 and ratio[i] < 0.01 * rc for c, rc in chosen + lines):
+                continue                                # a sidelobe of a stronger line
+            chosen.append((int(i), float(ratio[i])))
             if len(chosen) >= max_peaks:
                 break
-        out += [(j, c / (M * Ts)) for c in chosen]
+        out += [(j, c / (M * Ts)) for c, _ in chosen]
     return out
 
 
@@ -974,15 +992,20 @@ class Search:
         E = sum(W.expected_parts(cur.model, d.M, d.k0, d.at_rest, cache=self.H.ev._parts,
                                  ydot_sq=np.mean(self.H.ev.mean(cur.model)[1][d.k0:] ** 2, axis=0)).values())
         out = []
+        # a line at a frequency (or harmonic) of the command's own lines is the mean response's error
+        # (a lag, a gain, a saturation's odd harmonics), not an interference tone
         lines = d.command_lines()
-        df = 1.0 / (d.M * d.Ts)
-        for j, f in tone_peaks(I, E, d.M, d.Ts):
-            if lines.size and np.any(np.abs(f - np.outer(lines, np.arange(1, HARMONICS + 1))) <= 1.5 * df):
-                # a line at a frequency (or harmonic) of the command's own lines is the mean response's
-                # error (a lag, a gain, a saturation's odd harmonics), not an interference tone
-                self.log(f"candidate sensor.tone at {f:.4g} Hz: skipped (a line of the command or its harmonics: "
-                         "left to the mean effects)")
-                continue
+        order = np.arange(1, HARMONICS + 1)
+        harm = np.outer(lines, order).ravel()
+        # zone: the main lobe of an off-bin line (+-2.5 bins) and the line's frequency known to half a
+        # bin, times the harmonic's order
+        half = np.broadcast_to(2.5 + 0.5 * order, (lines.size, order.size)).ravel()
+        keep = harm < 0.5 / d.Ts
+        harm, half = harm[keep], half[keep]
+        if harm.size:
+            self.log(f"tone candidates: none at the command's lines and their harmonics "
+                     f"({', '.join(f'{x:.4g}' for x in harm[:4])}{', ...' if harm.size > 4 else ''} Hz)")
+        for j, f in tone_peaks(I, E, d.M, d.Ts, exclude=(harm, half)):
             amp = np.zeros(d.p)
             amp[j] = 1.0
             m = _set(cur.model, "sensor.tone", {"amplitude": _vec(amp), "frequency_hz": _vec(np.full(d.p, f))})
