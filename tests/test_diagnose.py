@@ -13,7 +13,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from service.diagnose.compare import compare
 from service.diagnose.diagnose import diagnose
 from service.diagnose.search import THRESHOLD, Data, Search, quantization_grid
 from service.model import load_model, parse_model
