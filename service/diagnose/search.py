@@ -856,7 +856,11 @@ class Search:
             except (ModelError, ValueError, np.linalg.LinAlgError) as exc:
                 return exc
 
-        for st, fit in zip(starts, self._map(screen, starts)):
+        def screen_cost(st):
+            spec = CATALOGUE[st.effect].fit
+            return (3 if spec.kind == "mean" else 1) * (1 + len(spec.shape)) + (2 if st.effect == "sensor.tone" else 0)
+
+        for st, fit in zip(starts, self._map(screen, starts, cost=screen_cost)):
             if isinstance(fit, Exception):
                 self.log(f"candidate {st.mode} {st.effect}: skipped ({fit})")
                 continue
@@ -904,14 +908,21 @@ class Search:
             out.insert(0, first)
         return out
 
-    def _map(self, fn, items: list) -> list:
+    def _map(self, fn, items: list, cost=None) -> list:
         """fn over items, in :data:`WORKERS` threads on long records (the transforms and array
-        arithmetic release the GIL; the caches they share are get-then-set); in order."""
+        arithmetic release the GIL; the caches they share are get-then-set); results in order.
+        ``cost``: an item's expected cost, the costliest started first (no thread idles at the end
+        while one runs a long fit)."""
         if self.workers <= 1 or len(items) < 2:
             return [fn(x) for x in items]
         from concurrent.futures import ThreadPoolExecutor
+        order = sorted(range(len(items)), key=lambda i: -cost(items[i])) if cost else range(len(items))
+        out = [None] * len(items)
         with ThreadPoolExecutor(max_workers=self.workers) as pool:
-            return list(pool.map(fn, items))
+            futures = {i: pool.submit(fn, items[i]) for i in order}
+            for i, f in futures.items():
+                out[i] = f.result()
+        return out
 
     def starts(self, cur: Fit) -> list[Start]:
         d = self.data
