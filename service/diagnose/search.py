@@ -760,7 +760,7 @@ def tone_peaks(I: np.ndarray, E: np.ndarray, M: int, Ts: float, max_peaks: int =
         ratio = I[:, j] / np.maximum(E[:, j], 1e-300)
         ratio[0] = 0.0                                  # DC is no tone
         idx = np.flatnonzero(ratio > thr)
-        # the excluded lines' own peaks (their strongest bin within 1.5) count as chosen, not offered
+        # the excluded lines' own peaks (their strongest bin within the zone) count as chosen, not offered
         lines = []
         for b, hw in zip(ex_bins, ex_half):
             lo, hi = max(1, int(math.floor(b - hw))), min(nf - 1, int(math.ceil(b + hw)))
