@@ -9,6 +9,7 @@ import pytest
 
 from service.diagnose import whittle as W
 from service.model import load_model, parse_model
+from service.model.simulate import lsim, propagate
 
 SEED = open(__file__.replace("tests/test_whittle.py", "service/scenarios/seed.toml")).read()
 
@@ -77,9 +78,14 @@ def test_modal_mean_response_equals_the_predictor():
         model = load_model(name)
         N = 5000
         u = model.command.values(0, N, model.Ts)
-        ref = model.predictor().mean_response(command=u)
-        y = W.lsim(model.Ad, model.Bd, model.Cy, model.Dy, u) * model.out_gain
-        np.testing.assert_allclose(y, ref.y, rtol=1e-9, atol=1e-12 * np.max(np.abs(ref.y)))
+        mean = model.predictor().mean_response(command=u)
+        # the reference: the simulation's Schur propagator (complex, unitary), not the modal recursions
+        x = propagate(model.Ad, mean.drive @ model.Bd.T)
+        ref = (x @ model.Cy.T + mean.drive @ model.Dy.T) * model.out_gain
+        y = lsim(model.Ad, model.Bd, model.Cy, model.Dy, mean.drive) * model.out_gain
+        np.testing.assert_allclose(y, ref, rtol=1e-9, atol=1e-12 * np.max(np.abs(ref)))
+        np.testing.assert_allclose(mean.y, ref, rtol=1e-9, atol=1e-12 * np.max(np.abs(ref)))
+        np.testing.assert_allclose(mean.x, x, rtol=1e-9, atol=1e-12 * np.max(np.abs(x)))
 
 
 def test_profile_edge_root_finder_hits_the_chi2_crossing():

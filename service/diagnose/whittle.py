@@ -48,63 +48,10 @@ import math
 
 import numpy as np
 import scipy.fft as sfft
-from scipy.signal import lfilter
 
 TAPER = 0.2              # Tukey taper: the cosine parts cover 10 % of the record at each end
 DECAY = 1e-13            # |lambda|^h below which an exponential's tail is dropped
 COND_MAX = 1e8           # eigenvector condition number beyond which F is treated as defective
-
-
-# -- linear simulation of the mean response (modal, real input) ---------------------------------------------
-def lsim(Ad: np.ndarray, Bd: np.ndarray, C: np.ndarray, D: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """y_k = C x_k + D u_k, x_{k+1} = Ad x_k + Bd u_k, x_0 = 0; u (N, m) -> y (N, p).
-
-    Modal: one first-order complex recursion per eigenvalue (lfilter), conjugate pairs once. Falls
-    back to the Schur propagator of the simulation when Ad's eigenvectors are ill-conditioned."""
-    u = np.asarray(u, float)
-    N = u.shape[0]
-    y = u @ D.T if D.size else np.zeros((N, C.shape[0]))
-    n = Ad.shape[0]
-    if n == 0:
-        return y
-    lam, V = np.linalg.eig(Ad)
-    if np.linalg.cond(V) > COND_MAX:
-        from ..model.simulate import propagate
-        x = propagate(Ad, u @ Bd.T)
-        return y + x @ C.T
-    Vi = np.linalg.inv(V)
-    Bm = Vi @ Bd                       # (n, m)
-    Cm = C @ V                         # (p, n)
-    done = np.zeros(n, bool)
-    for i in range(n):
-        if done[i]:
-            continue
-        done[i] = True
-        lam_i = complex(lam[i])
-        j = []
-        if abs(lam_i.imag) > 0:
-            # its conjugate partner: the pair is one real second-order section
-            j = [k for k in range(n) if not done[k] and np.isclose(lam[k], np.conj(lam_i), rtol=1e-10, atol=1e-14)]
-            if j:
-                done[j[0]] = True
-        for c in range(u.shape[1]):
-            g = Cm[:, i] * Bm[i, c]                      # (p,) output weights of this mode and input
-            if not np.any(g) or not np.any(u[:, c]):
-                continue
-            if j:
-                # g z^-1 / (1 - lam z^-1) + conj: (2 Re g z^-1 - 2 Re(g conj lam) z^-2) / (1 - 2 Re lam z^-1 + |lam|^2 z^-2)
-                s_ = lfilter([1.0], [1.0, -2.0 * lam_i.real, abs(lam_i) ** 2], u[:, c])
-                b1, b2 = 2.0 * g.real, -2.0 * (g * np.conj(lam_i)).real
-                y[1:] += np.outer(s_[:-1], b1)
-                y[2:] += np.outer(s_[:-2], b2)
-            elif lam_i.imag == 0:
-                # x_k = sum_{l<k} lam^(k-1-l) u_l (a real mode: g real up to rounding)
-                s_ = lfilter([1.0], [1.0, -lam_i.real], u[:, c])
-                y[1:] += np.outer(s_[:-1], g.real)
-            else:                      # a complex mode without its partner (not from a real A): as is
-                z = lfilter([0.0, 1.0], [1.0, -lam_i], u[:, c].astype(complex))
-                y += np.outer(z, g).real
-    return y
 
 
 # -- periodogram of the differenced residual ---------------------------------------------------------------
@@ -361,27 +308,45 @@ class Modes:
             coef = (L[:, :, None] * Rm[None, :, :]).transpose(1, 0, 2).reshape(self.n, a * b)   # (n, a b)
             lam = self.lam.astype(complex)
             keep, coef = self._pairs(lam, coef)
+            # modes whose weight is rounding (a plant mode the source's noise does not reach) dropped
+            big = np.max(np.abs(coef[keep]), axis=1) > 1e-14 * max(float(np.max(np.abs(coef[keep]), initial=0.0)), 1e-300)
+            keep[np.flatnonzero(keep)[~big]] = False
             lam, coef = lam[keep], coef[keep]
             # each mode only up to its own horizon (a fast plant mode beside a slow bias)
             mag = np.abs(lam)
             with np.errstate(divide="ignore"):
                 hz = np.where(mag == 0, 1.0, np.where(mag < 1, np.log(DECAY) / np.log(np.maximum(mag, 1e-300)) + 2, np.inf))
+            real = lam.imag == 0                     # real modes in real arithmetic
             nb = min(K, block)
-            P = np.empty((nb, lam.size), complex)    # lam^j, j < nb, by products (no exponentials)
-            P[0] = 1.0
-            if nb > 1:
-                P[1:] = lam
-                np.cumprod(P, axis=0, out=P)
+            groups = []
+            for sel, dt in ((np.flatnonzero(real), float), (np.flatnonzero(~real), complex)):
+                if sel.size:
+                    lm = lam[sel].real if dt is float else lam[sel]
+                    P = np.empty((nb, sel.size), dt)  # lam^j, j < nb, by products (no exponentials)
+                    P[0] = 1.0
+                    if nb > 1:
+                        P[1:] = lm
+                        np.cumprod(P, axis=0, out=P)
+                    groups.append((sel, lm, P, coef[sel].real if dt is float else coef[sel]))
+            out[:] = 0.0
             for h0 in range(0, K, nb):
                 m = min(K, h0 + nb) - h0
-                act = np.flatnonzero(hz > h0)
-                if act.size == 0:
-                    out[h0:] = 0.0
+                acc = out[h0:h0 + m].reshape(m, a * b)
+                any_ = False
+                for sel, lm, P, cf in groups:
+                    act = np.flatnonzero(hz[sel] > h0)
+                    if act.size == 0:
+                        continue
+                    any_ = True
+                    pw = P[:m, act]
+                    if h0:
+                        pw = pw * (lm[act] ** h0 if pw.dtype == float else np.exp(h0 * np.log(lm[act])))
+                    if pw.dtype == float:
+                        acc += pw @ cf[act]
+                    else:
+                        acc += pw.real @ cf[act].real - pw.imag @ cf[act].imag
+                if not any_:
                     break
-                pw = P[:m, act]
-                if h0:
-                    pw = pw * np.exp(h0 * np.log(lam[act]))
-                out[h0:h0 + m] = (pw.real @ coef[act].real - pw.imag @ coef[act].imag).reshape(m, a, b)
             return out
         X = right.astype(float)
         for h in range(K):                          # defective F: plain products
@@ -409,19 +374,24 @@ def linear_part(F, G, H, J, Pe, M: int, k0: int, at_rest: bool, groups: Groups |
     """E I_f (nf, p) of one source of the augmented linear system (see the module docstring);
     ``groups``: their means (nb, p)."""
     p = H.shape[0]
+    n = F.shape[0]
     modes = Modes(F)
     K = modes.horizon(M + 1)
-    X = np.concatenate([Pe @ H.T, G @ J.T], axis=1)                  # (n, 2p)
-    S = modes.series(H, X, K + 1)                                    # (K+1, p, 2p)
+    # R(h) = H F^h P H^T + [h >= 1] H F^(h-1) Gamma J^T (+ J J^T at 0): for h >= 1, H F^(h-1) Y0 with
+    # Y0 = F P H^T + Gamma J^T, so the differenced Rd(h) = 2 R(h) - R(h-1) - R(h+1) is, for h >= 2,
+    # -H F^(h-2) (I - F)^2 Y0: one series, and no cancellation between neighbouring lags of a slow mode
     idx = np.arange(p)
-    R = np.empty((K + 2, p))
-    R[:K + 1] = S[:, idx, idx]
-    R[K + 1] = 0.0
-    R[1:K + 1] += S[:K, idx, p + idx]                                # H F^(h-1) Gamma J^T, h >= 1
-    R[0] += np.sum(J**2, axis=1)
+    Y0 = F @ Pe @ H.T + G @ J.T                                      # (n, p)
+    R0 = np.diag(H @ Pe @ H.T) + np.sum(J**2, axis=1)
+    R1 = np.diag(H @ Y0)
+    IF = np.eye(n) - F
     Rd = np.empty((K + 1, p))
-    Rd[0] = 2 * (R[0] - R[1])
-    Rd[1:] = 2 * R[1:K + 1] - R[:K] - R[2:K + 2]
+    Rd[0] = 2 * (R0 - R1)
+    if K >= 1:
+        R2 = np.diag(H @ F @ Y0) if K >= 2 else np.zeros(p)          # R(K+1) = 0 beyond the horizon
+        Rd[1] = 2 * R1 - R0 - R2
+    if K >= 2:
+        Rd[2:] = modes.series(H, -(IF @ IF @ Y0), K - 1)[:, idx, idx]
     # a(h) = c_w(h) Rd(h) / M
     K = min(Rd.shape[0], M)
     a = Rd[:K] * (taper(M)[1][:K, None] / M)
@@ -430,9 +400,12 @@ def linear_part(F, G, H, J, Pe, M: int, k0: int, at_rest: bool, groups: Groups |
         Gs = psd_sqrt(Pe)
         if Gs.shape[1]:
             Kr = min(modes.horizon(k0 + M + 1), k0 + M + 1)
-            v = modes.series(H, Gs, Kr)                              # (Kr, p, c): v_k = H F^k P^(1/2)
-            w = np.diff(v[k0:], axis=0)                              # w_q = v_{k0+q+1} - v_{k0+q}
-            w = w * taper(M)[0][:w.shape[0], None, None] if w.shape[0] else None
+            # w_q = v_{k0+q+1} - v_{k0+q} = H F^(k0+q) (F - I) P^(1/2), q < Kr - k0 - 1
+            Lw = Kr - k0 - 1
+            if Lw > 0:
+                left = H if k0 == 0 else H @ np.linalg.matrix_power(F, k0)
+                w = modes.series(left, -(IF @ Gs), Lw)                   # (Lw, p, c)
+                w *= taper(M)[0][:Lw, None, None]
     Lw = 0 if w is None else w.shape[0]
     short = groups is not None and groups.n > 1 and max(K, Lw) + groups.F_low <= M // 8
     if w is not None and short:

@@ -38,7 +38,7 @@ import numpy as np
 from scipy.linalg import block_diag, solve_discrete_lyapunov
 from scipy.special import ndtr
 
-from .simulate import propagate
+from .simulate import lsim
 
 _SQRT2PI = np.sqrt(2.0 * np.pi)
 
@@ -228,7 +228,8 @@ class Predictor:
             n = u.shape[0]
         var = self.drive_noise_var(n)
         drive, gain, dvar = self.drive_stats(u, var)
-        x = propagate(mdl.Ad, drive @ mdl.Bd.T)
+        # the states by modal real recursions (Schur propagator when A_d's eigenvectors are ill-conditioned)
+        x = lsim(mdl.Ad, mdl.Bd, np.eye(mdl.n_x), np.zeros((mdl.n_x, 0)), drive) if mdl.n_x else np.zeros((n, 0))
         y = (x @ mdl.Cy.T + drive @ mdl.Dy.T) * mdl.out_gain
         ydot = (x @ (mdl.Cy @ mdl.Ac).T + drive @ (mdl.Cy @ mdl.Bc).T) * mdl.out_gain
         return MeanResponse(t=np.arange(n) * mdl.Ts, x=x, drive=drive, gain=gain, drive_var=var,
@@ -489,12 +490,22 @@ class Predictor:
                 continue
             Pk = self._Pj[eid]
             X = np.concatenate([Pk @ ls.H.T, ls.Gam[:, cols] @ ls.J[:, cols].T], axis=1)   # (n_s, 2p)
-            FX = _powers_apply(ls.F, X, L)                                                  # (L, n_s, 2p)
+            F, H = ls.F, ls.H
+            # only the states this source reaches (when nothing else is driven by them), and only
+            # up to where its slowest mode has decayed below 1e-13 (zero beyond, as in the diagnosis)
+            on = np.flatnonzero(np.any(X != 0, axis=1) | np.any(Pk != 0, axis=1))
+            on = np.union1d(np.arange(mdl.n_x), on)
+            off = np.setdiff1d(np.arange(F.shape[0]), on)
+            if off.size == 0 or not np.any(F[np.ix_(off, on)]):
+                F, H, X = F[np.ix_(on, on)], H[:, on], X[on]
+            rho = float(np.max(np.abs(np.linalg.eigvals(F)), initial=0.0)) if F.size else 0.0
+            K = L if rho >= 1 else min(L, int(np.ceil(np.log(1e-13) / np.log(max(rho, 1e-300)))) + 2 + F.shape[0])
+            FX = _powers_apply(F, X, K)                                                     # (K, n, 2p)
             p = mdl.p
-            R = np.einsum("ij,ljk->lik", ls.H, FX[:, :, :p])                               # (L, p, p)
-            Rd = np.diagonal(R, axis1=1, axis2=2).copy()
-            cross = np.diagonal(np.einsum("ij,ljk->lik", ls.H, FX[:, :, p:]), axis1=1, axis2=2)
-            Rd[1:] += cross[:-1]                          # H F^{d-1} Gamma J^T for d >= 1
+            Rd = np.zeros((L, p))
+            Rd[:K] = np.diagonal(np.einsum("ij,ljk->lik", H, FX[:, :, :p]), axis1=1, axis2=2)
+            cross = np.diagonal(np.einsum("ij,ljk->lik", H, FX[:, :, p:]), axis1=1, axis2=2)
+            Rd[1:K + 1] += cross[:L - 1]                  # H F^{d-1} Gamma J^T for d >= 1
             Rd[0] += np.sum(ls.J[:, cols] ** 2, axis=1)  # J J^T at d = 0
             out[eid] = Rd
         for eid, kind, *prm in self._primitives():
