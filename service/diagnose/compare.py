@@ -42,7 +42,9 @@ The analysis starts after the model's transient from rest when the recording sta
 
 from __future__ import annotations
 
+import threading
 from collections import OrderedDict
+from concurrent.futures import ThreadPoolExecutor
 from functools import lru_cache
 
 import numpy as np
@@ -95,6 +97,9 @@ CACHE_MAX_BYTES = 64 * 2**20
 CACHE_MAX_ENTRIES = 2048                   # a filling window adds ~2 small entries per update
 _CACHE: OrderedDict = OrderedDict()        # key -> (value, bytes, model kept alive for id keys)
 _cache_bytes = 0
+_LOCK = threading.RLock()                 # the views of one comparison are computed in threads
+VIEW_THREADS = 2                          # ... on records of at least VIEW_THREADS_MIN samples x outputs
+VIEW_THREADS_MIN = 50_000
 
 
 def _model_key(model):
@@ -131,6 +136,11 @@ def _cache_drop(k) -> None:
 
 
 def _cache_put(k, value, model) -> None:
+    with _LOCK:
+        _cache_put_locked(k, value, model)
+
+
+def _cache_put_locked(k, value, model) -> None:
     global _cache_bytes
     if k in _CACHE:
         _cache_drop(k)
@@ -145,18 +155,20 @@ def _cache_put(k, value, model) -> None:
 
 
 def _cache_get(k):
-    hit = _CACHE.get(k)
-    if hit is None:
-        return None
-    _CACHE.move_to_end(k)
-    return hit[0]
+    with _LOCK:
+        hit = _CACHE.get(k)
+        if hit is None:
+            return None
+        _CACHE.move_to_end(k)
+        return hit[0]
 
 
 def cache_clear() -> None:
     """Forget every cached prediction (and the Welch kernels): what a fresh process starts with."""
     global _cache_bytes
-    _CACHE.clear()
-    _cache_bytes = 0
+    with _LOCK:
+        _CACHE.clear()
+        _cache_bytes = 0
     _welch_kernel.cache_clear()
 
 
@@ -235,15 +247,20 @@ def _welch_kernel(L: int, window: str) -> np.ndarray:
     cw = np.correlate(w, w, mode="full")[L - 1:]
     J = L // 2 + 1
     out = np.empty((J, L))
+    # a_j = W_j / L vanishes (to rounding) for most bins of a smooth window (Hann: all but j = 0, 1);
+    # there C(d) = e^{-i w d} c_w(d), no sums needed
+    A = np.fft.rfft(w) / L
+    full = np.abs(A) > 1e-13 * abs(A[0])
     for j0 in range(0, J, 256):
         j = np.arange(j0, min(J, j0 + 256))[:, None]
-        e = np.exp(-2j * np.pi * j * n / L)
+        out[j0:j0 + j.size] = np.cos(2 * np.pi * ((j * n) % L) / L) * cw
+    for j in np.flatnonzero(full):
+        e = np.exp(-2j * np.pi * ((j * n) % L) / L)
         we = w * e
-        a = we.sum(axis=1, keepdims=True) / L
-        S1 = np.cumsum(we[:, ::-1], axis=1)[:, ::-1]                 # sum_{m>=d}
-        S2 = np.cumsum(np.conj(we), axis=1)[:, ::-1]                 # sum_{n<=L-1-d}
-        C = e * cw - np.conj(a) * S1 - a * S2 + np.abs(a) ** 2 * (L - d)
-        out[j0:j0 + j.size] = C.real
+        a = we.sum() / L
+        S1 = np.cumsum(we[::-1])[::-1]                 # sum_{m>=d}
+        S2 = np.cumsum(np.conj(we))[::-1]              # sum_{n<=L-1-d}
+        out[j] = (e * cw - np.conj(a) * S1 - a * S2 + np.abs(a) ** 2 * (L - d)).real
     return out
 
 
@@ -578,14 +595,20 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
     gam = _gamma_parts(model, max(L_need, r.shape[0] + 1))
     corr = 5 * _cached(model, "transient", 0, lambda: transient_samples(model)) + 10
     gam_short = {eid: g[:L_need] for eid, g in gam.items()}
-    views = []
+    jobs = []
     for j in range(model.p):
         rj = r[:, j]
-        views.append(variance_view(rj, ta, gam_short, j, s["window"], model,
-                                   gam_long=sum(g[:, j] for g in gam.values())))
-        views.append(acf_view(rj, model.Ts, gam_short, j, s["acf_segment"], s["max_lag"], model))
-        views.append(psd_view(rj, model.Ts, gam_short, j, s["nperseg"], s["bins_per_decade"], model))
-        views.append(allan_view(rj, model.Ts, gam, j, corr, model))
+        jobs += [lambda rj=rj, j=j: variance_view(rj, ta, gam_short, j, s["window"], model,
+                                                  gam_long=sum(g[:, j] for g in gam.values())),
+                 lambda rj=rj, j=j: acf_view(rj, model.Ts, gam_short, j, s["acf_segment"], s["max_lag"], model),
+                 lambda rj=rj, j=j: psd_view(rj, model.Ts, gam_short, j, s["nperseg"], s["bins_per_decade"], model),
+                 lambda rj=rj, j=j: allan_view(rj, model.Ts, gam, j, corr, model)]
+    if r.size >= VIEW_THREADS_MIN and VIEW_THREADS > 1:
+        # independent views: their transforms and array arithmetic release the GIL
+        with ThreadPoolExecutor(max_workers=VIEW_THREADS) as pool:
+            views = list(pool.map(lambda f: f(), jobs))
+    else:
+        views = [f() for f in jobs]
     per_view = {}
     for name in ("variance", "acf", "psd", "allan"):
         errs = [v.error for v in views if v.name == name]
