@@ -20,7 +20,7 @@ import numpy as np
 
 from ..model.effects import CATALOGUE
 from .compare import compare, transient_samples
-from .search import THRESHOLD, Data, Search, intervals
+from .search import THRESHOLD, Data, Search, interval_tasks, merge_intervals
 
 MAX_EFFECTS = 3
 NONLINEAR = ("actuator.saturation", "actuator.deadzone")
@@ -270,7 +270,8 @@ def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MA
             break
         best = cands[0]
         step_cands.append(cands)
-        new = S.refit_all(best.fit, thorough=True)
+        # a leader's fit is already the joint thorough refit: not repeated
+        new = best.fit if best.full else S.refit_all(best.fit, thorough=True)
         cmp = compare(new.model, t, y, u, burn=burn, revision=len(comps))
         cmp.model_name = f"+ {best.effect}"
         err = cmp.error
@@ -294,10 +295,14 @@ def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MA
                           "params": _report_params(c.effect, fit.model.effects[c.effect].param_dict(), model.Ts)})
     cur = _prefer_replacements(S, cur, accepted, say)
     missing = []
-    for c in accepted:
+    # the profile-likelihood intervals of the effects found, concurrently on long records
+    tasks = [(i, name, f) for i, c in enumerate(accepted) for name, f in interval_tasks(S.H, cur, c.effect)]
+    res = S._map(lambda task: task[2](), tasks)
+    ivs = [merge_intervals([(name, r) for (i, name, _), r in zip(tasks, res) if i == k]) for k in range(len(accepted))]
+    for c, iv_c in zip(accepted, ivs):
         eff = cur.model.effects.get(c.effect)
         params = eff.param_dict()
-        iv = _report_intervals(c.effect, intervals(S.H, cur, c.effect), model.Ts)
+        iv = _report_intervals(c.effect, iv_c, model.Ts)
         band = _band(cur, c.effect, data)
         alts = [{"effect": a.effect, "mode": a.mode, "score": float(a.score),
                  "params": _report_params(a.effect, a.fit.model.effects[a.effect].param_dict(), model.Ts)}

@@ -47,6 +47,7 @@ import scipy.fft as sfft
 
 from ..model import ModelError
 from ..model.effects import CATALOGUE
+from ..model.simulate import lsim
 from . import whittle as W
 
 THRESHOLD = 10.0          # Delta BIC to add an effect
@@ -55,6 +56,7 @@ CHI2_95 = 3.841
 HARMONICS = 7             # a residual line at up to the 7th harmonic of a command line is the mean response's
 WORKERS = 2               # candidates fitted concurrently (threads) on long records
 PARALLEL_MIN = 50_000     # samples x outputs from which they are
+SCREEN_N = 1 << 18        # records of at least 2 SCREEN_N samples are screened on their first SCREEN_N
 GRID_TOL = 1e-6           # values within GRID_TOL * step of the grid count as on it
 
 
@@ -166,7 +168,7 @@ def mean_response(model, data: Data, gain: bool = True):
     drive = mean_drive(pr, u)
     C = np.vstack([model.Cy, model.Cy @ model.Ac])
     D = np.vstack([model.Dy, model.Cy @ model.Bc])
-    yy = W.lsim(model.Ad, model.Bd, C, D, drive)
+    yy = lsim(model.Ad, model.Bd, C, D, drive)
     if not gain:
         return yy[:, :model.p], yy[:, model.p:]
     g = model.out_gain
@@ -237,11 +239,21 @@ def tone_ls(r: np.ndarray, f: float, Ts: float, k0: int):
 def refine_frequency(r: np.ndarray, f0: float, Ts: float, k0: int, width: float) -> float:
     """The frequency near f0 (within +-width Hz) that maximizes |sum r_k e^{-i w k}|^2."""
     x = r[k0:] - r[k0:].mean()
-    k = np.arange(x.size)
+    # sum_k x_k e^{-i w k} with k = a B + b: e^{-i w a B} summed over rows of x (A, B) e^{-i w b}
+    # (two short exponentials per frequency instead of one as long as the record)
+    B = 1024
+    A = -(-x.size // B)
+    xp = np.zeros(A * B)
+    xp[:x.size] = x
+    xp = xp.reshape(A, B)
+    kb = np.arange(B)
+    ka = np.arange(A) * float(B)
 
     def power(f):
-        z = np.exp(-2j * np.pi * f * Ts * k)
-        return -abs(np.dot(x, z)) ** 2
+        w = 2 * np.pi * f * Ts
+        zb = np.exp(-1j * w * kb)
+        rows = xp @ zb.real + 1j * (xp @ zb.imag)
+        return -abs(np.dot(np.exp(-1j * w * ka), rows)) ** 2
 
     a, b = f0 - width, f0 + width
     gr = (math.sqrt(5) - 1) / 2
@@ -504,8 +516,10 @@ def _dependence(d: np.ndarray, H: int = 50) -> float:
     """1 + 2 sum_h rho_d(h)^2: the variance inflation of a mean of d_q^2 for Gaussian d."""
     x = d - d.mean()
     n = x.size
-    X = np.fft.rfft(x, 2 * n)
-    ac = np.fft.irfft(np.abs(X) ** 2)[:H + 1]
+    # lags up to H only: a circular transform padded by more than H is exact there
+    L = sfft.next_fast_len(n + H + 1, real=True)
+    X = sfft.rfft(x, L)
+    ac = sfft.irfft(X.real**2 + X.imag**2, L)[:H + 1]
     if ac[0] <= 0:
         return 1.0
     rho = ac[1:] / ac[0]
@@ -734,6 +748,7 @@ class Candidate:
     sel: float = float("nan")       # choice score among the significant (Search.choice)
     loglik: float = float("nan")
     alternatives: list = field(default_factory=list)   # other effects the data support as well
+    full: bool = False              # fit is already the joint thorough refit (Search.refit_all)
 
 
 def _scale_name(eff) -> tuple[str, int]:
@@ -815,6 +830,14 @@ class Search:
         self.n_full = n_full
         # threads pay off once an evaluation's arrays are large (their setup is ~1 ms)
         self.workers = min(WORKERS, os.cpu_count() or 1) if data.N * data.p >= PARALLEL_MIN else 1
+        # a long record: candidates are screened on its first SCREEN_N samples (a valid likelihood of
+        # that part), then scored on the whole record at the screened values; the leaders are fitted
+        # on the whole record (see :meth:`candidates`)
+        self.Hs = self.H
+        if data.N >= 2 * SCREEN_N:
+            part = Data(data.y[:SCREEN_N + 1], None if data.u is None else data.u[:SCREEN_N + 1], data.Ts,
+                        data.at_rest, data.k0)
+            self.Hs = Hypotheses(part, model)
 
     def start(self) -> Fit:
         return self.H.inner_fit(self.nominal, {})
@@ -834,8 +857,10 @@ class Search:
 
     def candidates(self, cur: Fit) -> list[Candidate]:
         """Every candidate screened (its own parameters searched, the rest refitted only in their
-        variances), then the ``n_full`` best fitted jointly with everything freed so far (every
-        searched parameter from a coarse grid). The significant ones (Delta BIC > THRESHOLD) come
+        variances; on a long record on its first :data:`SCREEN_N` samples, then the variances
+        refitted and the candidate scored on the whole record), then the ``n_full`` best fitted
+        jointly with everything freed so far on the whole record (every searched parameter from a
+        coarse grid). The significant ones (Delta BIC > THRESHOLD) come
         first, ranked by :meth:`choice`, the others by Delta BIC; near-ties (within :data:`TIE`)
         resolved towards fewer effects: a replacement first, then a changed value, then an
         addition; within a mode the best score, and the signal chain's order on an exact tie
@@ -850,9 +875,12 @@ class Search:
                 # that lag only makes it worse until the lag gives it back)
                 others = tuple(e for e in cur.free if e != st.effect and CATALOGUE[e].fit.kind == "mean"
                                and CATALOGUE[e].fit.shape)
+                Hs = self.Hs
                 if CATALOGUE[st.effect].fit.kind == "mean" and others:
-                    return self.H.fit(st.model, st.free, new=(st.effect,) + others, only=(st.effect,) + others)
-                return self.H.fit(st.model, st.free, new=(st.effect,), screen=True)
+                    fit = Hs.fit(st.model, st.free, new=(st.effect,) + others, only=(st.effect,) + others)
+                else:
+                    fit = Hs.fit(st.model, st.free, new=(st.effect,), screen=True)
+                return fit if Hs is self.H else self.H.inner_fit(fit.model, fit.free)
             except (ModelError, ValueError, np.linalg.LinAlgError) as exc:
                 return exc
 
@@ -881,6 +909,7 @@ class Search:
             if full is not None and full.loglik > c.fit.loglik:
                 c.fit = full
                 c.score = self.score(full, cur, c.k)
+                c.full = True
         for c in out:
             c.loglik = c.fit.loglik
             c.sel = self.choice(c.fit, cur, c.k)
@@ -1037,29 +1066,54 @@ def intervals(H: Hypotheses, fit: Fit, eid: str) -> dict:
     """95 % profile-likelihood intervals of ``eid``'s free parameters at the joint fit: every other
     free variance re-optimized, and the effect's own searched parameters too for its variance (a
     Gauss-Markov std and its tau trade off against each other)."""
-    out = {}
+    return merge_intervals([(key, f()) for key, f in interval_tasks(H, fit, eid)])
+
+
+def merge_intervals(done: list) -> dict:
+    """{name: interval} from :func:`interval_tasks`' (key, result) pairs."""
+    out: dict = {}
+    for key, res in done:
+        if key is None:
+            out.update(res)
+        elif isinstance(key, tuple):                 # (name, 0 | 1): one end
+            out.setdefault(key[0], [None, None])[key[1]] = res
+        else:
+            out[key] = res
+    return out
+
+
+def interval_tasks(H: Hypotheses, fit: Fit, eid: str) -> list:
+    """:func:`intervals` as independent (key, thunk) pairs, to run concurrently. key: a parameter
+    name (its interval), (name, 0 or 1) (its lower or upper end: each end is its own profile
+    search), or None (a dict of several)."""
     eff = fit.model.effects.get(eid)
     if eff is None:
-        return out
+        return []
     spec = CATALOGUE[eid].fit
     if spec.kind == "line":
-        return _tone_intervals(H, fit)
+        return [(None, lambda: _tone_intervals(H, fit))]
     if spec.kind == "grid":
         step = eff.param_dict()["step"]
-        return {"step": [step, step] if not isinstance(step, list) else [min(step), max(step)]}
+        iv = [step, step] if not isinstance(step, list) else [min(step), max(step)]
+        return [("step", lambda: iv)]
     shaped = [sh for sh in spec.shape if sh[0] in fit.free.get(eid, [])]
+    out = []
     if eid in fit.scale_ids:
         name, power = _scale_name(eff)
         val = float(np.max(np.asarray(eff.params[name], float)))
         if shaped:
-            out[name] = _profile_scale_shaped(H, fit, eid, name, val)
+            for side in (0, 1):
+                out.append(((name, side), lambda side=side: _profile_scale_shaped(H, fit, eid, name, val, 2 * side - 1)))
         else:
-            a = fit.scale_ids.index(eid)
-            lo, hi = fit.inner.profile(a, fit.v, fit.loglik - _extra(H, fit))
-            vhat = max(fit.v[a], 1e-300)
-            out[name] = [val * (lo / vhat) ** (1 / power), val * (hi / vhat) ** (1 / power)]
+            def scale_iv():
+                a = fit.scale_ids.index(eid)
+                lo, hi = fit.inner.profile(a, fit.v, fit.loglik - _extra(H, fit))
+                vhat = max(fit.v[a], 1e-300)
+                return [val * (lo / vhat) ** (1 / power), val * (hi / vhat) ** (1 / power)]
+            out.append((name, scale_iv))
     for sh in shaped:
-        out[sh[0]] = _profile_outer(H, fit, eid, sh)
+        for side in (0, 1):
+            out.append(((sh[0], side), lambda sh=sh, side=side: _profile_outer(H, fit, eid, sh, 2 * side - 1)))
     return out
 
 
@@ -1090,7 +1144,9 @@ def _tone_intervals(H: Hypotheses, fit: Fit) -> dict:
     return {"amplitude": [lo_a[k], hi_a[k]], "frequency_hz": [lo_f[k], hi_f[k]]}
 
 
-def _profile_scale_shaped(H: Hypotheses, fit: Fit, eid: str, name: str, val: float) -> list[float]:
+def _profile_scale_shaped(H: Hypotheses, fit: Fit, eid: str, name: str, val: float, direction: int) -> float:
+    """The lower (``direction`` -1) or upper (+1) end of the profile interval of an effect's scale,
+    its searched parameters refitted at every value."""
     free = dict(fit.free)
     free[eid] = [n for n in fit.free[eid] if n != name]
     target = fit.loglik - CHI2_95 / 2
@@ -1114,7 +1170,7 @@ def _profile_scale_shaped(H: Hypotheses, fit: Fit, eid: str, name: str, val: flo
             return outside
         return _crossing(l_at, inside, l_in, outside, l_out, target)
 
-    return [edge(-1), edge(+1)]
+    return edge(direction)
 
 
 def _crossing(l_at, x_in, l_in, x_out, l_out, target, tol=0.02, max_iter=10):
@@ -1151,7 +1207,8 @@ def _extra(H: Hypotheses, fit: Fit) -> float:
     return fit.loglik - lin
 
 
-def _profile_outer(H: Hypotheses, fit: Fit, eid: str, spec) -> list[float]:
+def _profile_outer(H: Hypotheses, fit: Fit, eid: str, spec, direction: int) -> float:
+    """The lower (``direction`` -1) or upper (+1) end of a searched parameter's profile interval."""
     name = spec[0]
     lo_b, hi_b, spacing = H._bounds(spec)
     x = float(np.mean(fit.model.effects[eid].param_dict()[name]))
@@ -1187,4 +1244,4 @@ def _profile_outer(H: Hypotheses, fit: Fit, eid: str, spec) -> list[float]:
                 outside = mid
         return 0.5 * (inside + outside)
 
-    return [edge(-1), edge(+1)]
+    return edge(direction)
