@@ -137,3 +137,53 @@ def test_group_means_without_the_full_transform_are_exact(M):
         for k in full:
             ref = g.mean(full[k])
             np.testing.assert_allclose(grouped[k], ref, rtol=0, atol=1e-9 * np.max(np.abs(ref)), err_msg=k)
+
+
+@pytest.mark.parametrize("tau", [0.3, 5000.0], ids=["short", "record-long"])
+def test_expected_periodogram_against_an_extended_precision_sum(tau):
+    """E I_f of AR(1) actuator noise through the seed's plant, from rest, against the definition
+    evaluated in extended precision (80-bit): E I_f = (1/M) sum_{q,r} w_q w_r Cov(d_q, d_r)
+    cos(w_f (q - r)), Cov(y_k, y_l) = H F^(l-k) P_k H^T + H F^(l-k-1) Gamma J^T (l > k), P_k from
+    P_0 = 0. tau = 5000 s is 5e5 samples: the record is far from stationary and E is the small
+    difference of the stationary part and the from-rest correction, so rounding is bounded by
+    a few hundred eps of the stationary part's size, not of E's."""
+    from service.diagnose.search import _set
+    LD = np.longdouble
+    M = 256
+    model = _set(load_model("seed"), "actuator.ar1", {"std": 0.08, "tau_s": tau})
+    pr = model.predictor()
+    pr.steady_state()
+    ls = pr._ls
+    cols = ls.owners["actuator.ar1"]
+    F, G, H, P = W._sub_system(ls, pr._Pj["actuator.ar1"], cols, ls.n_x)
+    J = ls.J[:, cols]
+    n, N = F.shape[0], M + 1
+    Fl, Gl, Hl, Jl = (x.astype(LD) for x in (F, G, H, J))
+    Pk = np.zeros((N, n, n), LD)
+    for k in range(1, N):
+        Pk[k] = Fl @ Pk[k - 1] @ Fl.T + Gl @ Gl.T
+    HF = np.zeros((N, n), LD)                     # H F^j
+    HF[0] = Hl[0]
+    for j in range(1, N):
+        HF[j] = HF[j - 1] @ Fl
+    cross = np.concatenate([[LD(0)], HF[:-1] @ Gl @ Jl[0]])          # H F^(j-1) Gamma J^T, j >= 1
+    k, l = np.meshgrid(np.arange(N), np.arange(N), indexing="ij")
+    lo, hi = np.minimum(k, l), np.maximum(k, l)
+    C = np.einsum("abi,abi->ab", HF[hi - lo], (Pk @ Hl[0])[lo]) + cross[hi - lo]
+    C[np.diag_indices(N)] += Jl[0] @ Jl[0]
+    Cd = C[1:, 1:] - C[1:, :-1] - C[:-1, 1:] + C[:-1, :-1]
+    w = W.taper(M)[0].astype(LD)
+    A = w[:, None] * w[None, :] * Cd
+    diag = np.array([np.trace(A, offset=h) for h in range(-(M - 1), M)])   # sum over q - r = -h
+    h = np.arange(-(M - 1), M).astype(LD)
+    f = np.arange(W.n_freqs(M)).astype(LD)
+    E_ref = (np.cos(2 * LD(np.pi) * np.outer(f, h) / M) @ diag / M).astype(float)
+    E = W.linear_part(F, G, H, J, P, M, 0, True)[:, 0]
+    # rounding: a few hundred eps of the larger of the terms summed (over lags, |sum_{q-r=h} A|) and
+    # the output's stationary variance R(0), the size of the parts that cancel (stationary part and
+    # from-rest correction; the slow mode's and the plant's exponentials)
+    R0 = float(H[0] @ P @ H[0] + J[0] @ J[0])
+    scale = max(float(np.sum(np.abs(diag))) / M, R0)
+    err = np.max(np.abs(E - E_ref))
+    assert err < 256 * np.finfo(float).eps * scale, (err, scale, np.max(E_ref))
+    assert err < 1e-6 * np.max(E_ref)
