@@ -103,6 +103,33 @@ def test_lesson_case_finds_colored_actuator_noise_in_place_of_white():
     assert rep["error_after"] < rep["error_before"] / 100
 
 
+def test_prefix_screening_finds_what_the_whole_record_screening_finds(monkeypatch):
+    """Records of 2 SCREEN_N samples or more are screened on their first SCREEN_N samples, then
+    scored and (the leaders) fitted on the whole record. With SCREEN_N lowered so that a 60,000
+    sample seed record takes that path, the diagnosis adds the same effects with the same scores
+    (the leaders' joint refits search every parameter from a coarse grid either way) and the
+    same final model error."""
+    import service.diagnose.search as S
+    rec = load_model("seed").simulate(60000, seed=22)
+    nominal = load_model("seed-nominal")
+    whole = diagnose(nominal, rec.t, rec.y, rec.u)
+    monkeypatch.setattr(S, "SCREEN_N", 8192)
+    screened_on = []
+    init = S.Search.__init__
+
+    def spy(self, *a, **k):
+        init(self, *a, **k)
+        screened_on.append(self.Hs.data.N)
+    monkeypatch.setattr(S.Search, "__init__", spy)
+    part = diagnose(nominal, rec.t, rec.y, rec.u)
+    assert screened_on == [8193]
+    assert [(m["effect"], m["mode"]) for m in part["missing"]] == [(m["effect"], m["mode"]) for m in whole["missing"]]
+    assert [m["effect"] for m in whole["missing"]] == ["actuator.ar1", "sensor.bias_walk"]
+    for a, b in zip(part["steps"], whole["steps"]):
+        assert a["score"] == pytest.approx(b["score"], abs=0.5)
+    assert part["error_after"] == pytest.approx(whole["error_after"], rel=0.02)
+
+
 def test_quantization_grid_detected():
     step = 0.001
     y = step * np.round(np.random.default_rng(1).normal(0, 0.01, (5000, 1)) / step)

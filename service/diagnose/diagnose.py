@@ -296,9 +296,9 @@ def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MA
     cur = _prefer_replacements(S, cur, accepted, say)
     missing = []
     # the profile-likelihood intervals of the effects found, concurrently on long records
-    tasks = [(i, name, f) for i, c in enumerate(accepted) for name, f in interval_tasks(S.H, cur, c.effect)]
+    tasks = [(i, key, f) for i, c in enumerate(accepted) for key, f in interval_tasks(S.H, cur, c.effect)]
     res = S._map(lambda task: task[2](), tasks)
-    ivs = [merge_intervals([(name, r) for (i, name, _), r in zip(tasks, res) if i == k]) for k in range(len(accepted))]
+    ivs = [merge_intervals([(key, r) for (i, key, _), r in zip(tasks, res) if i == k]) for k in range(len(accepted))]
     for c, iv_c in zip(accepted, ivs):
         eff = cur.model.effects.get(c.effect)
         params = eff.param_dict()

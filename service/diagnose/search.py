@@ -1062,13 +1062,6 @@ class Search:
 
 
 # -- intervals ----------------------------------------------------------------------------------------------
-def intervals(H: Hypotheses, fit: Fit, eid: str) -> dict:
-    """95 % profile-likelihood intervals of ``eid``'s free parameters at the joint fit: every other
-    free variance re-optimized, and the effect's own searched parameters too for its variance (a
-    Gauss-Markov std and its tau trade off against each other)."""
-    return merge_intervals([(key, f()) for key, f in interval_tasks(H, fit, eid)])
-
-
 def merge_intervals(done: list) -> dict:
     """{name: interval} from :func:`interval_tasks`' (key, result) pairs."""
     out: dict = {}
@@ -1083,7 +1076,10 @@ def merge_intervals(done: list) -> dict:
 
 
 def interval_tasks(H: Hypotheses, fit: Fit, eid: str) -> list:
-    """:func:`intervals` as independent (key, thunk) pairs, to run concurrently. key: a parameter
+    """95 % profile-likelihood intervals of ``eid``'s free parameters at the joint fit (every other
+    free variance re-optimized, and the effect's own searched parameters too for its variance: a
+    Gauss-Markov std and its tau trade off against each other), as independent (key, thunk) pairs
+    to run concurrently (:func:`merge_intervals` assembles them). key: a parameter
     name (its interval), (name, 0 or 1) (its lower or upper end: each end is its own profile
     search), or None (a dict of several)."""
     eff = fit.model.effects.get(eid)
