@@ -561,6 +561,18 @@ def regions_of(view: View) -> list[Region]:
 
 
 # -- entry point -----------------------------------------------------------------------------------------
+def check_samples(model, t, y):
+    """y (N, p) and t (N,) as float arrays, or AnalysisError naming what is wrong with them."""
+    y = np.asarray(y, float).reshape(len(y), -1)
+    t = np.asarray(t, float)
+    if y.shape[1] != model.p:
+        raise AnalysisError(f"the recording has {y.shape[1]} measurement components, the model {model.p}")
+    if not np.all(np.isfinite(y)):
+        k = int(np.flatnonzero(~np.all(np.isfinite(y), axis=1))[0])
+        raise AnalysisError(f"the measurement holds NaN or inf (first at sample {k}, t = {t[k]:g} s)")
+    return y, t
+
+
 def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *, truth=None,
             burn: int | None = 0, settings: dict | None = None, revision: int = 0,
             notes: list | None = None) -> Comparison:
@@ -570,13 +582,7 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
     samples to skip at the start (None: the model's transient from rest, capped at half the
     record). ``settings`` override :func:`default_settings`.
     """
-    y = np.asarray(y, float).reshape(len(y), -1)
-    t = np.asarray(t, float)
-    if y.shape[1] != model.p:
-        raise AnalysisError(f"the recording has {y.shape[1]} measurement components, the model {model.p}")
-    if not np.all(np.isfinite(y)):
-        k = int(np.flatnonzero(~np.all(np.isfinite(y), axis=1))[0])
-        raise AnalysisError(f"the measurement holds NaN or inf (first at sample {k}, t = {t[k]:g} s)")
+    y, t = check_samples(model, t, y)
     pr = predictor_of(model)
     try:
         mean = pr.mean_response(command=u) if u is not None else pr.mean_response(len(y))

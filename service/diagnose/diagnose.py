@@ -15,11 +15,12 @@
 from __future__ import annotations
 
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 
 from ..model.effects import CATALOGUE
-from .compare import compare, transient_samples
+from .compare import check_samples, compare, transient_samples
 from .search import THRESHOLD, Data, Search, interval_tasks, merge_intervals
 
 MAX_EFFECTS = 3
@@ -250,17 +251,44 @@ def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MA
     """
     say = log or (lambda s: None)
     t0 = time.perf_counter()
-    y = np.asarray(y, float).reshape(len(y), -1)
+    y, t = check_samples(model, t, y)          # bad input fails here, before any fitting
     u = None if u is None else np.asarray(u, float).reshape(len(u), -1)
     k0 = 0 if at_rest else min(transient_samples(model), len(y) // 2)
     burn = (None if at_rest else 0) if compare_burn == "auto" else compare_burn
-    before = compare(model, t, y, u, burn=burn, revision=0)
-    say(f"model error before: {before.error:.3g}")
     data = Data(y, u, model.Ts, at_rest, k0)
     S = Search(model, data, log=say)
+    # the comparisons (before, after each step, after all) run beside the fits on long records (one
+    # more thread: the candidate maps leave a core idle at their ends)
+    bg = ThreadPoolExecutor(max_workers=1) if S.workers > 1 else None
+    try:
+        before = _later(bg, lambda: compare(model, t, y, u, burn=burn, revision=0))
+        try:
+            return _diagnose(model, t, y, u, S, data, before, burn, say, bg, max_effects, t0)
+        except Exception:
+            # what the comparison found wrong with the input comes first (as when it ran first)
+            exc = before.exception()
+            if exc is not None:
+                raise exc from None
+            raise
+    finally:
+        if bg is not None:
+            bg.shutdown(wait=True)
+
+
+def _later(bg, fn):
+    """fn() in the background thread when there is one, else now; .result() either way."""
+    if bg is not None:
+        return bg.submit(fn)
+    f = Future()
+    f.set_result(fn())
+    return f
+
+
+def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0) -> dict:
     cur = S.start()
-    steps, accepted, first, comps, step_models = [], [], None, [before], [model]
+    steps, accepted, first, comps, step_models = [], [], None, [None], [model]
     start, step_cands = cur, []
+    pending = []                       # (step index, future comparison) not yet collected
     for _ in range(max_effects):
         cands = S.candidates(cur)
         if first is None:
@@ -272,16 +300,24 @@ def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MA
         step_cands.append(cands)
         # a leader's fit is already the joint thorough refit: not repeated
         new = best.fit if best.full else S.refit_all(best.fit, thorough=True)
-        cmp = compare(new.model, t, y, u, burn=burn, revision=len(comps))
-        cmp.model_name = f"+ {best.effect}"
-        err = cmp.error
-        comps.append(cmp)
-        steps.append({"effect": best.effect, "mode": best.mode, "score": float(best.score), "error": float(err),
+        pending.append((len(steps), _later(bg, lambda m=new.model, rev=len(comps):
+                                            compare(m, t, y, u, burn=burn, revision=rev))))
+        comps.append(None)
+        steps.append({"effect": best.effect, "mode": best.mode, "score": float(best.score), "error": None,
                       "params": _report_params(best.effect, new.model.effects[best.effect].param_dict(), model.Ts)})
         accepted.append(best)
         step_models.append(new.model)
-        say(f"step {len(steps)}: {best.mode} {best.effect} (Delta BIC {best.score:.1f}): model error {err:.3g}")
+        say(f"step {len(steps)}: {best.mode} {best.effect} (Delta BIC {best.score:.1f})")
         cur = new
+    before = before_f.result()
+    comps[0] = before
+    say(f"model error before: {before.error:.3g}")
+    for i, fut in pending:
+        cmp = fut.result()
+        cmp.model_name = f"+ {steps[i]['effect']}"
+        comps[i + 1] = cmp
+        steps[i]["error"] = float(cmp.error)
+        say(f"step {i + 1}: model error {cmp.error:.3g}")
     cur, swapped = _exchange(S, cur, accepted, step_cands, say)
     if swapped:      # the steps again, in order, with the exchanged effects
         steps, comps, step_models = [], [before], [model]
@@ -294,6 +330,8 @@ def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MA
             steps.append({"effect": c.effect, "mode": c.mode, "score": float(c.score), "error": float(cmp.error),
                           "params": _report_params(c.effect, fit.model.effects[c.effect].param_dict(), model.Ts)})
     cur = _prefer_replacements(S, cur, accepted, say)
+    final = cur.model
+    after_f = _later(bg, lambda: compare(final, t, y, u, burn=burn, revision=len(comps) - 1)) if accepted else None
     missing = []
     # the profile-likelihood intervals of the effects found, concurrently on long records
     tasks = [(i, key, f) for i, c in enumerate(accepted) for key, f in interval_tasks(S.H, cur, c.effect)]
@@ -321,7 +359,7 @@ def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MA
             "evidence": evidence,
             "alternatives": alts,
         })
-    after = compare(cur.model, t, y, u, burn=burn, revision=len(comps) - 1) if accepted else before
+    after = after_f.result() if accepted else before
     if accepted:
         after.model_name = f"fitted ({len(accepted)} added)"
         comps[-1] = after
