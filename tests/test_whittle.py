@@ -145,8 +145,9 @@ def test_expected_periodogram_against_an_extended_precision_sum(tau):
     evaluated in extended precision (80-bit): E I_f = (1/M) sum_{q,r} w_q w_r Cov(d_q, d_r)
     cos(w_f (q - r)), Cov(y_k, y_l) = H F^(l-k) P_k H^T + H F^(l-k-1) Gamma J^T (l > k), P_k from
     P_0 = 0. tau = 5000 s is 5e5 samples: the record is far from stationary and E is the small
-    difference of the stationary part and the from-rest correction, so rounding is bounded by
-    a few hundred eps of the stationary part's size, not of E's."""
+    difference of the stationary part and the from-rest correction, both of the size of the
+    output's variance R(0), so rounding is bounded by a few hundred eps of R(0) (or of the terms
+    summed, whichever is larger), not of E; and E itself to 1e-6 of its largest value."""
     from service.diagnose.search import _set
     LD = np.longdouble
     M = 256

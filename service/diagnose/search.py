@@ -38,6 +38,7 @@ it back). How each effect is fitted is declared by the effect itself (``Effect.f
 
 from __future__ import annotations
 
+import hashlib
 import math
 import os
 from dataclasses import dataclass, field
@@ -216,8 +217,9 @@ _ORDERS: dict = {}
 
 def _sort_order(col: np.ndarray) -> np.ndarray:
     """argsort of a command column, cached by content (the recorded command is the same in every
-    evaluation of a diagnosis)."""
-    key = (col.size, col[:64].tobytes(), col[-64:].tobytes(), float(np.sum(col)))
+    evaluation of a diagnosis): keyed by a digest of all its bytes (~2 ms at 10^6 samples, against
+    ~60 ms for the sort)."""
+    key = (col.size, hashlib.blake2b(np.ascontiguousarray(col).tobytes(), digest_size=16).digest())
     got = _ORDERS.get(key)
     if got is None:
         if len(_ORDERS) > 4:

@@ -318,7 +318,7 @@ class Modes:
                 hz = np.where(mag == 0, 1.0, np.where(mag < 1, np.log(DECAY) / np.log(np.maximum(mag, 1e-300)) + 2, np.inf))
             real = lam.imag == 0                     # real modes in real arithmetic
             nb = min(K, block)
-            groups = []
+            kinds = []
             for sel, dt in ((np.flatnonzero(real), float), (np.flatnonzero(~real), complex)):
                 if sel.size:
                     lm = lam[sel].real if dt is float else lam[sel]
@@ -327,13 +327,13 @@ class Modes:
                     if nb > 1:
                         P[1:] = lm
                         np.cumprod(P, axis=0, out=P)
-                    groups.append((sel, lm, P, coef[sel].real if dt is float else coef[sel]))
+                    kinds.append((sel, lm, P, coef[sel].real if dt is float else coef[sel]))
             out[:] = 0.0
             for h0 in range(0, K, nb):
                 m = min(K, h0 + nb) - h0
                 acc = out[h0:h0 + m].reshape(m, a * b)
                 any_ = False
-                for sel, lm, P, cf in groups:
+                for sel, lm, P, cf in kinds:
                     act = np.flatnonzero(hz[sel] > h0)
                     if act.size == 0:
                         continue
@@ -388,7 +388,7 @@ def linear_part(F, G, H, J, Pe, M: int, k0: int, at_rest: bool, groups: Groups |
     Rd = np.empty((K + 1, p))
     Rd[0] = 2 * (R0 - R1)
     if K >= 1:
-        R2 = np.diag(H @ F @ Y0) if K >= 2 else np.zeros(p)          # R(K+1) = 0 beyond the horizon
+        R2 = np.diag(H @ F @ Y0) if K >= 2 else np.zeros(p)          # R(2); zero beyond a horizon of 1
         Rd[1] = 2 * R1 - R0 - R2
     if K >= 2:
         Rd[2:] = modes.series(H, -(IF @ IF @ Y0), K - 1)[:, idx, idx]
