@@ -5,6 +5,7 @@ model file, .rrd read back, bad input). Every record has a fixed seed."""
 from __future__ import annotations
 
 import json
+import math
 import os
 import subprocess
 import sys
@@ -128,6 +129,37 @@ def test_prefix_screening_finds_what_the_whole_record_screening_finds(monkeypatc
     for a, b in zip(part["steps"], whole["steps"]):
         assert a["score"] == pytest.approx(b["score"], abs=0.5)
     assert part["error_after"] == pytest.approx(whole["error_after"], rel=0.02)
+
+
+def test_nested_choice_statistic_is_half_chi2_0_half_chi2_1():
+    """Search.choice charges CHIBAR2_95 = 2.71 per extra parameter because, between nested effects
+    (white actuator noise and its AR(1), white at rho = 0 on the edge of tau_s > 0), the likelihood
+    ratio's null distribution is 1/2 chi2_0 + 1/2 chi2_1 (Self & Liang 1987), not chi2_1. Checked on
+    records whose truth is white: about half give 2 Delta l = 0 (binomial sd 0.05 at 100 records:
+    +-0.15), the positive ones follow chi2_1 (KS; chi2_2 would fail), and at most 5 % exceed
+    2.71 (+3 binomial sd)."""
+    from scipy import stats
+
+    from service.diagnose.search import CHIBAR2_95, Hypotheses
+
+    model = parse_model("name = \"w\"\n[sampling]\nTs = 0.01\n[plant]\nA = [[-2.0]]\nB = [[2.0]]\n"
+                        "C = [[1.0]]\n[actuator.white]\nstd = 0.5\n[sensor.white]\nstd = 0.05\n")
+    alt = model.without_effect("actuator.white").with_effect("actuator.ar1", {"std": 0.5, "tau_s": 0.05})
+    R = 100
+    lr = np.empty(R)
+    for r in range(R):
+        rec = model.simulate(1000, seed=r)
+        H = Hypotheses(Data(rec.y, rec.u, model.Ts, True), model)
+        white = H.fit(model, {"actuator.white": ["std"], "sensor.white": ["std"]})
+        ar1 = H.fit(alt, {"actuator.ar1": ["std", "tau_s"], "sensor.white": ["std"]}, new=("actuator.ar1",))
+        lr[r] = 2 * (ar1.loglik - white.loglik)
+    at_zero = float(np.mean(lr < 0.01))
+    assert abs(at_zero - 0.5) < 0.15, at_zero
+    pos = lr[lr >= 0.01]
+    assert stats.kstest(pos, stats.chi2(1).cdf).pvalue > 1e-3
+    assert stats.kstest(pos, stats.chi2(2).cdf).pvalue < 1e-3
+    tail = float(np.mean(lr > CHIBAR2_95))
+    assert tail <= 0.05 + 3 * math.sqrt(0.05 * 0.95 / R), tail
 
 
 def test_quantization_grid_detected():

@@ -86,7 +86,7 @@ def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
     import math
 
     from ..model import ModelError
-    from .search import CHI2_95, EXACT_RANK, EXACT_TIE, TIE, Fit
+    from .search import CHIBAR2_95, EXACT_RANK, EXACT_TIE, TIE, Fit
 
     swapped = False
     log_n = math.log(S.data.n_bic)
@@ -167,7 +167,7 @@ def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
             if alt is None:
                 continue
             a_own = 2 * (alt.loglik - drop.loglik) - a.k * log_n
-            gain = 2 * (alt.loglik - cur.loglik) - (a.k - c.k) * CHI2_95    # Search.choice's units
+            gain = 2 * (alt.loglik - cur.loglik) - (a.k - c.k) * CHIBAR2_95    # Search.choice's units
             say(f"  exchange trial {c.effect} -> {a.effect}: {gain:.1f} (own Delta BIC {a_own:.1f})")
             if _vanished(alt.model.effects[a.effect]) or a_own < THRESHOLD:
                 continue            # not significant by itself with the rest in

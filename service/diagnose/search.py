@@ -53,7 +53,9 @@ from . import whittle as W
 
 THRESHOLD = 10.0          # Delta BIC to add an effect
 REL_BW = 0.01             # frequency groups: at most 1 % of their frequency wide (Whittle on group means)
-CHI2_95 = 3.841
+CHI2_95 = 3.841           # chi2_1 95 % point: two-sided profile intervals
+CHIBAR2_95 = 2.706        # 95 % point of 1/2 chi2_0 + 1/2 chi2_1: a parameter whose null value is on
+                          # its boundary (Self & Liang 1987), as in the nested pairs Search.choice ranks
 HARMONICS = 7             # a residual line at up to the 7th harmonic of a command line is the mean response's
 WORKERS = 2               # candidates fitted concurrently (threads) on long records
 PARALLEL_MIN = 50_000     # samples x outputs from which they are
@@ -850,12 +852,15 @@ class Search:
 
     @staticmethod
     def choice(fit: Fit, cur: Fit, k: int) -> float:
-        """Which of the significant candidates: 2 Delta l - k chi2_1(95 %). Between nested
-        alternatives (a walk and a Gauss-Markov bias, its long-tau limit; white and AR(1) actuator
-        noise, its short-tau limit) this is the likelihood-ratio test of the extra parameter at 5 %;
-        Delta BIC would ask ln n ~ 12 per parameter of it and keep the limit case, wrongly, for a
-        correlation time that a record of 20 of them shows clearly."""
-        return 2 * (fit.loglik - cur.loglik) - k * CHI2_95
+        """Which of the significant candidates: 2 Delta l - k c, c = :data:`CHIBAR2_95`. Between
+        nested alternatives (a walk and a Gauss-Markov bias, its long-tau limit 1/tau = 0; white and
+        AR(1) actuator noise, its short-tau limit rho = 0) this is the likelihood-ratio test of the
+        extra parameter at 5 %. That parameter's null value is on the boundary of its range (tau_s >
+        0), so the statistic's null distribution is 1/2 chi2_0 + 1/2 chi2_1 (Self & Liang 1987), whose
+        95 % point is 2.71, not chi2_1's 3.84. Delta BIC would ask ln n ~ 12 per parameter of it and
+        keep the limit case, wrongly, for a correlation time that a record of 20 of them shows
+        clearly."""
+        return 2 * (fit.loglik - cur.loglik) - k * CHIBAR2_95
 
     def candidates(self, cur: Fit) -> list[Candidate]:
         """Every candidate screened (its own parameters searched, the rest refitted only in their
