@@ -29,7 +29,9 @@ Standardized deviations z (E[z^2] = 1 when the model is right):
   with the estimator's exact variance under the Gaussian model, so E[z^2] = 1 holds exactly; their
   flags come from the chi-squared band with nu = 2 E^2 / Var;
   acf: z = (emp - pred) / se, se from Bartlett's formula with the predicted autocovariance,
-  divided by the number of segments.
+  divided by the number of segments, then scaled to the exact variance at lag 0 (the mean of the
+  segments' variances, the correlation between segments included): Bartlett alone understates it
+  when a memory (a Gauss-Markov bias) is as long as the segment.
 The error of a view is mean(z^2); **the model error** is the mean of the views' errors (outputs
 averaged). Both are about 1 when the model explains the data within the sampling noise of the
 estimators and grow with the mismatch (a factor f in power in a band adds about (ln f)^2 nu / 2).
@@ -357,14 +359,14 @@ def variance_view(r, t, gam_parts, j, W, model=None, gam_long=None):
     return _finish(v, n_win, by_band=True, error_var=float(np.sum(_z2_var_linear(nu))) / n_win**2 * inflate)
 
 
-def _window_correlation(gam: np.ndarray, W: int, n_win: int, var0: float, H: int = 20) -> float:
-    """1 + 2 sum_h (1 - h/n) rho_h^2, rho_h the correlation between the sample variances of windows
-    h apart (Gaussian): Cov = (2/W^2) ||P T P||_F^2 with T_ij = -gamma(|hW + j - i|) and P the
-    centring matrix, ||P T P||^2 = ||T||^2 - ||T 1||^2/W - ||T^T 1||^2/W + (1^T T 1)^2/W^2, all
-    from prefix sums (O(W) per h). The variogram form holds for the bias walk as well."""
-    H = min(H, n_win - 1)
-    out = 1.0
-    for h in range(1, H + 1):
+def _window_covariances(gam: np.ndarray, W: int, n_win: int, var0: float, H: int = 20) -> np.ndarray:
+    """Cov_h, h = 1..(up to H), between the sample variances (mean removed) of windows of W samples
+    h windows apart (Gaussian): Cov = (2/W^2) ||P T P||_F^2 with T_ij = -gamma(|hW + j - i|) and P
+    the centring matrix, ||P T P||^2 = ||T||^2 - ||T 1||^2/W - ||T^T 1||^2/W + (1^T T 1)^2/W^2, all
+    from prefix sums (O(W) per h). The variogram form holds for the bias walk as well. Stops
+    where the correlation Cov_h / var0 falls below 1e-3 or the variogram ends."""
+    out = []
+    for h in range(1, min(H, n_win - 1) + 1):
         D = h * W
         lo, hi = D - (W - 1), D + (W - 1)
         if hi >= gam.shape[0]:
@@ -379,11 +381,18 @@ def _window_correlation(gam: np.ndarray, W: int, n_win: int, var0: float, H: int
         v = P[(D + i) - lo + 1] - P[(D + i - (W - 1)) - lo]        # column sums: i = 0..W-1
         sm = float(np.sum(u))
         cc = tt - float(np.dot(u, u)) / W - float(np.dot(v, v)) / W + sm**2 / W**2
-        rho = (2.0 / W**2) * max(cc, 0.0) / var0
-        out += 2 * (1 - h / n_win) * rho**2
-        if rho < 1e-3:
+        out.append((2.0 / W**2) * max(cc, 0.0))
+        if out[-1] / var0 < 1e-3:
             break
-    return out
+    return np.array(out)
+
+
+def _window_correlation(gam: np.ndarray, W: int, n_win: int, var0: float, H: int = 20) -> float:
+    """1 + 2 sum_h (1 - h/n) rho_h^2, rho_h = Cov_h / var0 the correlation between the sample
+    variances of windows h apart (:func:`_window_covariances`)."""
+    rho = _window_covariances(gam, W, n_win, var0, H) / var0
+    h = np.arange(1, rho.size + 1)
+    return float(1.0 + 2.0 * np.sum((1 - h / n_win) * rho**2))
 
 
 def windowed_variance_var(gam: np.ndarray, W: int) -> float:
@@ -432,6 +441,18 @@ def acf_view(r, Ts, gam_parts, j, M, max_lag, model=None):
             minus = k - d
             ok = (np.abs(plus) < M) & (np.abs(minus) < M)
             var[d] = (np.sum(R[np.abs(k)] ** 2) + np.sum(Rs[c + plus[ok]] * Rs[c + minus[ok]])) / M / K
+        # Bartlett's formula is asymptotic: for a memory as long as the segment (a Gauss-Markov
+        # bias) it misses the demeaning's effect within a segment and the correlation between
+        # segments. At lag 0 the estimate is the mean of the segments' variances, whose variance is
+        # exact (windowed_variance_var and _window_covariances); every lag's is scaled by that ratio
+        # (lags up to M/8: the long memory that makes it differ from 1 is alike across them).
+        gsum = sum(g[:, j] for g in gam_parts.values())
+        v0 = windowed_variance_var(gsum, M)
+        cov = _window_covariances(gsum, M, K, v0, H=K - 1) if K > 1 else np.zeros(0)
+        hh = np.arange(1, cov.size + 1)
+        exact0 = (v0 + 2.0 * np.sum((1 - hh / K) * cov)) / K
+        if var[0] > 0 and exact0 > 0:
+            var *= exact0 / var[0]
         # the estimates at nearby lags are correlated, ~ C(h) / C(0) with C(h) = sum_k R(k) R(k + h)
         # (Bartlett's leading term): Var(mean z^2) = (2 / n^2) sum_h (n - |h|) rho(h)^2
         n = max_lag + 1
