@@ -81,8 +81,9 @@ def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
     rest). Before that, a backward pass undoes the least needed addition or changed value while it
     is not significant given the others (a refitted process noise that stood in for a colored
     actuator noise before that was fitted; a walk added after a Gauss-Markov bias can make the bias
-    redundant). Returns
-    the fit and whether anything changed."""
+    redundant). The last step, with nothing changed since it, keeps its own decision: only its
+    leaders (their joint thorough refits reused) are compared again, for the nonlinearity tie rule.
+    Returns the fit and whether anything changed."""
     import math
 
     from ..model import ModelError
@@ -152,7 +153,17 @@ def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
                 and not (a.mode not in ("add", "refit") or a.effect == c.effect or a.effect not in a.fit.model.effects
                         or (a.mode == "add" and a.effect in cur.model.effects) or a.effect in cur.free)]
 
-        def exchanged(a, drop=drop):
+        # the last step, with nothing changed since: its own decision stands as it was taken. Its
+        # leaders' joint thorough refits had exactly these effects free (those before it, and
+        # theirs), so are reused (the tie rule for a nonlinearity still applies); the others were
+        # passed over on their screens then, as now
+        reuse = c is accepted[-1] and not swapped
+        if reuse:
+            alts = [a for a in alts if a.full]
+
+        def exchanged(a, drop=drop, reuse=reuse):
+            if reuse and a.full:
+                return a.fit
             try:
                 params = a.fit.model.effects[a.effect].param_dict()
                 m = drop.model.with_params(a.effect, params) if a.mode == "refit" else \
