@@ -162,6 +162,32 @@ def test_nested_choice_statistic_is_half_chi2_0_half_chi2_1():
     assert tail <= 0.05 + 3 * math.sqrt(0.05 * 0.95 / R), tail
 
 
+def test_a_drift_slower_than_the_plant_is_reported_as_a_sensor_bias():
+    """A Gauss-Markov sensor bias of tau 20 s under a plant of time constant 0.1 s: an actuator
+    AR(1) of the same tau reaches the output through the plant's DC gain alone, so the two tie (on
+    this record the AR(1) is ahead by 0.2 in the choice units, inside TIE). Colored actuator noise
+    slower than SLOW_DRIFT plant time constants is reported as the sensor bias when both are
+    near-tied additions; the AR(1) stays the alternative."""
+    from service.diagnose.search import SLOW_DRIFT, TIE, plant_time_constant
+
+    base = ("name = \"d\"\n[sampling]\nTs = 0.01\n[plant]\nA = [[-10.0]]\nB = [[10.0]]\nC = [[1.0]]\n"
+            "[command]\nkind = \"sine\"\namplitude = 1.0\nfrequency_hz = 0.5\n"
+            "[process.white]\nstd = 0.5\n[sensor.white]\nstd = 0.02\n")
+    nominal = parse_model(base)
+    assert plant_time_constant(nominal) == pytest.approx(0.1, rel=1e-12)
+    assert plant_time_constant(load_model("seed")) == pytest.approx(2 * 1.2 / 0.35, rel=1e-9)   # 2 m / c
+    truth = parse_model(base + "[sensor.bias_markov]\nstd = 0.05\ntau_s = 20.0\n")
+    rec = truth.simulate(30_000, seed=0)
+    S = Search(nominal, Data(rec.y, rec.u, nominal.Ts, True))
+    cands = S.candidates(S.start())
+    ar1 = next(c for c in cands if c.effect == "actuator.ar1" and c.mode == "add")
+    first = cands[0]
+    assert first.effect == "sensor.bias_markov" and first.score > THRESHOLD
+    tau = ar1.fit.model.effects["actuator.ar1"].param_dict()["tau_s"]
+    assert tau > SLOW_DRIFT * 0.1 and abs(ar1.sel - first.sel) < TIE and ar1.sel > first.sel
+    assert "actuator.ar1" in [a.effect for a in first.alternatives]
+
+
 def test_quantization_grid_detected():
     step = 0.001
     y = step * np.round(np.random.default_rng(1).normal(0, 0.01, (5000, 1)) / step)

@@ -802,6 +802,18 @@ def tone_peaks(I: np.ndarray, E: np.ndarray, M: int, Ts: float, max_peaks: int =
 
 
 MODE_RANK = {"replace": 0, "refit": 1, "add": 2}
+SLOW_DRIFT = 10.0         # actuator AR(1) this many plant time constants slow: a drift (Search._drift_as_bias)
+
+
+def plant_time_constant(model) -> float:
+    """The plant's slowest time constant, 1 / min(-Re lambda) over the eigenvalues of its
+    continuous A (inf with an integrator or an unstable mode)."""
+    A = np.asarray(model.plant.A, float)
+    if A.size == 0:
+        return math.inf
+    re = np.linalg.eigvals(A).real
+    return math.inf if np.any(re >= 0) else float(1.0 / np.min(-re))
+
 EXACT_RANK = {"replace": 0, "add": 1, "refit": 2}     # on an exact tie: the user's values kept
 TIE = 2.0                 # Delta BIC within which candidates count as equally supported
 EXACT_TIE = 0.5           # ... and within which they are the same fit (chain order decides)
@@ -932,6 +944,7 @@ class Search:
             same = [c for c in near if MODE_RANK[c.mode.split(":")[0]] == rank]
             best = max(key(c) for c in same)
             first = min((c for c in same if key(c) > best - EXACT_TIE), key=lambda c: CATALOGUE[c.effect].chain_order)
+            first = self._drift_as_bias(first, same, key)
             exact = [c for c in near if key(c) > max(key(x) for x in near) - EXACT_TIE]
             modes = {c.mode.split(":")[0] for c in exact}
             if {"add", "refit"} <= modes:
@@ -943,6 +956,19 @@ class Search:
             out.remove(first)
             out.insert(0, first)
         return out
+
+    def _drift_as_bias(self, first: Candidate, same: list, key) -> Candidate:
+        """Between near-tied additions, colored actuator noise whose correlation time exceeds
+        :data:`SLOW_DRIFT` times the plant's slowest time constant reaches the output through the
+        plant's low-frequency gain alone: a drift the data cannot tell from a Gauss-Markov sensor
+        bias, the usual model of such a drift, which is reported instead when it is near-tied too."""
+        if first.effect != "actuator.ar1":
+            return first
+        bias = [c for c in same if c.effect == "sensor.bias_markov"]
+        tau = _shape_value(first.fit.model.effects["actuator.ar1"], "tau_s", self.data.Ts)
+        if not bias or tau is None or not tau > SLOW_DRIFT * plant_time_constant(self.nominal):
+            return first
+        return max(bias, key=key)
 
     def _map(self, fn, items: list, cost=None) -> list:
         """fn over items, in :data:`WORKERS` threads on long records (the transforms and array
