@@ -167,7 +167,8 @@ def test_a_drift_slower_than_the_plant_is_reported_as_a_sensor_bias():
     AR(1) of the same tau reaches the output through the plant's DC gain alone, so the two tie (on
     this record the AR(1) is ahead by 0.2 in the choice units, inside TIE). Colored actuator noise
     slower than SLOW_DRIFT plant time constants is reported as the sensor bias when both are
-    near-tied additions; the AR(1) stays the alternative."""
+    near-tied additions (the better supported of it and the walk, its long-tau limit); the AR(1) stays the
+    alternative."""
     from service.diagnose.search import SLOW_DRIFT, TIE, plant_time_constant
 
     base = ("name = \"d\"\n[sampling]\nTs = 0.01\n[plant]\nA = [[-10.0]]\nB = [[10.0]]\nC = [[1.0]]\n"

@@ -77,7 +77,7 @@ def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
     is exchanged for the best of the other candidates its step ranked near the top and found
     significant, when the whole
     model then fits better by more than the tie margin (in the units of ``Search.choice``: twice
-    the log-likelihood gain less chi2_1(95 %) per extra parameter) and the new effect is significant by itself (Delta BIC > THRESHOLD given the
+    the log-likelihood gain less 2.71 per extra parameter) and the new effect is significant by itself (Delta BIC > THRESHOLD given the
     rest). Before that, a backward pass undoes the least needed addition or changed value while it
     is not significant given the others (a refitted process noise that stood in for a colored
     actuator noise before that was fitted; a walk added after a Gauss-Markov bias can make the bias

@@ -803,20 +803,21 @@ def tone_peaks(I: np.ndarray, E: np.ndarray, M: int, Ts: float, max_peaks: int =
 
 MODE_RANK = {"replace": 0, "refit": 1, "add": 2}
 SLOW_DRIFT = 10.0         # actuator AR(1) this many plant time constants slow: a drift (Search._drift_as_bias)
+EXACT_RANK = {"replace": 0, "add": 1, "refit": 2}     # on an exact tie: the user's values kept
+TIE = 2.0                 # Delta BIC within which candidates count as equally supported
+EXACT_TIE = 0.5           # ... and within which they are the same fit (chain order decides)
 
 
 def plant_time_constant(model) -> float:
     """The plant's slowest time constant, 1 / min(-Re lambda) over the eigenvalues of its
-    continuous A (inf with an integrator or an unstable mode)."""
-    A = np.asarray(model.plant.A, float)
+    continuous A, an actuator lag's state included (inf with an integrator or an unstable mode)."""
+    A = np.asarray(model.Ac, float)
     if A.size == 0:
         return math.inf
     re = np.linalg.eigvals(A).real
     return math.inf if np.any(re >= 0) else float(1.0 / np.min(-re))
 
-EXACT_RANK = {"replace": 0, "add": 1, "refit": 2}     # on an exact tie: the user's values kept
-TIE = 2.0                 # Delta BIC within which candidates count as equally supported
-EXACT_TIE = 0.5           # ... and within which they are the same fit (chain order decides)
+
 # Near-ties (the data cannot tell the candidates apart, e.g. white actuator and process noise through
 # the same input, or saturation, dead zone and scale factor under a two-level command) are ranked
 # by: a replacement, then a changed value, then an addition (the fewest effects: a wrong value of
@@ -960,11 +961,12 @@ class Search:
     def _drift_as_bias(self, first: Candidate, same: list, key) -> Candidate:
         """Between near-tied additions, colored actuator noise whose correlation time exceeds
         :data:`SLOW_DRIFT` times the plant's slowest time constant reaches the output through the
-        plant's low-frequency gain alone: a drift the data cannot tell from a Gauss-Markov sensor
-        bias, the usual model of such a drift, which is reported instead when it is near-tied too."""
+        plant's low-frequency gain alone: a drift the data cannot tell from a sensor bias drift (a
+        Gauss-Markov bias, or the walk, its long-tau limit), the usual model of such a drift; the
+        better supported of those is reported instead when it is near-tied too."""
         if first.effect != "actuator.ar1":
             return first
-        bias = [c for c in same if c.effect == "sensor.bias_markov"]
+        bias = [c for c in same if c.effect in ("sensor.bias_markov", "sensor.bias_walk")]
         tau = _shape_value(first.fit.model.effects["actuator.ar1"], "tau_s", self.data.Ts)
         if not bias or tau is None or not tau > SLOW_DRIFT * plant_time_constant(self.nominal):
             return first
