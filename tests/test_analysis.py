@@ -131,11 +131,10 @@ def test_acf_spread_at_lag_zero_is_exact_for_long_memory():
     e = rng.standard_normal((R, K * M)) * np.sqrt(s2 * (1 - rho**2))
     e[:, 0] = rng.standard_normal(R) * np.sqrt(s2)
     x = lfilter([1.0], [1.0, -rho], e, axis=1) + np.sqrt(sw2) * rng.standard_normal((R, K * M))
-    a0 = np.empty(R)
-    for i in range(R):
-        v = acf_view(x[i], 0.01, gam, 0, M, M // 8)
-        a0[i] = v.empirical[0]
-        want = ((v.empirical[0] - v.predicted[0]) / v.z[0]) ** 2
+    views = [acf_view(x[i], 0.01, gam, 0, M, M // 8) for i in range(R)]
+    a0 = np.array([v.empirical[0] for v in views])
+    v = views[0]
+    want = ((v.empirical[0] - v.predicted[0]) / v.z[0]) ** 2      # the view's variance at lag 0
     got = a0.var(ddof=1)
     se = np.sqrt((np.mean((a0 - a0.mean()) ** 4) - (R - 3) / (R - 1) * got**2) / R)
     assert abs(got - want) < 4 * se, (got, want, se)
