@@ -804,7 +804,7 @@ def tone_peaks(I: np.ndarray, E: np.ndarray, M: int, Ts: float, max_peaks: int =
 MODE_RANK = {"replace": 0, "refit": 1, "add": 2}
 SLOW_DRIFT = 10.0         # actuator AR(1) this many plant time constants slow: a drift (Search._drift_as_bias)
 EXACT_RANK = {"replace": 0, "add": 1, "refit": 2}     # on an exact tie: the user's values kept
-TIE = 2.0                 # Delta BIC within which candidates count as equally supported
+TIE = 2.0                 # within which candidates count as equally supported (ranking units: Search.choice, or Delta BIC)
 EXACT_TIE = 0.5           # ... and within which they are the same fit (chain order decides)
 
 
