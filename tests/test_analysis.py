@@ -21,7 +21,7 @@ import pytest
 
 from models_for_tests import ALL_LINEAR, load
 from service.diagnose.compare import compare, transient_samples
-from service.model import load_model
+from service.model import load_model, parse_model
 from service.nodes import mcapio, wire
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -479,6 +479,25 @@ def test_cached_predictions_give_the_uncached_numbers_and_stay_bounded():
         cm.CACHE_MAX_BYTES = old
     cm.cache_clear()
     assert compare(other, rec.t, rec.y, rec.u, burn=None).error == c_small.error
+
+
+def test_acf_spread_does_not_depend_on_the_other_views_settings():
+    """The ACF view's spread covers every pair of its segments from the variogram to the record's
+    length, so it is the same whatever the other views' sizes (a live analyzer sets its own
+    variance window): once read from a variogram cut to the longest of them, it depended on the
+    window (live and offline differed by 0.02 in the model error). A Gauss-Markov bias as long as
+    a segment makes the segments' variances correlate, which is where it shows."""
+    from service.diagnose import compare as cm
+
+    mdl = parse_model((ROOT / "service" / "scenarios" / "seed.toml").read_text()
+                      + "\n[sensor.bias_markov]\nstd = 0.01\ntau_s = 5.0\n")
+    rec = mdl.simulate(3000, seed=2)
+    acf = []
+    for window in (16, 700):
+        cm.cache_clear()
+        c = compare(mdl, rec.t, rec.y, rec.u, burn=None, settings={"window": window})
+        acf.append(next(v for v in c.views if v.name == "acf"))
+    assert np.array_equal(acf[0].z, acf[1].z) and np.array_equal(acf[0].hi, acf[1].hi)
 
 
 def test_live_history_is_thinned_not_unbounded():

@@ -418,7 +418,7 @@ def windowed_variance_var(gam: np.ndarray, W: int) -> float:
     return float(2.0 * (s_gg + s_hh - 2.0 * s_gh) / W**2)
 
 
-def acf_view(r, Ts, gam_parts, j, M, max_lag, model=None):
+def acf_view(r, Ts, gam_parts, j, M, max_lag, model=None, gam_long=None):
     K = r.size // M
     if K < 1:
         raise AnalysisError(f"record too short for the autocorrelation segment of {M} samples")
@@ -446,7 +446,9 @@ def acf_view(r, Ts, gam_parts, j, M, max_lag, model=None):
         # segments. At lag 0 the estimate is the mean of the segments' variances, whose variance is
         # exact (windowed_variance_var and _window_covariances); every lag's is scaled by that ratio
         # (lags up to M/8: the long memory that makes it differ from 1 is alike across them).
-        gsum = sum(g[:, j] for g in gam_parts.values())
+        # (gam_long: the variogram to the record's length, so every pair of segments is covered
+        # and the result depends only on the cache key, whatever length gam_parts was cut to)
+        gsum = sum(g[:, j] for g in gam_parts.values()) if gam_long is None else gam_long
         v0 = windowed_variance_var(gsum, M)
         cov = _window_covariances(gsum, M, K, v0, H=K - 1) if K > 1 else np.zeros(0)
         hh = np.arange(1, cov.size + 1)
@@ -634,7 +636,8 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
         rj = r[:, j]
         jobs += [lambda rj=rj, j=j: variance_view(rj, ta, gam_short, j, s["window"], model,
                                                   gam_long=sum(g[:, j] for g in gam.values())),
-                 lambda rj=rj, j=j: acf_view(rj, model.Ts, gam_short, j, s["acf_segment"], s["max_lag"], model),
+                 lambda rj=rj, j=j: acf_view(rj, model.Ts, gam_short, j, s["acf_segment"], s["max_lag"], model,
+                                             gam_long=sum(g[:, j] for g in gam.values())),
                  lambda rj=rj, j=j: psd_view(rj, model.Ts, gam_short, j, s["nperseg"], s["bins_per_decade"], model),
                  lambda rj=rj, j=j: allan_view(rj, model.Ts, gam, j, corr, model)]
     if r.size >= VIEW_THREADS_MIN and VIEW_THREADS > 1:
