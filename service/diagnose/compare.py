@@ -634,10 +634,10 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
     jobs = []
     for j in range(model.p):
         rj = r[:, j]
-        jobs += [lambda rj=rj, j=j: variance_view(rj, ta, gam_short, j, s["window"], model,
-                                                  gam_long=sum(g[:, j] for g in gam.values())),
-                 lambda rj=rj, j=j: acf_view(rj, model.Ts, gam_short, j, s["acf_segment"], s["max_lag"], model,
-                                             gam_long=sum(g[:, j] for g in gam.values())),
+        g_long = sum(g[:, j] for g in gam.values())       # to the record's length: both views' spreads
+        jobs += [lambda rj=rj, j=j, gl=g_long: variance_view(rj, ta, gam_short, j, s["window"], model, gam_long=gl),
+                 lambda rj=rj, j=j, gl=g_long: acf_view(rj, model.Ts, gam_short, j, s["acf_segment"], s["max_lag"],
+                                                         model, gam_long=gl),
                  lambda rj=rj, j=j: psd_view(rj, model.Ts, gam_short, j, s["nperseg"], s["bins_per_decade"], model),
                  lambda rj=rj, j=j: allan_view(rj, model.Ts, gam, j, corr, model)]
     if r.size >= VIEW_THREADS_MIN and VIEW_THREADS > 1:

@@ -162,7 +162,7 @@ def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
             alts = [a for a in alts if a.full]
 
         def exchanged(a, drop=drop, reuse=reuse):
-            if reuse and a.full:
+            if reuse:                   # a leader of the last step (the others were filtered out)
                 return a.fit
             try:
                 params = a.fit.model.effects[a.effect].param_dict()
