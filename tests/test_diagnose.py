@@ -92,6 +92,26 @@ def test_nothing_reported_on_null_scenarios_over_many_seeds():
     assert len(reported) <= 0.05 * runs, (reported, worst)
 
 
+def test_tone_frequency_interval_has_the_cramer_rao_width():
+    """The tone pair's 50 Hz line over 60 records of 30 s: the frequency's error in units of its
+    reported standard error (the interval's half width / 1.96) has mean square chi2_60 / 60 if the
+    interval is right. Bounds: the 0.1 % and 99.9 % points, 0.55 and 1.66. The bound used to be
+    half the Cramer-Rao variance (12 S / (A^2 N^3) for 24 S / ...; mean square 2) and a Whittle
+    veto kept the frequency at its grid start in a quarter of the records."""
+    from scipy.stats import chi2
+    truth, nominal = load_model("hidden/sensor.tone"), load_model("hidden/sensor.tone-nominal")
+    z = []
+    for seed in range(60):
+        rec = _record(truth, seed=500 + seed, duration=30.0)
+        first = diagnose(nominal, rec.t, rec.y, rec.u, max_effects=1)["missing"][0]
+        assert first["effect"] == "sensor.tone"
+        lo, hi = first["interval"]["frequency_hz"]
+        z.append((_value(first["params"]["frequency_hz"]) - 50.0) / ((hi - lo) / (2 * 1.96)))
+    ms = float(np.mean(np.square(z)))
+    assert chi2.ppf(0.001, 60) / 60 < ms < chi2.ppf(0.999, 60) / 60, (ms, z)
+    assert sum(abs(v) < 1e-6 for v in z) <= 3          # none left on the grid value (50 Hz is a bin here)
+
+
 def test_lesson_case_finds_colored_actuator_noise_in_place_of_white():
     """Against the lesson's nominal model, the first effect is the AR(1) actuator noise that the
     nominal model treats as white; its std is recovered within its 95 % interval and 30 %."""
