@@ -318,6 +318,17 @@ def test_cli_nothing_missing(walk_recording):
     assert r.returncode == 0, r.stderr
     rep = json.loads(r.stdout)
     assert rep["missing"] == [] and rep["error_after"] == rep["error_before"]
+    # the text names the best candidate below the threshold with its fitted values
+    best = rep["candidates"][0]
+    r = cli("diagnose", walk_recording, "--model", "hidden/sensor.bias_walk")
+    assert r.returncode == 0, r.stderr
+    line = next(ln for ln in r.stdout.splitlines() if "best candidate" in ln)
+    assert f"{best['mode']} {best['effect']}, Delta BIC {best['score']:.1f}: " in line
+    present = load_model("hidden/sensor.bias_walk").effects.get(best["effect"])
+    keys = set(present.param_dict()) if present is not None else set(best["params"])   # as the file spells them
+    for k, v in best["params"].items():
+        if k in keys and not isinstance(v, list):
+            assert f"{k} = {float(v):.4g}" in line, (k, line)
 
 
 @pytest.mark.parametrize("args, needle", [

@@ -60,7 +60,9 @@ def diagnosis_lines(rep: dict, series=None, extra: dict | None = None) -> list[s
         lines.append(f"nothing missing: no effect of the catalogue improves the fit by Delta BIC > {rep['threshold']:g}")
         if rep["candidates"]:
             c = rep["candidates"][0]
-            lines.append(f"  (best candidate: {c['mode']} {c['effect']}, Delta BIC {c['score']:.1f})")
+            ps = ", ".join(f"{k} = {_fmt(v)}" for k, v in c["params"].items() if k in _file_keys(rep, c))
+            lines.append(f"  (best candidate: {c['mode']} {c['effect']}, Delta BIC {c['score']:.1f}"
+                         + (f": {ps}" if ps else "") + ")")
     else:
         lines.append("missing, most likely first (Delta BIC; model error after adding it):")
         for i, (m, st) in enumerate(zip(rep["missing"], rep["steps"]), 1):
