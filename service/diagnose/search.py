@@ -709,7 +709,7 @@ class Hypotheses:
             freq[j] = refine_frequency(r[:, j], freq[j], d.Ts, d.k0, 1.0 / (d.M * d.Ts))
         m = _set(fit.model, "sensor.tone", {"frequency_hz": _vec(freq)})
         f = self.inner_fit(m, fit.free)
-        # the periodogram's peak is the line's maximum-likelihood frequency (Kay 1993 sec. 13.5); the
+        # the periodogram's peak is the line's maximum-likelihood frequency (Kay 1993 ch. 7); the
         # Whittle likelihood of group means cannot resolve shifts of a CRLB (its differences there are
         # +-0.1, noise), so it only vetoes a refinement it rejects at 5 %: keeping the start on a
         # smaller difference left the frequency on its grid value in a quarter of the records
