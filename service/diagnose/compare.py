@@ -450,7 +450,7 @@ def acf_view(r, Ts, gam_parts, j, M, max_lag, model=None, gam_long=None):
         # and the result depends only on the cache key, whatever length gam_parts was cut to)
         gsum = sum(g[:, j] for g in gam_parts.values()) if gam_long is None else gam_long
         v0 = windowed_variance_var(gsum, M)
-        cov = _window_covariances(gsum, M, K, v0, H=K - 1) if K > 1 else np.zeros(0)
+        cov = _window_covariances(gsum, M, K, v0, H=K - 1)          # empty for one segment
         hh = np.arange(1, cov.size + 1)
         exact0 = (v0 + 2.0 * np.sum((1 - hh / K) * cov)) / K
         if var[0] > 0 and exact0 > 0:
