@@ -188,3 +188,98 @@ def test_expected_periodogram_against_an_extended_precision_sum(tau):
     err = np.max(np.abs(E - E_ref))
     assert err < 256 * np.finfo(float).eps * scale, (err, scale, np.max(E_ref))
     assert err < 1e-6 * np.max(E_ref)
+
+
+TWOOUT = open(__file__.replace("tests/test_whittle.py", "service/scenarios/hidden/null-twoout.toml")).read()
+TWOOUT_ALL = TWOOUT.replace("[actuator.white]\nstd = 0.05", "[actuator.ar1]\nstd = 0.05\ntau_s = 0.2") + \
+    "\n[sensor.bias_walk]\nstd = [0.001, 0.002]\n[sensor.jitter]\nstd_s = 0.0005\n"
+
+
+def test_cross_spectra_against_the_definition():
+    """Two outputs of one plant (position and a scaled rate) share its noise: the expected
+    cross-periodogram E[X_i X_j^*] / M of every source through the plant, from rest, against the
+    definition (1/M) sum_{q,r} w_q w_r Cov(d_i,q, d_j,r) e^{-i w_f (q - r)} evaluated from the
+    covariance matrix of the whole record (P_k from P_0 = 0); its diagonal is the per-output
+    expected periodogram; and the grouped cross-spectra are the group means of the full ones."""
+    from service.diagnose.search import _set
+    M = 240
+    model = parse_model(TWOOUT_ALL)
+    pr = model.predictor()
+    pr.steady_state()
+    ls = pr._ls
+    N = M + 1
+    w = W.taper(M)[0]
+    f = np.arange(W.n_freqs(M))
+    q = np.arange(M)
+    ph = np.exp(-2j * np.pi * np.outer(f, q) / M)                 # (nf, M)
+    for eid in ("process.white", "actuator.ar1", "sensor.bias_markov"):
+        cols = ls.owners[eid]
+        F, G, H, P = W._sub_system(ls, pr._Pj[eid], cols, ls.n_x)
+        J = ls.J[:, cols]
+        n, p = F.shape[0], H.shape[0]
+        Pk = np.zeros((N, n, n))
+        for k in range(1, N):
+            Pk[k] = F @ Pk[k - 1] @ F.T + G @ G.T
+        Fp = [np.eye(n)]
+        for _ in range(N):
+            Fp.append(F @ Fp[-1])
+        C = np.zeros((N, N, p, p))                                 # Cov(y_k, y_l)
+        for k in range(N):
+            for l in range(N):
+                if l >= k:
+                    C[k, l] = H @ Pk[k] @ Fp[l - k].T @ H.T
+                    if l > k:
+                        C[k, l] += (H @ Fp[l - k - 1] @ G @ J.T).T
+                    else:
+                        C[k, l] += J @ J.T
+                else:
+                    C[k, l] = C[l, k].T
+        Cd = C[1:, 1:] - C[1:, :-1] - C[:-1, 1:] + C[:-1, :-1]     # Cov(d_q, d_r) (M, M, p, p)
+        A = w[:, None, None, None] * w[None, :, None, None] * Cd
+        E_ref = np.einsum("fq,qrij,fr->fij", ph, A, np.conj(ph)) / M
+        E = W.linear_part(F, G, H, J, P, M, 0, True, cross=True)
+        scale = np.max(np.abs(E_ref))
+        np.testing.assert_allclose(E, E_ref, rtol=0, atol=1e-10 * scale, err_msg=eid)
+        coherent = np.max(np.abs(E_ref[:, 0, 1])) / np.sqrt(np.max(E_ref[:, 0, 0].real * E_ref[:, 1, 1].real))
+        # through the plant the outputs correlate; each sensor's own bias does not
+        assert coherent > 0.05 if eid != "sensor.bias_markov" else coherent < 1e-12, (eid, coherent)
+        diag = W.linear_part(F, G, H, J, P, M, 0, True)
+        np.testing.assert_allclose(np.einsum("fii->fi", E).real, diag, rtol=0, atol=1e-12 * scale)
+    # every part, grouped: diagonal = the per-output parts, off-diagonal = group means of the full
+    M = 199680
+    g = W.Groups(M, 0.01)
+    yd = np.array([[1.0, 0.3], [0.3, 0.5]])
+    full = W.expected_parts(model, M, 0, True, ydot_sq=yd, cross=True)
+    grouped = W.expected_parts(model, M, 0, True, ydot_sq=yd, cross=True, groups=g)
+    single = W.expected_parts(model, M, 0, True, ydot_sq=np.diag(yd), groups=g)
+    assert full.keys() == grouped.keys() == single.keys()
+    for k in full:
+        ref = g.mean(full[k])
+        np.testing.assert_allclose(grouped[k], ref, rtol=0, atol=1e-9 * np.max(np.abs(ref)), err_msg=k)
+        np.testing.assert_allclose(np.einsum("fii->fi", grouped[k]).real, single[k], rtol=0,
+                                   atol=1e-9 * np.max(np.abs(ref)), err_msg=k)
+    # the jitter (one sampling instant) correlates the outputs; sensor white noise and the walk do not
+    assert np.all(grouped["sensor.jitter"][:, 0, 1] != 0)
+    assert np.all(grouped["sensor.white"][:, 0, 1] == 0) and np.all(grouped["sensor.bias_walk"][:, 0, 1] == 0)
+
+
+def test_cross_periodogram_matches_monte_carlo():
+    """Mean cross-periodogram over 300 records from rest of the two-output plant (with jitter, a walk
+    and AR(1) actuator noise) against the summed expected parts, in 20 bands of ~18 bins: the real
+    and imaginary parts of the band means of I_01 within 4 sd (the sd from the band's own spread
+    over records) + 1 % of sqrt(E_00 E_11)."""
+    model = parse_model(TWOOUT_ALL)
+    N, trials = 800, 300
+    rec = model.simulate(N, seed=11, trials=trials)
+    mean = model.predictor().mean_response(N)
+    r = rec.y - mean.y[None]
+    Is = np.array([W.periodogram(r[i], cross=True) for i in range(trials)])      # (trials, nf, 2, 2)
+    yd = mean.ydot.T @ mean.ydot / N
+    E = sum(W.expected_parts(model, N - 1, 0, True, ydot_sq=yd, cross=True).values())
+    edges = np.linspace(1, E.shape[0], 21).astype(int)
+    for a, b in zip(edges[:-1], edges[1:]):
+        band = Is[:, a:b, 0, 1].mean(axis=1)                    # per record
+        e = E[a:b, 0, 1].mean()
+        tol = 4 * band.std() / np.sqrt(trials) + 0.01 * np.sqrt(E[a:b, 0, 0].real.mean() * E[a:b, 1, 1].real.mean())
+        assert abs(band.mean().real - e.real) < tol, (a, band.mean(), e)
+        assert abs(band.mean().imag - e.imag) < tol, (a, band.mean(), e)

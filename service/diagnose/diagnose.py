@@ -33,8 +33,10 @@ def _band(fit, eid: str, data: Data):
     parts = fit.parts
     if not parts or eid not in parts:
         return None
-    total = sum(parts.values())
-    share = np.sum(parts[eid], axis=1) / np.maximum(np.sum(total, axis=1), 1e-300)
+    def power(E):          # per group: summed over outputs (the diagonal of cross-spectral matrices)
+        return np.einsum("bii->b", E).real if E.ndim == 3 else np.sum(E, axis=1)
+
+    share = power(parts[eid]) / np.maximum(power(sum(parts.values())), 1e-300)
     idx = np.flatnonzero(share > 0.5)
     if idx.size == 0:
         return None

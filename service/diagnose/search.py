@@ -302,7 +302,8 @@ class Evaluator:
     def parts(self, model, ydot_sq):
         """Per effect, the expected periodogram averaged over the frequency groups."""
         d = self.data
-        return W.expected_parts(model, d.M, d.k0, d.at_rest, ydot_sq=ydot_sq, cache=self._parts, groups=d.groups)
+        return W.expected_parts(model, d.M, d.k0, d.at_rest, ydot_sq=ydot_sq, cache=self._parts, groups=d.groups,
+                                cross=d.p > 1)
 
     def grouped_periodogram(self, model, free_tone: bool):
         """:meth:`residual` and the group means of its periodogram, cached: only the mean effects
@@ -314,7 +315,9 @@ class Evaluator:
             if len(self._pgram) > 8:
                 self._pgram.clear()
             r, yd, fitted = self.residual(model, free_tone)
-            got = self._pgram[key] = (r, yd, fitted, self.data.group(W.periodogram(r, self.data.k0)))
+            # several outputs: the cross-periodogram matrices (the multivariate Whittle likelihood)
+            I = W.periodogram(r, self.data.k0, cross=self.data.p > 1)
+            got = self._pgram[key] = (r, yd, fitted, self.data.group(I))
         r, yd, fitted, Ig = got
         return r, yd, None if fitted is None else fitted.copy(), Ig
 
@@ -366,27 +369,53 @@ def _mean_key(model, gain: bool = True) -> str:
 class Inner:
     """l(v) = -sum_b G_b sum_j [ln E_bj + I_bj / E_bj] + l_mod(v_jitter), E = E0 + sum_a v_a U_a,
     v_a >= 0, maximized by projected Fisher scoring (the expected information
-    sum_b G_b U_a U_b / E^2 is positive definite, so each step is a Newton-like ascent step)."""
+    sum_b G_b U_a U_b / E^2 is positive definite, so each step is a Newton-like ascent step).
+
+    Several outputs: I_b, E0_b and U_a,b are p x p cross-spectral matrices (complex Hermitian) and
+    l(v) = -sum_b G_b [ln det E_b + tr(E_b^-1 I_b)], the multivariate Whittle likelihood (Whittle
+    1953; Brillinger 1981 ch. 7): outputs that share noise (two sensors of one plant) are not
+    counted as independent evidence. Score tr(E^-1 U_a E^-1 (I - E)), information
+    tr(E^-1 U_a E^-1 U_b)."""
 
     def __init__(self, I, G, E0, U, mod=None, mod_index=None):
         # G: bins per group divided by the taper's kappa (see :func:`.whittle.loglik`)
-        self.I, self.G, self.E0 = I, G[:, None], E0
+        self.multi = I.ndim == 3
+        self.I, self.G, self.E0 = I, G.reshape((-1,) + (1,) * (I.ndim - 1)), E0
         self.U = np.stack(U) if len(U) else np.zeros((0,) + I.shape)
         self.mod, self.mod_index = mod, mod_index
-        tot = float(np.sum(self.G * I))
-        self.vref = np.array([tot / max(float(np.sum(self.G * u)), 1e-300) for u in self.U])
+        tr = (lambda A: np.einsum("...ii->...", A).real) if self.multi else (lambda A: A)
+        tot = float(np.sum(self.G * tr(I)))
+        self.vref = np.array([tot / max(float(np.sum(self.G * tr(u))), 1e-300) for u in self.U])
         self.hi = self.vref * 1e4
+        if self.multi:
+            p = I.shape[1]
+            self.Gb = self.G[:, 0, 0]
+            # a ridge of 1e-13 of the mean output power (and a floor) keeps E invertible where a
+            # source's spectrum is singular (two outputs of one mode, no sensor noise)
+            level = E0 + np.tensordot(self.vref, self.U, axes=1) if len(self.U) else E0
+            self.ridge = (1e-13 * np.einsum("bii->b", level).real / p + 1e-150)[:, None, None] * np.eye(p)
 
     def _E(self, v):
         E = self.E0 + np.tensordot(v, self.U, axes=1) if len(v) else self.E0
+        if self.multi:
+            return E + self.ridge
         return np.maximum(E, 1e-150)             # E**2 stays a normal float
 
     def value(self, v):
         v = np.asarray(v, float)
         E = self._E(v)
-        l = -float(np.sum(self.G * (np.log(E) + self.I / E)))
-        R = self.G * (self.I - E) / E**2
-        g = np.array([float(np.sum(u * R)) for u in self.U])
+        if self.multi:
+            Ei = np.linalg.inv(E)
+            logdet = np.linalg.slogdet(E)[1]
+            EiI = Ei @ self.I
+            l = -float(np.sum(self.Gb * (logdet + np.einsum("bii->b", EiI).real)))
+            R = (EiI - np.eye(E.shape[1])) @ Ei                      # E^-1 (I - E) E^-1
+            # tr(U_a R) with U_a and R Hermitian: sum_ij U_ij conj(R_ij)
+            g = np.array([float(np.sum(self.Gb * np.einsum("bij,bij->b", u, np.conj(R)).real)) for u in self.U])
+        else:
+            l = -float(np.sum(self.G * (np.log(E) + self.I / E)))
+            R = self.G * (self.I - E) / E**2
+            g = np.array([float(np.sum(u * R)) for u in self.U])
         if self.mod is not None:
             lm, gm = self.mod(v[self.mod_index])
             l += lm
@@ -395,13 +424,20 @@ class Inner:
 
     def _info(self, v):
         E = self._E(v)
-        W = self.G / E**2
         n = len(self.U)
         F = np.empty((n, n))
-        for a in range(n):
-            Wa = W * self.U[a]
-            for b in range(a, n):
-                F[a, b] = F[b, a] = float(np.sum(Wa * self.U[b]))
+        if self.multi:
+            Ei = np.linalg.inv(E)
+            V = [Ei @ u for u in self.U]
+            for a in range(n):
+                for b in range(a, n):
+                    F[a, b] = F[b, a] = float(np.sum(self.Gb * np.einsum("bij,bji->b", V[a], V[b]).real))
+        else:
+            W = self.G / E**2
+            for a in range(n):
+                Wa = W * self.U[a]
+                for b in range(a, n):
+                    F[a, b] = F[b, a] = float(np.sum(Wa * self.U[b]))
         if self.mod is not None:
             i = self.mod_index
             h = max(abs(v[i]) * 1e-3, self.vref[i] * 1e-9)
@@ -577,7 +613,9 @@ class Hypotheses:
         if tone_amp is not None and "sensor.tone" in free:
             model = _set(model, "sensor.tone", {"amplitude": _vec(tone_amp)})
             canon = _set(canon, "sensor.tone", {"amplitude": _vec(tone_amp)})
-        ydot_sq = np.mean(ydot[d.k0:] ** 2, axis=0)
+        yk = ydot[d.k0:]
+        # the jitter's slope power: per output, or (several outputs) the matrix of mean products
+        ydot_sq = yk.T @ yk / yk.shape[0] if d.p > 1 else np.mean(yk**2, axis=0)
         parts = self.ev.parts(canon, ydot_sq)
         E0 = sum((v for k, v in parts.items() if k not in scale_ids), np.zeros_like(Ig))
         U = [parts.get(e, np.zeros_like(Ig)) for e in scale_ids]
@@ -694,6 +732,24 @@ class Hypotheses:
             else:
                 a2, c1 = c1, d1
                 d1 = a2 + gr * (b2 - a2)
+        # parabolic steps (Brent 1973 ch. 5): golden section alone leaves the maximum up to 0.6^n of
+        # its bracket off, which for a well-determined parameter (a scale factor known to 1e-3 over
+        # a range of 1.5) is as large as its standard error; near the maximum the log-likelihood is
+        # quadratic, so the vertex through the best point and its evaluated neighbours is close
+        for _ in range(4):
+            pts = sorted((x, f.loglik) for x, f in cache.items() if f is not None)
+            i = max(range(len(pts)), key=lambda k: pts[k][1], default=0)
+            if i == 0 or i == len(pts) - 1:
+                break
+            (x0, f0), (x1, f1), (x2, f2) = pts[i - 1:i + 2]
+            den = (x1 - x0) * (f1 - f2) - (x1 - x2) * (f1 - f0)
+            if den == 0:
+                break
+            xv = x1 - 0.5 * ((x1 - x0) ** 2 * (f1 - f2) - (x1 - x2) ** 2 * (f1 - f0)) / den
+            if not (x0 < xv < x2) or xv in cache:
+                break
+            if val(xv) - f1 < 0.005:            # 0.01 in 2 Delta l: far inside any interval
+                break
         for f in cache.values():
             if f is not None and f.loglik > best.loglik:
                 best = f

@@ -30,8 +30,13 @@ Why this form:
   before the transform. Without it the end-point term (r_M - r_0), common to every bin, leaks
   Var(r)/M into all low frequencies and buries a bias walk there; with it E I_f =
   (1/M) sum_h c_w(h) R_d(h) e^{-i w_f h}, c_w the taper's autocorrelation (Dahlhaus 1988).
-* Whittle: l = -(1/kappa) sum_f [ln E_f + I_f / E_f] (Whittle 1953), summed over outputs (the
-  cross-spectra of several outputs are left out: a composite likelihood). kappa = M sum w^4 /
+* Whittle: l = -(1/kappa) sum_f [ln E_f + I_f / E_f] (Whittle 1953). Several outputs: the
+  cross-periodogram matrices I_f = X_f X_f^H / M against their expectations E_f (p x p, complex
+  Hermitian), l = -(1/kappa) sum_f [ln det E_f + tr(E_f^-1 I_f)] (Brillinger 1981 ch. 7): two
+  sensors of one plant share its noise, and summing their separate likelihoods would count that
+  evidence twice. The cross terms come from the same sums of exponentials (Cov(y_{k+h}, y_k) =
+  R(h), R(-h) = R(h)^T); sensor white noise and the bias walk are per output, the jitter's one
+  sampling instant correlates the outputs through their slopes. kappa = M sum w^4 /
   (sum w^2)^2 corrects for the correlation the taper puts between neighbouring bins (the
   likelihood's curvature would otherwise be overstated by that factor).
 
@@ -81,13 +86,16 @@ def taper(M: int) -> tuple[np.ndarray, np.ndarray, float]:
     return got
 
 
-def periodogram(r: np.ndarray, k0: int = 0) -> np.ndarray:
-    """I_f (nf, p) of the tapered d_q = r_{k0+q+1} - r_{k0+q}, f = 0..nf-1."""
+def periodogram(r: np.ndarray, k0: int = 0, cross: bool = False) -> np.ndarray:
+    """I_f (nf, p) of the tapered d_q = r_{k0+q+1} - r_{k0+q}, f = 0..nf-1; ``cross``: the
+    cross-periodogram matrices I_f = X_f X_f^H / M (nf, p, p), complex Hermitian."""
     d = np.diff(r[k0:], axis=0)
     M = d.shape[0]
     w = taper(M)[0]
-    X = sfft.rfft(np.ascontiguousarray((d * w[:, None]).T), axis=-1).T      # rows: one output each
-    return (np.abs(X[:n_freqs(M)]) ** 2) / M
+    X = sfft.rfft(np.ascontiguousarray((d * w[:, None]).T), axis=-1).T[:n_freqs(M)]    # rows: one output each
+    if cross:
+        return X[:, :, None] * np.conj(X[:, None, :]) / M
+    return (np.abs(X) ** 2) / M
 
 
 def _from_acf(Rd: np.ndarray, M: int) -> np.ndarray:
@@ -109,6 +117,15 @@ def _spectrum(a: np.ndarray, M: int) -> np.ndarray:
         return E
     E = 2.0 * sfft.rfft(np.ascontiguousarray(a.T), n=M, axis=-1).real.T - a[0]
     return E[:nf]
+
+
+def _cross_spectrum(a: np.ndarray, M: int) -> np.ndarray:
+    """S_f = a(0) + sum_{h>=1} [a(h) e^{-i w_f h} + a(h)^T e^{i w_f h}] (nf, p, p) from a(h)
+    (K, p, p), a(h) the cross-covariance sequence Cov(x_{k+h}, x_k) (a(-h) = a(h)^T): C + C^H - a(0)
+    with C_f = sum_{h>=0} a(h) e^{-i w_f h}."""
+    K, p, _ = a.shape
+    C = sfft.rfft(np.ascontiguousarray(a.reshape(K, p * p).T), n=M, axis=-1).T[:n_freqs(M)].reshape(-1, p, p)
+    return C + np.conj(C.transpose(0, 2, 1)) - a[0]
 
 
 # -- frequency groups: the expected periodogram's group means without the full transform ------------------
@@ -165,24 +182,39 @@ class Groups:
         """Group means (nb, ...) of a full array (nf, ...)."""
         return np.add.reduceat(A, self.starts, axis=0) / self.sizes.reshape((-1,) + (1,) * (A.ndim - 1))
 
+    def fast(self, K: int) -> bool:
+        """Whether a(h) of K lags takes the fast path (chirp z and folded blocks)."""
+        return self.n > 1 and K + self.F_low <= self.M // 8
+
     def spectrum(self, a: np.ndarray) -> np.ndarray:
         """Group means of E_f (nb, p) from a(h) (K, p), as ``mean(_spectrum(a, M))``."""
-        K = a.shape[0]
-        M = self.M
-        if self.n == 1 or K + self.F_low > M // 8:
-            return self.mean(_spectrum(a, M))
-        p = a.shape[1]
-        units = np.empty((self.unit_w.size, p))
-        units[:self.F_low] = 2.0 * self._czt(a, 0, self.F_low).real - a[0]
+        if not self.fast(a.shape[0]):
+            return self.mean(_spectrum(a, self.M))
+        return 2.0 * self._sums(a).real - a[0]
+
+    def cross(self, a: np.ndarray) -> np.ndarray:
+        """Group means of the cross-spectrum S_f (nb, p, p) from a(h) (K, p, p), as
+        ``mean(_cross_spectrum(a, M))``."""
+        K, p, _ = a.shape
+        if not self.fast(K):
+            return self.mean(_cross_spectrum(a, self.M))
+        C = self._sums(a.reshape(K, p * p)).reshape(-1, p, p)
+        return C + np.conj(C.transpose(0, 2, 1)) - a[0]
+
+    def _sums(self, a: np.ndarray) -> np.ndarray:
+        """Group means of C_f = sum_{h>=0} a(h) e^{-i w_f h} (nb, q) complex, from a(h) (K, q)."""
+        K, q = a.shape
+        units = np.empty((self.unit_w.size, q), complex)
+        units[:self.F_low] = self._czt(a, 0, self.F_low)
         # block means: a(h) D(h) folded modulo L, one transform
         D = self._kernel(K)
-        g = np.zeros((-(-K // self.L) * self.L, p), complex)
+        g = np.zeros((-(-K // self.L) * self.L, q), complex)
         g[1:K] = a[1:K] * D[1:K, None]
-        G = sfft.fft(g.reshape(-1, self.L, p).sum(axis=0), axis=0)
+        G = sfft.fft(g.reshape(-1, self.L, q).sum(axis=0), axis=0)
         nb = self.b1 - self.b0
-        units[self.F_low:self.F_low + nb] = a[0] + 2.0 * G[self.b0:self.b1].real
+        units[self.F_low:self.F_low + nb] = a[0] + G[self.b0:self.b1]
         if self.tail:
-            units[self.F_low + nb:] = 2.0 * self._czt(a, self.b1 * self.n, self.tail).real - a[0]
+            units[self.F_low + nb:] = self._czt(a, self.b1 * self.n, self.tail)
         return np.add.reduceat(units * self.unit_w[:, None], self.unit_starts, axis=0) / self.sizes[:, None]
 
     def _kernel(self, K: int) -> np.ndarray:
@@ -370,9 +402,11 @@ def _sub_system(ls, Pe, cols, n_x: int):
     return ls.F[np.ix_(S, S)], G[S], ls.H[:, S], Pe[np.ix_(S, S)]
 
 
-def linear_part(F, G, H, J, Pe, M: int, k0: int, at_rest: bool, groups: Groups | None = None) -> np.ndarray:
+def linear_part(F, G, H, J, Pe, M: int, k0: int, at_rest: bool, groups: Groups | None = None,
+                cross: bool = False) -> np.ndarray:
     """E I_f (nf, p) of one source of the augmented linear system (see the module docstring);
-    ``groups``: their means (nb, p)."""
+    ``groups``: their means (nb, p); ``cross``: the expected cross-periodogram matrices (nf or nb,
+    p, p), complex Hermitian (Cov(d_{q+h}, d_q) for every pair of outputs)."""
     p = H.shape[0]
     n = F.shape[0]
     modes = Modes(F)
@@ -380,21 +414,25 @@ def linear_part(F, G, H, J, Pe, M: int, k0: int, at_rest: bool, groups: Groups |
     # R(h) = H F^h P H^T + [h >= 1] H F^(h-1) Gamma J^T (+ J J^T at 0): for h >= 1, H F^(h-1) Y0 with
     # Y0 = F P H^T + Gamma J^T, so the differenced Rd(h) = 2 R(h) - R(h-1) - R(h+1) is, for h >= 2,
     # -H F^(h-2) (I - F)^2 Y0: one series, and no cancellation between neighbouring lags of a slow mode
-    idx = np.arange(p)
+    # (R(h) = Cov(y_{k+h}, y_k), R(-h) = R(h)^T: Rd(0) = 2 R(0) - R(1) - R(1)^T)
     Y0 = F @ Pe @ H.T + G @ J.T                                      # (n, p)
-    R0 = np.diag(H @ Pe @ H.T) + np.sum(J**2, axis=1)
-    R1 = np.diag(H @ Y0)
+    R0 = H @ Pe @ H.T + J @ J.T
+    R1 = H @ Y0
     IF = np.eye(n) - F
-    Rd = np.empty((K + 1, p))
-    Rd[0] = 2 * (R0 - R1)
+    Rd = np.empty((K + 1, p, p))
+    Rd[0] = 2 * R0 - R1 - R1.T
     if K >= 1:
-        R2 = np.diag(H @ F @ Y0) if K >= 2 else np.zeros(p)          # R(2); zero beyond a horizon of 1
+        R2 = H @ F @ Y0 if K >= 2 else np.zeros((p, p))               # R(2); zero beyond a horizon of 1
         Rd[1] = 2 * R1 - R0 - R2
     if K >= 2:
-        Rd[2:] = modes.series(H, -(IF @ IF @ Y0), K - 1)[:, idx, idx]
+        Rd[2:] = modes.series(H, -(IF @ IF @ Y0), K - 1)
+    if not cross:
+        idx = np.arange(p)
+        Rd = Rd[:, idx, idx]
     # a(h) = c_w(h) Rd(h) / M
     K = min(Rd.shape[0], M)
-    a = Rd[:K] * (taper(M)[1][:K, None] / M)
+    cw = taper(M)[1][:K]
+    a = Rd[:K] * (cw.reshape((K,) + (1,) * (Rd.ndim - 1)) / M)
     w = None
     if at_rest:
         Gs = psd_sqrt(Pe)
@@ -407,60 +445,72 @@ def linear_part(F, G, H, J, Pe, M: int, k0: int, at_rest: bool, groups: Groups |
                 w = modes.series(left, -(IF @ Gs), Lw)                   # (Lw, p, c)
                 w *= taper(M)[0][:Lw, None, None]
     Lw = 0 if w is None else w.shape[0]
-    short = groups is not None and groups.n > 1 and max(K, Lw) + groups.F_low <= M // 8
+    short = groups is not None and groups.fast(max(K, Lw))
     if w is not None and short:
-        # sum_c |W_c(f)|^2 = sum_h rho(h) e^{-i w h}, rho the autocorrelation of the tapered w summed
-        # over c: subtracted from a(h) it leaves E I_f = the group transform of a, exactly
+        # sum_c W_ic(f) conj(W_jc(f)) = sum_h rho_ij(h) e^{-i w h}, rho_ij(h) = sum_{q,c} w_{i,q+h,c}
+        # w_{j,q,c} the cross-correlation of the tapered w (rho(-h) = rho(h)^T, as a(h)): subtracted
+        # from a(h) it leaves E I_f = the group transform of a, exactly
         n2 = 1 << int(2 * Lw - 1).bit_length()
         Wf = sfft.rfft(w, n=n2, axis=0)
-        rho = sfft.irfft(np.sum(np.abs(Wf) ** 2, axis=2), n=n2, axis=0)[:Lw]    # (Lw, p)
+        if cross:
+            rho = sfft.irfft(np.einsum("fic,fjc->fij", Wf, np.conj(Wf)), n=n2, axis=0)[:Lw]   # (Lw, p, p)
+        else:
+            rho = sfft.irfft(np.sum(np.abs(Wf) ** 2, axis=2), n=n2, axis=0)[:Lw]           # (Lw, p)
         if Lw > K:
-            a = np.concatenate([a, np.zeros((Lw - K, p))])
+            a = np.concatenate([a, np.zeros((Lw - K,) + a.shape[1:])])
         a[:Lw] -= rho / M
-        return groups.spectrum(a)
     if short:
-        return groups.spectrum(a)
+        return groups.cross(a) if cross else groups.spectrum(a)
     # long memory (a correlation time near the record's): every bin, the correction as |W_c(f)|^2
-    E = _spectrum(a, M)
+    E = _cross_spectrum(a, M) if cross else _spectrum(a, M)
     if w is not None:
         Wf = sfft.rfft(np.ascontiguousarray(w.transpose(1, 2, 0)), n=M, axis=-1)[:, :, :E.shape[0]]   # (p, c, nf)
-        E -= (np.sum(Wf.real ** 2 + Wf.imag ** 2, axis=1) / M).T
+        if cross:
+            E -= np.einsum("icf,jcf->fij", Wf, np.conj(Wf)) / M
+        else:
+            E -= (np.sum(Wf.real ** 2 + Wf.imag ** 2, axis=1) / M).T
     return E if groups is None else groups.mean(E)
 
 
 def expected_parts(model, M: int, k0: int, at_rest: bool, ydot_sq: np.ndarray | None = None,
                    skip: tuple = ("sensor.tone",), cache: dict | None = None,
-                   groups: Groups | None = None) -> dict:
+                   groups: Groups | None = None, cross: bool = False) -> dict:
     """{effect id: E I_f (nf, p)} for every effect of ``model`` that owns noise, for the
     differenced residual of M samples starting after sample k0. ``at_rest``: the record starts at
     rest at sample 0 (the from-rest correction applies). ``ydot_sq``: mean square of the predicted
-    mean slope per output over the record (for the jitter; default: the predictor's). Tones are
-    deterministic in a record and handled by the caller (``skip``). ``cache``: a dict reused across
-    calls, keyed by each source's own sub-system (an effect whose transfer did not change is not
-    recomputed). ``groups``: the parts as group means (nb, p) (:class:`Groups`, fast on long records)."""
+    mean slope per output over the record (for the jitter; default: the predictor's); with
+    ``cross``, the matrix of mean products (p, p). Tones are deterministic in a record and handled
+    by the caller (``skip``). ``cache``: a dict reused across calls, keyed by each source's own
+    sub-system (an effect whose transfer did not change is not recomputed). ``groups``: the parts
+    as group means (nb, p) (:class:`Groups`, fast on long records). ``cross``: the expected
+    cross-periodogram matrices (nf or nb, p, p), complex Hermitian: sources through the plant (and
+    the jitter: one sampling instant for all outputs) correlate the outputs, sensor white noise and
+    the bias walk do not."""
     pr = model.predictor()
     pr.steady_state()
     ls = pr._ls
     p = model.p
     parts: dict = {}
-    ydot_var = np.zeros(p)
+    ydot_cov = np.zeros((p, p))
     for eid, cols in ls.owners.items():
         Pe = pr._Pj.get(eid)
         if Pe is None:
             raise ValueError(f"{eid}: no stationary prediction (the plant is not stable)")
-        ydot_var += np.einsum("ij,jk,ik->i", ls.Hd, Pe, ls.Hd) + np.sum(ls.Jd[:, cols] ** 2, axis=1)
+        Jd = ls.Jd[:, cols]
+        ydot_cov += ls.Hd @ Pe @ ls.Hd.T + Jd @ Jd.T
         if eid in skip:
             continue
         F, G, H, Ps = _sub_system(ls, Pe, cols, ls.n_x)
         J = ls.J[:, cols]
         key = None
         if cache is not None:
-            key = (eid, M, k0, at_rest, groups is not None, F.tobytes(), G.tobytes(), H.tobytes(), J.tobytes())
+            key = (eid, M, k0, at_rest, groups is not None, cross, F.tobytes(), G.tobytes(), H.tobytes(),
+                   J.tobytes())
             got = cache.get(key)
             if got is not None:
                 parts[eid] = got
                 continue
-        E = linear_part(F, G, H, J, Ps, M, k0, at_rest, groups)
+        E = linear_part(F, G, H, J, Ps, M, k0, at_rest, groups, cross)
         if cache is not None:
             if len(cache) > 256:
                 cache.clear()
@@ -468,16 +518,31 @@ def expected_parts(model, M: int, k0: int, at_rest: bool, ydot_sq: np.ndarray | 
         parts[eid] = E
     if ydot_sq is None:
         mean = pr.mean_response()
-        ydot_sq = np.mean(mean.ydot**2, axis=0)
+        ydot_sq = mean.ydot.T @ mean.ydot / mean.ydot.shape[0] if cross else np.mean(mean.ydot**2, axis=0)
+
+    def unit_times(var):
+        """The differenced white unit times a variance (p,) or, with ``cross``, a covariance (p, p)."""
+        if not cross:
+            return white_part(var, M, groups)
+        unit = white_part(np.ones(1), M, groups)[:, 0]
+        V = np.diag(var) if np.ndim(var) == 1 else var
+        return unit[:, None, None] * V[None].astype(complex)
+
     for eid, kind, *prm in pr._primitives():
         if eid in skip:
             continue
         if kind == "white":
-            parts[eid] = parts.get(eid, 0) + white_part(np.broadcast_to(prm[0], (p,)), M, groups)
+            add = unit_times(np.broadcast_to(prm[0], (p,)).astype(float))
         elif kind == "walk":
-            parts[eid] = parts.get(eid, 0) + walk_part(np.broadcast_to(prm[0], (p,)), M, groups)
+            q = walk_part(np.broadcast_to(prm[0], (p,)), M, groups)
+            add = q if not cross else q[:, :, None] * np.eye(p)[None].astype(complex)
         elif kind == "jitter":
-            parts[eid] = white_part(prm[0] * (ydot_sq + ydot_var), M, groups)
+            cov = ydot_sq + ydot_cov if cross else ydot_sq + np.diag(ydot_cov)
+            parts[eid] = unit_times(prm[0] * cov)
+            continue
+        else:
+            continue
+        parts[eid] = parts.get(eid, 0) + add
     return parts
 
 
