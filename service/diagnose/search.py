@@ -732,24 +732,6 @@ class Hypotheses:
             else:
                 a2, c1 = c1, d1
                 d1 = a2 + gr * (b2 - a2)
-        # parabolic steps (Brent 1973 ch. 5): golden section alone leaves the maximum up to 0.6^n of
-        # its bracket off, which for a well-determined parameter (a scale factor known to 1e-3 over
-        # a range of 1.5) is as large as its standard error; near the maximum the log-likelihood is
-        # quadratic, so the vertex through the best point and its evaluated neighbours is close
-        for _ in range(4):
-            pts = sorted((x, f.loglik) for x, f in cache.items() if f is not None)
-            i = max(range(len(pts)), key=lambda k: pts[k][1], default=0)
-            if i == 0 or i == len(pts) - 1:
-                break
-            (x0, f0), (x1, f1), (x2, f2) = pts[i - 1:i + 2]
-            den = (x1 - x0) * (f1 - f2) - (x1 - x2) * (f1 - f0)
-            if den == 0:
-                break
-            xv = x1 - 0.5 * ((x1 - x0) ** 2 * (f1 - f2) - (x1 - x2) ** 2 * (f1 - f0)) / den
-            if not (x0 < xv < x2) or xv in cache:
-                break
-            if val(xv) - f1 < 0.005:            # 0.01 in 2 Delta l: far inside any interval
-                break
         for f in cache.values():
             if f is not None and f.loglik > best.loglik:
                 best = f
