@@ -366,6 +366,19 @@ def _mean_key(model, gain: bool = True) -> str:
 
 
 # -- the likelihood over the free variances (inner problem) ---------------------------------------------------
+def _inv_logdet(E: np.ndarray):
+    """Inverses and ln det of Hermitian positive definite matrices E (nb, p, p); two outputs in
+    closed form (batched LAPACK calls on 2 x 2 matrices cost ~10x more)."""
+    if E.shape[1] == 2:
+        a, d, b = E[:, 0, 0].real, E[:, 1, 1].real, E[:, 0, 1]
+        det = a * d - (b.real**2 + b.imag**2)
+        Ei = np.empty_like(E)
+        Ei[:, 0, 0], Ei[:, 1, 1] = d / det, a / det
+        Ei[:, 0, 1], Ei[:, 1, 0] = -b / det, -np.conj(b) / det
+        return Ei, np.log(det)
+    return np.linalg.inv(E), np.linalg.slogdet(E)[1]
+
+
 class Inner:
     """l(v) = -sum_b G_b sum_j [ln E_bj + I_bj / E_bj] + l_mod(v_jitter), E = E0 + sum_a v_a U_a,
     v_a >= 0, maximized by projected Fisher scoring (the expected information
@@ -405,13 +418,12 @@ class Inner:
         v = np.asarray(v, float)
         E = self._E(v)
         if self.multi:
-            Ei = np.linalg.inv(E)
-            logdet = np.linalg.slogdet(E)[1]
+            Ei, logdet = _inv_logdet(E)
             EiI = Ei @ self.I
-            l = -float(np.sum(self.Gb * (logdet + np.einsum("bii->b", EiI).real)))
+            l = -float(self.Gb @ (logdet + np.einsum("bii->b", EiI).real))
             R = (EiI - np.eye(E.shape[1])) @ Ei                      # E^-1 (I - E) E^-1
             # tr(U_a R) with U_a and R Hermitian: sum_ij U_ij conj(R_ij)
-            g = np.array([float(np.sum(self.Gb * np.einsum("bij,bij->b", u, np.conj(R)).real)) for u in self.U])
+            g = np.einsum("abij,bij->ab", self.U, np.conj(R)).real @ self.Gb if len(self.U) else np.zeros(0)
         else:
             l = -float(np.sum(self.G * (np.log(E) + self.I / E)))
             R = self.G * (self.I - E) / E**2
@@ -427,7 +439,7 @@ class Inner:
         n = len(self.U)
         F = np.empty((n, n))
         if self.multi:
-            Ei = np.linalg.inv(E)
+            Ei = _inv_logdet(E)[0]
             V = [Ei @ u for u in self.U]
             for a in range(n):
                 for b in range(a, n):
