@@ -33,7 +33,10 @@ it back). How each effect is fitted is declared by the effect itself (``Effect.f
   with mean a + b x_q (x_q the predicted slope squared, b = std_s^2, a fixed by the average level),
   a quasi-likelihood divided by the dependence factor 1 + 2 sum rho_d(h)^2.
 
-95 % intervals are profile-likelihood intervals (2 Delta l = 3.84).
+95 % intervals are profile-likelihood intervals (2 Delta l = 3.84). The jitter's is adjusted by its
+sandwich (Godambe) variance (:func:`godambe_factor`): its Whittle part takes a modulated noise as
+stationary and its modulation term reads the same squared residuals, so the plain likelihood
+overstates what they say about std_s (about 2x in variance under a sine command).
 """
 
 from __future__ import annotations
@@ -502,9 +505,9 @@ class Inner:
                 best = (v, l)
         return best
 
-    def profile(self, a: int, v_hat: np.ndarray, l_hat: float):
-        """95 % profile interval of v_a (others re-optimized)."""
-        target = l_hat - CHI2_95 / 2
+    def profile(self, a: int, v_hat: np.ndarray, l_hat: float, chi2: float = CHI2_95):
+        """95 % profile interval of v_a (others re-optimized): 2 Delta l <= ``chi2``."""
+        target = l_hat - chi2 / 2
 
         def prof(va):
             return self.optimize(v_hat, fixed={a: va})[1]
@@ -541,7 +544,9 @@ class Modulation:
         yd2 = ydot[k0:] ** 2
         x = yd2[1:] + yd2[:-1]
         self.unit = unit                                            # v = b / unit
+        self.x = x
         num, den = 0.0, 0.0
+        self._terms = []                                            # (output, xc / (sxx var), mu)
         for j in range(z.shape[1]):
             xc = x[:, j] - x[:, j].mean()
             sxx = float(np.dot(xc, xc))
@@ -552,8 +557,18 @@ class Modulation:
             var = 2.0 * float(np.sum(xc**2 * mu**2)) / sxx**2 * _dependence(d[:, j])
             num += slope / var                                      # outputs combined by precision
             den += 1.0 / var
+            self._terms.append((j, xc / (sxx * var), mu))
+        self.z = z
         self.slope = num / den if den > 0 else 0.0
         self.se2 = 1.0 / den if den > 0 else np.inf
+
+    def contributions(self) -> np.ndarray:
+        """The score's per-sample terms (M,): its derivative in v is their sum (plus a constant),
+        each centered on the fitted line (for the sandwich variance, :func:`godambe_factor`)."""
+        out = np.zeros(self.z.shape[0])
+        for j, coef, mu in self._terms:
+            out += self.unit * coef * (self.z[:, j] - mu)
+        return out
 
     def __call__(self, v: float):
         b = v * self.unit
@@ -576,6 +591,93 @@ def _dependence(d: np.ndarray, H: int = 50) -> float:
         return 1.0
     rho = ac[1:] / ac[0]
     return float(1 + 2 * np.sum(rho**2))
+
+
+# -- the sandwich variance of a modulated variance --------------------------------------------------------
+def score_contributions(H: "Hypotheses", fit: "Fit") -> np.ndarray:
+    """Per-sample terms phi_aq (n, M) of the inner problem's score in each free variance v_a:
+    sum_q phi_aq equals the Whittle score sum_b G_b tr(E_b^-1 U_ab E_b^-1 I_b) up to a constant,
+    plus the modulation term's.
+
+    With X_f the transform of the tapered differenced residual, the whitened transform
+    Y_f = E_f^-1/2 X_f and its series e = irfft(Y): sum_{f < nf} c_f Y_f^H A_f Y_f / M =
+    sum_q e_q^T irfft(c A Y)_q, A = E^-1/2 U_a E^-1/2 (c_f = 1/2 inside the half spectrum counts
+    its mirror image once; G_b / n_b = 1 / kappa per bin, 1/2 at DC). Whitened, both factors have
+    short memory (A lies between 0 and 1 / v_a): unwhitened, U / E^2 grows like 1 / w^2 where a
+    differenced spectrum falls like w^2, and the terms would carry that long kernel."""
+    d, inner = H.data, fit.inner
+    r = H.ev.grouped_periodogram(fit.model, "sensor.tone" in fit.free)[0]
+    g = np.diff(r[d.k0:], axis=0)
+    M = g.shape[0]
+    w, _, kappa = W.taper(M)
+    X = sfft.rfft(np.ascontiguousarray((g * w[:, None]).T), axis=-1).T      # (M // 2 + 1, p)
+    sizes = d.sizes.astype(np.int64)
+    E = inner._E(fit.v)
+    Y = np.zeros_like(X)
+    if inner.multi:
+        lam, V = np.linalg.eigh(E)
+        Eh = (V / np.sqrt(lam)[:, None, :]) @ np.conj(V.transpose(0, 2, 1))   # E^-1/2 per group
+        Y[:d.nf] = np.einsum("fij,fj->fi", np.repeat(Eh, sizes, axis=0), X[:d.nf])
+    else:
+        Y[:d.nf] = X[:d.nf] / np.repeat(np.sqrt(E), sizes, axis=0)
+    e = sfft.irfft(np.ascontiguousarray(Y.T), n=M, axis=-1).T                 # (M, p)
+    phi = np.empty((len(fit.v), M))
+    for a in range(len(fit.v)):
+        Z = np.zeros_like(X)
+        if inner.multi:
+            A = np.repeat(Eh @ inner.U[a] @ Eh, sizes, axis=0)
+            Z[:d.nf] = np.einsum("fij,fj->fi", A, Y[:d.nf])
+        else:
+            Z[:d.nf] = np.repeat(inner.U[a] / E, sizes, axis=0) * Y[:d.nf]
+        Z *= 0.5 / kappa
+        phi[a] = np.sum(e * sfft.irfft(np.ascontiguousarray(Z.T), n=M, axis=-1).T, axis=1)
+    if inner.mod is not None:
+        phi[inner.mod_index] += inner.mod.contributions()
+    return phi
+
+
+SANDWICH_BLOCKS = 256     # block sums for the long-run variance of the score (Kuensch 1989),
+SANDWICH_BLOCK_MIN = 64   # each at least 64 samples long
+
+
+def godambe_factor(H: "Hypotheses", fit: "Fit", a: int) -> float:
+    """Var(v_a) by the sandwich (Godambe) formula over its model-based value (H^-1)_aa: the factor by which a profile-likelihood ratio of v_a overstates its evidence (Chandler & Bate
+    2007). For the jitter, whose Whittle part takes a modulated noise as stationary (its mean power
+    varies more: the kurtosis of the modulation) and whose modulation term reads the same squared
+    residuals again.
+
+    v_hat - v = H^-1 psi to first order, psi = sum_q phi_q: the influence series
+    x_q = sum_i (H^-1)_ai phi_iq (active variances only). Its expected value follows the taper and
+    the modulation (w_q^2, x_q, w_q^2 x_q per output: least squares removes it), then the variance
+    of its sum is read from :data:`SANDWICH_BLOCKS` block sums (blocks much longer than the
+    dependence of a white-like score)."""
+    inner = fit.inner
+    n = len(fit.v)
+    act = [a] + [i for i in range(n) if i != a and fit.v[i] > 0]
+    F = inner._info(fit.v)[np.ix_(act, act)]
+    try:
+        Fi = np.linalg.inv(F)
+    except np.linalg.LinAlgError:
+        return 1.0
+    phi = score_contributions(H, fit)
+    infl = Fi[0] @ phi[act]
+    M = infl.size
+    w2 = W.taper(M)[0] ** 2
+    cols = [np.ones(M), w2]
+    if inner.mod is not None:
+        for j in range(inner.mod.x.shape[1]):
+            xj = inner.mod.x[:, j] / max(float(np.mean(inner.mod.x[:, j])), 1e-300)
+            cols += [xj, w2 * xj]
+    B = np.stack(cols, axis=1)
+    coef = np.linalg.lstsq(B, infl, rcond=None)[0]
+    res = infl - B @ coef
+    nb = min(SANDWICH_BLOCKS, M // SANDWICH_BLOCK_MIN)
+    if nb < 16:
+        return 1.0
+    L = M // nb
+    S = res[:nb * L].reshape(nb, L).sum(axis=1)
+    K = float(np.sum(S**2)) * nb / (nb - 1) * M / (nb * L)
+    return K / Fi[0, 0]
 
 
 # -- hypotheses ---------------------------------------------------------------------------------------------
@@ -1192,7 +1294,10 @@ def interval_tasks(H: Hypotheses, fit: Fit, eid: str) -> list:
         else:
             def scale_iv():
                 a = fit.scale_ids.index(eid)
-                lo, hi = fit.inner.profile(a, fit.v, fit.loglik - _extra(H, fit))
+                # a modulated variance (jitter): the likelihood overstates its evidence, so the
+                # profile's threshold is scaled by the sandwich factor (never below the plain one)
+                chi2 = CHI2_95 * (max(godambe_factor(H, fit, a), 1.0) if spec.kind == "modulated" else 1.0)
+                lo, hi = fit.inner.profile(a, fit.v, fit.loglik - _extra(H, fit), chi2)
                 vhat = max(fit.v[a], 1e-300)
                 return [val * (lo / vhat) ** (1 / power), val * (hi / vhat) ** (1 / power)]
             out.append((name, scale_iv))
