@@ -209,6 +209,25 @@ def test_a_drift_slower_than_the_plant_is_reported_as_a_sensor_bias():
     assert "actuator.ar1" in [a.effect for a in first.alternatives]
 
 
+def test_a_local_refit_follows_a_shape_parameter_beyond_its_first_bracket():
+    """A refit searches a shape parameter locally (golden section in one step either side of its
+    value) when it starts from a fitted value: after another effect is added, a correlation time
+    can have to move further. Started 10x below, the local refit of a Gauss-Markov tau (120 s of
+    the pair's truth) must reach the maximum the coarse grid finds (before: stuck at 0.16 s, the
+    log-likelihood 280 lower)."""
+    from service.diagnose.search import Hypotheses, _set
+    eid = "sensor.bias_markov"
+    truth = load_model(f"hidden/{eid}")
+    rec = truth.simulate(int(round(120 / truth.Ts)), seed=7)
+    H = Hypotheses(Data(rec.y, rec.u, truth.Ts, True), truth)
+    free = {eid: ["std", "tau_s"]}
+    coarse = H.fit(truth, free, new=(eid,))
+    local = H.fit(_set(truth, eid, {"tau_s": 0.1}), free)
+    assert local.loglik > coarse.loglik - 0.05, (local.loglik, coarse.loglik)
+    tau = [f.model.effects[eid].param_dict()["tau_s"] for f in (coarse, local)]
+    assert abs(tau[1] / tau[0] - 1) < 0.02, tau
+
+
 def test_quantization_grid_detected():
     step = 0.001
     y = step * np.round(np.random.default_rng(1).normal(0, 0.01, (5000, 1)) / step)

@@ -59,6 +59,7 @@ REL_BW = 0.01             # frequency groups: at most 1 % of their frequency wid
 CHI2_95 = 3.841           # chi2_1 95 % point: two-sided profile intervals
 CHIBAR2_95 = 2.706        # 95 % point of 1/2 chi2_0 + 1/2 chi2_1: a parameter whose null value is on
                           # its boundary (Self & Liang 1987), as in the nested pairs Search.choice ranks
+MAX_SHIFTS = 4            # a local shape search may move its bracket this many times (Hypotheses._search)
 HARMONICS = 7             # a residual line at up to the 7th harmonic of a command line is the mean response's
 WORKERS = 2               # candidates fitted concurrently (threads) on long records
 PARALLEL_MIN = 50_000     # samples x outputs from which they are
@@ -826,29 +827,41 @@ class Hypotheses:
         c = _shape_value(best.model.effects[e], name, self.data.Ts)
         if c is None:                  # nothing on the grid was valid and the effect has no value yet
             return fit
-        x0 = tr[0](c)
-        a2, b2 = max(a, x0 - step), min(b, x0 + step)
         gr = (math.sqrt(5) - 1) / 2
-        cache = {}
+        # golden section in [x0 - step, x0 + step]; when the maximum is found at an end of that
+        # bracket (not at the parameter's bound), the bracket moves there and the search goes on:
+        # a refit after another effect was added can move a correlation time by more than one step
+        for _ in range(1 if coarse or cur is None else MAX_SHIFTS + 1):
+            x0 = tr[0](c)
+            lo2, hi2 = max(a, x0 - step), min(b, x0 + step)
+            a2, b2 = lo2, hi2
+            cache = {}
 
-        def val(x):
-            if x not in cache:
-                f = self._try(best, e, name, float(tr[1](x)))
-                cache[x] = f
-            f = cache[x]
-            return -1e300 if f is None else f.loglik
+            def val(x):
+                if x not in cache:
+                    cache[x] = self._try(best, e, name, float(tr[1](x)))
+                f = cache[x]
+                return -1e300 if f is None else f.loglik
 
-        c1, d1 = b2 - gr * (b2 - a2), a2 + gr * (b2 - a2)
-        for _ in range(n_golden):
-            if val(c1) > val(d1):
-                b2, d1 = d1, c1
-                c1 = b2 - gr * (b2 - a2)
-            else:
-                a2, c1 = c1, d1
-                d1 = a2 + gr * (b2 - a2)
-        for f in cache.values():
-            if f is not None and f.loglik > best.loglik:
-                best = f
+            c1, d1 = b2 - gr * (b2 - a2), a2 + gr * (b2 - a2)
+            for _ in range(n_golden):
+                if val(c1) > val(d1):
+                    b2, d1 = d1, c1
+                    c1 = b2 - gr * (b2 - a2)
+                else:
+                    a2, c1 = c1, d1
+                    d1 = a2 + gr * (b2 - a2)
+            moved = False
+            for f in cache.values():
+                if f is not None and f.loglik > best.loglik:
+                    best, moved = f, True
+            if not moved:
+                break
+            c = _shape_value(best.model.effects[e], name, self.data.Ts)
+            xb = tr[0](c)
+            edge = gr ** n_golden * (hi2 - lo2) * 2
+            if not ((xb - lo2 < edge and lo2 > a) or (hi2 - xb < edge and hi2 < b)):
+                break
         return best
 
     def _fit_tone_frequency(self, fit: Fit) -> Fit:
