@@ -728,9 +728,9 @@ class Hypotheses:
         if tone_amp is not None and "sensor.tone" in free:
             model = _set(model, "sensor.tone", {"amplitude": _vec(tone_amp)})
             canon = _set(canon, "sensor.tone", {"amplitude": _vec(tone_amp)})
-        yk = ydot[d.k0:]
-        # the jitter's slope power: per output, or (several outputs) the matrix of mean products
-        ydot_sq = yk.T @ yk / yk.shape[0] if d.p > 1 else np.mean(yk**2, axis=0)
+        # the jitter's slope power: per output, or (several outputs) the matrix of mean products,
+        # weighted by the taper like the periodogram (see :func:`.whittle.slope_power`)
+        ydot_sq = W.slope_power(ydot[d.k0:], d.p > 1)
         parts = self.ev.parts(canon, ydot_sq)
         E0 = sum((v for k, v in parts.items() if k not in scale_ids), np.zeros_like(Ig))
         U = [parts.get(e, np.zeros_like(Ig)) for e in scale_ids]
@@ -1234,7 +1234,7 @@ class Search:
         r, _, _ = self.H.ev.residual(cur.model, False)
         I = W.periodogram(r, d.k0)
         E = sum(W.expected_parts(cur.model, d.M, d.k0, d.at_rest, cache=self.H.ev._parts,
-                                 ydot_sq=np.mean(self.H.ev.mean(cur.model)[1][d.k0:] ** 2, axis=0)).values())
+                                 ydot_sq=W.slope_power(self.H.ev.mean(cur.model)[1][d.k0:], False)).values())
         out = []
         # a line at a frequency (or harmonic) of the command's own lines is the mean response's error
         # (a lag, a gain, a saturation's odd harmonics), not an interference tone

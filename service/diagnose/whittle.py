@@ -86,6 +86,21 @@ def taper(M: int) -> tuple[np.ndarray, np.ndarray, float]:
     return got
 
 
+def slope_power(yk: np.ndarray, cross: bool) -> np.ndarray:
+    """The jitter's slope power as the tapered periodogram of the differenced record sees it:
+    sum_q w_q^2 (y_q+1 y_q+1^T + y_q y_q^T) / (2 M) over the M differences of yk (M + 1, p), the
+    matrix (``cross``) or its diagonal. For a white noise of variance s_k^2,
+    E I_f = (2 - 2 cos w_f) sum_k w_k^2 s_k^2 / M (to first order in the taper's slope), so the
+    jitter's std_s^2 multiplies this weighted mean, not the plain one: under a PRBS or a chirp the
+    slope's power is not spread evenly over the record (the plain mean biased std_s by 2 % on a
+    PRBS record)."""
+    w2 = taper(yk.shape[0] - 1)[0] ** 2
+    if cross:
+        a, b = yk[1:] * w2[:, None], yk[:-1] * w2[:, None]
+        return (a.T @ yk[1:] + b.T @ yk[:-1]) / (2 * w2.size)
+    return (w2 @ (yk[1:] ** 2 + yk[:-1] ** 2)) / (2 * w2.size)
+
+
 def periodogram(r: np.ndarray, k0: int = 0, cross: bool = False) -> np.ndarray:
     """I_f (nf, p) of the tapered d_q = r_{k0+q+1} - r_{k0+q}, f = 0..nf-1; ``cross``: the
     cross-periodogram matrices I_f = X_f X_f^H / M (nf, p, p), complex Hermitian."""
