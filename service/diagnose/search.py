@@ -732,6 +732,16 @@ class Hypotheses:
         # weighted by the taper like the periodogram (see :func:`.whittle.slope_power`)
         ydot_sq = W.slope_power(ydot[d.k0:], d.p > 1)
         parts = self.ev.parts(canon, ydot_sq)
+        if "sensor.jitter" in model.effects and any(e != "sensor.jitter" for e in scale_ids):
+            # the jitter's power includes the noise-driven slope, std_s^2 Var(ydot), set by the other
+            # sources' variances: from their current values, not the scaling references of ``canon``
+            # (a process noise of unit std made the jitter's part 4x too large on a two-output case)
+            jm = model if "sensor.jitter" not in scale_ids else \
+                _set(model, "sensor.jitter", {"std_s": refs[scale_ids.index("sensor.jitter")]})
+            parts = dict(parts)
+            parts["sensor.jitter"] = W.expected_parts(
+                jm, d.M, d.k0, d.at_rest, ydot_sq=ydot_sq, skip=tuple(e for e in jm.effects if e != "sensor.jitter"),
+                groups=d.groups, cross=d.p > 1)["sensor.jitter"]
         E0 = sum((v for k, v in parts.items() if k not in scale_ids), np.zeros_like(Ig))
         U = [parts.get(e, np.zeros_like(Ig)) for e in scale_ids]
         mod = None
