@@ -38,6 +38,10 @@ estimators and grow with the mismatch (a factor f in power in a band adds about 
 Points with |z| beyond the Bonferroni threshold of their view (family-wise 5 %) are flagged;
 contiguous flagged runs are the :class:`Region` s where the data leave the model.
 
+A jitter (sensor.jitter) is white noise whose variance follows the slope, std_s^2 ydot_k^2: its level
+is taken over the analysed record's own mean response, and the estimators' spreads are widened for
+the modulation (:func:`modulation_kappa`; the variance view predicts each window's own level).
+
 The analysis starts after the model's transient from rest when the recording starts at rest
 (``burn``): noiselab's emulator starts every state at zero, and the predictions are stationary.
 """
@@ -332,8 +336,62 @@ def _z2_var_log(nu):
     return 2.0 + polygamma(3, h) / polygamma(1, h) ** 2
 
 
+# -- the jitter's modulation -------------------------------------------------------------------------------
+def jitter_modulation(model, pr, mean, burn: int):
+    """(m, scale), or (None, None) without a jitter. m_k (n, p): the jitter's local variance over
+    its mean over the analysed samples, (ydot_k^2 + Var(ydot)) / mean. scale (p,): that mean over
+    the one the predictor used (its own command over its horizon, e.g. one sweep of a chirp from
+    rest), for the jitter's variogram. The predictions take the jitter as white noise of the mean
+    variance (right on average); the estimators' spreads depend on how the variance is spread:
+    :func:`modulation_kappa`."""
+    jit = model.effects.get("sensor.jitter")
+    if jit is None or not np.any(np.asarray(jit.params["std_s"], float) > 0):
+        return None, None
+    st = pr.steady_state()
+    level = st.contributions.get("sensor.jitter")
+    if st.ydot_var is None or level is None:
+        return None, None
+    s2 = mean.ydot[burn:] ** 2 + st.ydot_var
+    mu = s2.mean(axis=0)
+    var = np.broadcast_to(np.asarray(jit.params["std_s"], float) ** 2, mu.shape) * mu
+    level = np.broadcast_to(level, mu.shape)
+    scale = np.where(level > 0, var / np.where(level > 0, level, 1.0), 1.0)
+    return np.where(mu > 0, s2 / np.where(mu > 0, mu, 1.0), 1.0), scale
+
+
+def _moving_mean(m: np.ndarray, ell: int) -> np.ndarray:
+    ell = int(min(max(ell, 1), m.size))
+    c = np.concatenate([[0.0], np.cumsum(m)])
+    return (c[ell:] - c[:-ell]) / ell
+
+
+def modulation_kappa(m: np.ndarray, ell, phi) -> np.ndarray:
+    """Var(estimate) / Var under stationarity for quadratic estimators that resolve ``ell`` samples
+    (per point: a Welch band of K bins of L-sample Hann segments resolves 0.51 L / K, an Allan
+    deviation at tau = m Ts resolves 2m, a window its own length) of a noise whose white part, a
+    fraction ``phi`` of the point's expected value, has local variance m_k times its mean: with
+    P = 1 - phi + phi mbar (mbar the local means over ``ell``), mean(P^2) / mean(P)^2. A Gaussian
+    quadratic form's variance follows the square of its local expectation, so a jitter whose power
+    follows the slope (concentrated where a chirp crosses a resonance) leaves fewer effective
+    degrees of freedom than the same power spread evenly."""
+    ell = np.broadcast_to(np.asarray(ell, np.int64), np.shape(phi))
+    phi = np.clip(np.asarray(phi, float), 0.0, 1.0)
+    out = np.ones(phi.shape)
+    moments = {}
+    for i, (e, f) in enumerate(zip(ell.ravel(), phi.ravel())):
+        if f <= 0:
+            continue
+        if e not in moments:
+            mb = _moving_mean(m, e)
+            moments[e] = (float(mb.mean()), float(np.mean(mb**2)))
+        mu1, mu2 = moments[e]
+        num = (1 - f) ** 2 + 2 * f * (1 - f) * mu1 + f**2 * mu2
+        out.flat[i] = max(num / ((1 - f) + f * mu1) ** 2, 1.0)
+    return out
+
+
 # -- the four views ------------------------------------------------------------------------------------
-def variance_view(r, t, gam_parts, j, W, model=None, gam_long=None):
+def variance_view(r, t, gam_parts, j, W, model=None, gam_long=None, mod=None, jkey=None):
     n_win = r.size // W
     if n_win < 2:
         raise AnalysisError(f"record too short for the variance window of {W} samples")
@@ -348,14 +406,20 @@ def variance_view(r, t, gam_parts, j, W, model=None, gam_long=None):
         inflate = _window_correlation(gam_long, W, n_win, var) if gam_long is not None else 1.0
         return {eid: p[:1].copy() for eid, p in parts.items()}, R[0], var, inflate    # what the view uses
     parts, E, var, inflate = predict() if model is None else \
-        _cached(model, "variance_view", (j, W, n_win, gam_long is not None), predict)
+        _cached(model, "variance_view", (j, W, n_win, gam_long is not None, jkey), predict)
     nu = np.full(n_win, 2 * E**2 / var)
-    pred = np.full(n_win, E)
+    contrib = {eid: np.full(n_win, p[0]) for eid, p in parts.items()}
+    scale = np.ones(n_win)
+    if mod is not None and "sensor.jitter" in contrib:
+        # the jitter's power follows the slope: each window's expectation (and spread) with it
+        contrib["sensor.jitter"] = contrib["sensor.jitter"] * mod[: n_win * W].reshape(n_win, W).mean(axis=1)
+        scale = sum(contrib.values()) / E
+    pred = E * scale
     alpha = FAMILY_ALPHA / n_win
     lo, hi = _chi2_band(pred, nu, alpha)
     v = View("variance", j, centres, "time [s]", "variance of y in the window [units^2]", emp, pred, lo, hi,
-             contributions={eid: np.full(n_win, p[0]) for eid, p in parts.items()},
-             z=(emp - pred) / np.sqrt(var), notes=[f"windows of {W} samples, mean removed"])
+             contributions=contrib,
+             z=(emp - pred) / (np.sqrt(var) * scale), notes=[f"windows of {W} samples, mean removed"])
     return _finish(v, n_win, by_band=True, error_var=float(np.sum(_z2_var_linear(nu))) / n_win**2 * inflate)
 
 
@@ -418,7 +482,7 @@ def windowed_variance_var(gam: np.ndarray, W: int) -> float:
     return float(2.0 * (s_gg + s_hh - 2.0 * s_gh) / W**2)
 
 
-def acf_view(r, Ts, gam_parts, j, M, max_lag, model=None, gam_long=None):
+def acf_view(r, Ts, gam_parts, j, M, max_lag, model=None, gam_long=None, jkey=None, mod=None):
     K = r.size // M
     if K < 1:
         raise AnalysisError(f"record too short for the autocorrelation segment of {M} samples")
@@ -465,7 +529,13 @@ def acf_view(r, Ts, gam_parts, j, M, max_lag, model=None, gam_long=None):
         err_var = 2.0 / n**2 * (n + 2 * np.sum((n - h) * rho[1:] ** 2))
         return ({eid: p[: max_lag + 1].copy() for eid, p in parts.items()}, R[: max_lag + 1].copy(), var,
                 float(err_var))                       # what the view uses
-    parts, R, var, err_var = predict() if model is None else _cached(model, "acf_view", (j, M, max_lag, K), predict)
+    parts, R, var, err_var = predict() if model is None else _cached(model, "acf_view", (j, M, max_lag, K, jkey), predict)
+    if mod is not None and "sensor.jitter" in parts:
+        # Bartlett's J^2 terms (J: the jitter's variance; 2 J^2 at lag 0, J^2 beyond) take the
+        # local variances' mean square, J^2 mean(m_k^2), when the jitter's power follows the slope
+        J = float(parts["sensor.jitter"][0])
+        extra = (float(np.mean(mod**2)) / float(np.mean(mod)) ** 2 - 1.0) * J**2 / (M * K)
+        var = var + extra * np.where(np.arange(var.size) == 0, 2.0, 1.0)
     se = np.sqrt(var)
     pred = R[: max_lag + 1]
     z = (emp - pred) / se
@@ -477,7 +547,7 @@ def acf_view(r, Ts, gam_parts, j, M, max_lag, model=None, gam_long=None):
     return _finish(v, max_lag + 1, error_var=err_var)
 
 
-def psd_view(r, Ts, gam_parts, j, L, bpd, model=None):
+def psd_view(r, Ts, gam_parts, j, L, bpd, model=None, mod=None, jkey=None):
     if r.size < L:
         raise AnalysisError(f"record too short for Welch segments of {L} samples")
     est = welch(r, 1.0 / Ts, nperseg=L)
@@ -491,14 +561,20 @@ def psd_view(r, Ts, gam_parts, j, L, bpd, model=None):
             e = expected_welch_detrended(g[:, j:j + 1], L, Ts)[:, 0]
             parts[eid] = np.array([e[gr].mean() for gr in groups])
         return parts
-    parts = predict() if model is None else dict(_cached(model, "psd_view", (j, L, bpd), predict))
+    parts = predict() if model is None else dict(_cached(model, "psd_view", (j, L, bpd, jkey), predict))
     pred = sum(parts.values())
     nu = binned.dof
+    notes = [f"Welch, Hann, {L}-sample segments, 50 % overlap, {bpd} bands per decade"]
+    if mod is not None and "sensor.jitter" in parts:
+        kappa = modulation_kappa(mod, [max(int(round(0.514 * L / len(gr))), 1) for gr in groups],
+                                 parts["sensor.jitter"] / np.maximum(pred, 1e-300))
+        nu = nu / kappa
+        notes.append(f"dof divided by up to {kappa.max():.3g} for the jitter's modulation")
     alpha = FAMILY_ALPHA / pred.size
     lo, hi = _chi2_band(pred, nu, alpha)
     v = View("psd", j, binned.f, "frequency [Hz]", "PSD [units^2/Hz]", binned.psd, pred, lo, hi,
              contributions=parts, z=_log_chi2_z(binned.psd, pred, nu), log_x=True, log_y=True,
-             notes=[f"Welch, Hann, {L}-sample segments, 50 % overlap, {bpd} bands per decade"])
+             notes=notes)
     return _finish(v, pred.size, z2_var=_z2_var_log(nu))
 
 
@@ -534,14 +610,16 @@ def allan_z(avar_emp, avar_pred, nu):
     return (avar_emp - avar_pred) / (avar_pred * np.sqrt(2.0 / nu))
 
 
-def allan_view(r, Ts, gam_parts_full, j, corr, model=None):
+def allan_view(r, Ts, gam_parts_full, j, corr, model=None, mod=None, jkey=None):
     res = oadev(r, 1.0 / Ts, taus="octave")
     m = res.m.astype(np.int64)
     parts = {eid: allan_from_variogram(g[:, j:j + 1], m)[:, 0] for eid, g in gam_parts_full.items()}
     avar = sum(parts.values())
     total_gam = sum(g[:, j] for g in gam_parts_full.values())
     nu = allan_edf_model(total_gam, m, r.size, corr) if model is None else \
-        _cached(model, "allan_edf", (j, tuple(m), r.size, corr), lambda: allan_edf_model(total_gam, m, r.size, corr))
+        _cached(model, "allan_edf", (j, tuple(m), r.size, corr, jkey), lambda: allan_edf_model(total_gam, m, r.size, corr))
+    if mod is not None and "sensor.jitter" in parts:
+        nu = nu / modulation_kappa(mod, 2 * m, parts["sensor.jitter"] / np.maximum(avar, 1e-300))
     alpha = FAMILY_ALPHA / m.size
     lo2, hi2 = _chi2_band(avar, nu, alpha)
     v = View("allan", j, res.taus, "tau [s]", "Allan deviation [units]", res.dev, np.sqrt(avar),
@@ -629,17 +707,27 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
         s.update(settings)
     L_need = max(s["nperseg"], s["acf_segment"], s["window"])
     gam = _gamma_parts(model, max(L_need, r.shape[0] + 1))
+    mod, jscale = jitter_modulation(model, pr, mean, burn)
+    jkey = None
+    if jscale is not None:
+        # the jitter's level over this record's command (the predictor's is over its own horizon)
+        gam = dict(gam)
+        gam["sensor.jitter"] = gam["sensor.jitter"] * jscale
+        jkey = tuple(float(f"{x:.12g}") for x in jscale)
     corr = 5 * _cached(model, "transient", 0, lambda: transient_samples(model)) + 10
     gam_short = {eid: g[:L_need] for eid, g in gam.items()}
     jobs = []
     for j in range(model.p):
         rj = r[:, j]
+        mj = None if mod is None else mod[:, j]
         g_long = sum(g[:, j] for g in gam.values())       # to the record's length: both views' spreads
-        jobs += [lambda rj=rj, j=j, gl=g_long: variance_view(rj, ta, gam_short, j, s["window"], model, gam_long=gl),
-                 lambda rj=rj, j=j, gl=g_long: acf_view(rj, model.Ts, gam_short, j, s["acf_segment"], s["max_lag"],
-                                                         model, gam_long=gl),
-                 lambda rj=rj, j=j: psd_view(rj, model.Ts, gam_short, j, s["nperseg"], s["bins_per_decade"], model),
-                 lambda rj=rj, j=j: allan_view(rj, model.Ts, gam, j, corr, model)]
+        jobs += [lambda rj=rj, j=j, gl=g_long, mj=mj: variance_view(rj, ta, gam_short, j, s["window"], model,
+                                                                   gam_long=gl, mod=mj, jkey=jkey),
+                 lambda rj=rj, j=j, gl=g_long, mj=mj: acf_view(rj, model.Ts, gam_short, j, s["acf_segment"],
+                                                                s["max_lag"], model, gam_long=gl, jkey=jkey, mod=mj),
+                 lambda rj=rj, j=j, mj=mj: psd_view(rj, model.Ts, gam_short, j, s["nperseg"], s["bins_per_decade"],
+                                                    model, mod=mj, jkey=jkey),
+                 lambda rj=rj, j=j, mj=mj: allan_view(rj, model.Ts, gam, j, corr, model, mod=mj, jkey=jkey)]
     if r.size >= VIEW_THREADS_MIN and VIEW_THREADS > 1:
         # independent views: their transforms and array arithmetic release the GIL
         with ThreadPoolExecutor(max_workers=VIEW_THREADS) as pool:

@@ -120,6 +120,7 @@ class Steady:
     bias_var_rate: np.ndarray           # (p,) growth of Var(y) per second from the bias walk
     stable: bool
     notes: list
+    ydot_var: np.ndarray | None = None  # (p,) stationary Var(ydot) (the jitter's noise-driven slope)
 
 
 class Predictor:
@@ -437,7 +438,8 @@ class Predictor:
         Pp = Ptot[ls.plant_block, ls.plant_block] if stable else None
         self._ls = ls
         self._steady_cache = Steady(var_y=var_y, P=Pp, contributions=contributions,
-                                    bias_var_rate=rate, stable=stable, notes=notes)
+                                    bias_var_rate=rate, stable=stable, notes=notes,
+                                    ydot_var=ydot_var if stable else None)
         return self._steady_cache
 
     # -- spectra -------------------------------------------------------------------------------------
