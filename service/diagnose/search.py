@@ -288,6 +288,7 @@ class Evaluator:
         self._mean: dict = {}
         self._parts: dict = {}
         self._pgram: dict = {}
+        self._slope: dict = {}
         self.evals = 0
 
     def mean(self, model):
@@ -308,6 +309,17 @@ class Evaluator:
         d = self.data
         return W.expected_parts(model, d.M, d.k0, d.at_rest, ydot_sq=ydot_sq, cache=self._parts, groups=d.groups,
                                 cross=d.p > 1)
+
+    def slope_power(self, model, ydot: np.ndarray) -> np.ndarray:
+        """:func:`.whittle.slope_power` of the model's mean slope ``ydot``, cached by its mean response
+        (an O(N) pass per evaluation cost 4 s of a 10^6-sample diagnosis)."""
+        key = _mean_key(model)
+        got = self._slope.get(key)
+        if got is None:
+            if len(self._slope) > 16:
+                self._slope.clear()
+            got = self._slope[key] = W.slope_power(ydot[self.data.k0:], self.data.p > 1)
+        return got
 
     def grouped_periodogram(self, model, free_tone: bool):
         """:meth:`residual` and the group means of its periodogram, cached: only the mean effects
@@ -542,12 +554,10 @@ class Modulation:
 
     def __init__(self, d: np.ndarray, ydot: np.ndarray, k0: int, unit: float):
         z = d**2                                                    # (M, p)
-        yd2 = ydot[k0:] ** 2
-        x = yd2[1:] + yd2[:-1]
+        x = self.slope_squares(ydot, k0)
         self.unit = unit                                            # v = b / unit
-        self.x = x
         num, den = 0.0, 0.0
-        self._terms = []                                            # (output, xc / (sxx var), mu)
+        self._terms = []                # (output, mean x, sxx, var, mean z, slope): scalars only (Fits keep this)
         for j in range(z.shape[1]):
             xc = x[:, j] - x[:, j].mean()
             sxx = float(np.dot(xc, xc))
@@ -558,17 +568,26 @@ class Modulation:
             var = 2.0 * float(np.sum(xc**2 * mu**2)) / sxx**2 * _dependence(d[:, j])
             num += slope / var                                      # outputs combined by precision
             den += 1.0 / var
-            self._terms.append((j, xc / (sxx * var), mu))
-        self.z = z
+            self._terms.append((j, float(x[:, j].mean()), sxx, var, float(z[:, j].mean()), slope))
         self.slope = num / den if den > 0 else 0.0
         self.se2 = 1.0 / den if den > 0 else np.inf
 
-    def contributions(self) -> np.ndarray:
-        """The score's per-sample terms (M,): its derivative in v is their sum (plus a constant),
-        each centered on the fitted line (for the sandwich variance, :func:`godambe_factor`)."""
-        out = np.zeros(self.z.shape[0])
-        for j, coef, mu in self._terms:
-            out += self.unit * coef * (self.z[:, j] - mu)
+    @staticmethod
+    def slope_squares(ydot: np.ndarray, k0: int) -> np.ndarray:
+        """x_q = ydot_{q+1}^2 + ydot_q^2 (M, p)."""
+        yd2 = ydot[k0:] ** 2
+        return yd2[1:] + yd2[:-1]
+
+    def contributions(self, d: np.ndarray, ydot: np.ndarray, k0: int) -> np.ndarray:
+        """The score's per-sample terms (M,) for the differenced residual ``d`` it was built from:
+        their sum is its derivative in v (plus a constant), each centered on the fitted line (for
+        the sandwich variance, :func:`godambe_factor`)."""
+        x = self.slope_squares(ydot, k0)
+        out = np.zeros(d.shape[0])
+        for j, xm, sxx, var, zm, slope in self._terms:
+            xc = x[:, j] - xm
+            mu = np.maximum(zm + slope * xc, 1e-3 * zm)
+            out += self.unit * xc / (sxx * var) * (d[:, j] ** 2 - mu)
         return out
 
     def __call__(self, v: float):
@@ -607,7 +626,7 @@ def score_contributions(H: "Hypotheses", fit: "Fit") -> np.ndarray:
     short memory (A lies between 0 and 1 / v_a): unwhitened, U / E^2 grows like 1 / w^2 where a
     differenced spectrum falls like w^2, and the terms would carry that long kernel."""
     d, inner = H.data, fit.inner
-    r = H.ev.grouped_periodogram(fit.model, "sensor.tone" in fit.free)[0]
+    r, ydot = H.ev.grouped_periodogram(fit.model, "sensor.tone" in fit.free)[:2]
     g = np.diff(r[d.k0:], axis=0)
     M = g.shape[0]
     w, _, kappa = W.taper(M)
@@ -633,17 +652,18 @@ def score_contributions(H: "Hypotheses", fit: "Fit") -> np.ndarray:
         Z *= 0.5 / kappa
         phi[a] = np.sum(e * sfft.irfft(np.ascontiguousarray(Z.T), n=M, axis=-1).T, axis=1)
     if inner.mod is not None:
-        phi[inner.mod_index] += inner.mod.contributions()
+        phi[inner.mod_index] += inner.mod.contributions(g, ydot, d.k0)
     return phi
 
 
-SANDWICH_BLOCKS = 256     # block sums for the long-run variance of the score (Kuensch 1989),
-SANDWICH_BLOCK_MIN = 64   # each at least 64 samples long
+SANDWICH_BLOCKS = 256     # block sums for the long-run variance of the score (Kuensch 1989)
+SANDWICH_BLOCK_MIN = 64   # samples per block at least
 
 
 def godambe_factor(H: "Hypotheses", fit: "Fit", a: int) -> float:
-    """Var(v_a) by the sandwich (Godambe) formula over its model-based value (H^-1)_aa: the factor by which a profile-likelihood ratio of v_a overstates its evidence (Chandler & Bate
-    2007). For the jitter, whose Whittle part takes a modulated noise as stationary (its mean power
+    """Var(v_a) by the sandwich (Godambe) formula over its model-based value (H^-1)_aa: the factor
+    by which a profile-likelihood ratio of v_a overstates its evidence (Chandler & Bate 2007). For
+    the jitter, whose Whittle part takes a modulated noise as stationary (its mean power
     varies more: the kurtosis of the modulation) and whose modulation term reads the same squared
     residuals again.
 
@@ -666,8 +686,9 @@ def godambe_factor(H: "Hypotheses", fit: "Fit", a: int) -> float:
     w2 = W.taper(M)[0] ** 2
     cols = [np.ones(M), w2]
     if inner.mod is not None:
-        for j in range(inner.mod.x.shape[1]):
-            xj = inner.mod.x[:, j] / max(float(np.mean(inner.mod.x[:, j])), 1e-300)
+        x = Modulation.slope_squares(H.ev.grouped_periodogram(fit.model, "sensor.tone" in fit.free)[1], H.data.k0)
+        for j in range(x.shape[1]):
+            xj = x[:, j] / max(float(np.mean(x[:, j])), 1e-300)
             cols += [xj, w2 * xj]
     B = np.stack(cols, axis=1)
     coef = np.linalg.lstsq(B, infl, rcond=None)[0]
@@ -730,7 +751,7 @@ class Hypotheses:
             canon = _set(canon, "sensor.tone", {"amplitude": _vec(tone_amp)})
         # the jitter's slope power: per output, or (several outputs) the matrix of mean products,
         # weighted by the taper like the periodogram (see :func:`.whittle.slope_power`)
-        ydot_sq = W.slope_power(ydot[d.k0:], d.p > 1)
+        ydot_sq = self.ev.slope_power(model, ydot)
         parts = self.ev.parts(canon, ydot_sq)
         if "sensor.jitter" in model.effects and any(e != "sensor.jitter" for e in scale_ids):
             # the jitter's power includes the noise-driven slope, std_s^2 Var(ydot), set by the other
