@@ -65,6 +65,7 @@ from ..stats.psd import log_bin_groups
 from .results import Comparison, Region, View
 
 FAMILY_ALPHA = 0.05
+JITTER_LEVEL_STEP = 0.005     # the jitter's level over the record is applied on a grid of this step in ln
 
 
 class AnalysisError(ValueError):
@@ -710,10 +711,12 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
     mod, jscale = jitter_modulation(model, pr, mean, burn)
     jkey = None
     if jscale is not None:
-        # the jitter's level over this record's command (the predictor's is over its own horizon)
+        # the jitter's level over this record's command (the predictor's is over its own horizon),
+        # on a 0.5 % grid: a live window sliding along a chirp then reuses the cached predictions
+        steps = np.round(np.log(np.maximum(jscale, 1e-12)) / JITTER_LEVEL_STEP).astype(int)
         gam = dict(gam)
-        gam["sensor.jitter"] = gam["sensor.jitter"] * jscale
-        jkey = tuple(float(f"{x:.12g}") for x in jscale)
+        gam["sensor.jitter"] = gam["sensor.jitter"] * np.exp(steps * JITTER_LEVEL_STEP)
+        jkey = tuple(int(x) for x in steps)
     corr = 5 * _cached(model, "transient", 0, lambda: transient_samples(model)) + 10
     gam_short = {eid: g[:L_need] for eid, g in gam.items()}
     jobs = []
