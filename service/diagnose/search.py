@@ -60,6 +60,8 @@ CHI2_95 = 3.841           # chi2_1 95 % point: two-sided profile intervals
 CHIBAR2_95 = 2.706        # 95 % point of 1/2 chi2_0 + 1/2 chi2_1: a parameter whose null value is on
                           # its boundary (Self & Liang 1987), as in the nested pairs Search.choice ranks
 MAX_SHIFTS = 4            # a local shape search may move its bracket this many times (Hypotheses._search)
+LINE_SHARE = 0.01         # a command line carries at least 1 % of the command's power (Data.command_lines),
+COMB_LINES = 20           # ... and a command with more such lines is a comb (a repeated chirp): none
 HARMONICS = 7             # a residual line at up to the 7th harmonic of a command line is the mean response's
 WORKERS = 2               # candidates fitted concurrently (threads) on long records
 PARALLEL_MIN = 50_000     # samples x outputs from which they are
@@ -111,7 +113,13 @@ class Data:
     def command_lines(self) -> np.ndarray:
         """Frequencies (Hz) of the recorded command's spectral lines (a sine, a square wave's
         harmonics): bins 100x above the median of their 20 neighbours and above 1e-8 of the
-        largest, local maxima. Empty without a command."""
+        largest, local maxima, that carry at least :data:`LINE_SHARE` of the command's power (with
+        their two neighbours: an off-bin line leaks into them); none when more than
+        :data:`COMB_LINES` do. A periodic broadband command (a chirp repeated every
+        ``duration_s``, a maximal-length PRBS) is a comb of hundreds to thousands of weak lines up
+        to the Nyquist frequency: their harmonics' zones would cover every frequency, so that no
+        interference tone could be found (a square wave keeps its first odd harmonics). Empty
+        without a command."""
         if self._lines is None:
             self._lines = np.zeros(0)
             if self.has_command:
@@ -123,7 +131,10 @@ class Data:
                 peak = np.zeros(P.size, bool)
                 peak[1:-1] = (P[1:-1] >= P[:-2]) & (P[1:-1] >= P[2:])
                 idx = np.flatnonzero(peak & (P > 100 * med) & (P > 1e-8 * P.max()))
-                self._lines = idx / (x.shape[0] * self.Ts)
+                share = (P[idx] + P[idx - 1] + P[np.minimum(idx + 1, P.size - 1)]) / max(float(P.sum()), 1e-300)
+                idx = idx[share >= LINE_SHARE]
+                if idx.size <= COMB_LINES:
+                    self._lines = idx / (x.shape[0] * self.Ts)
         return self._lines
 
     def group(self, A: np.ndarray) -> np.ndarray:
