@@ -184,7 +184,13 @@ def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
             say(f"  exchange trial {c.effect} -> {a.effect}: {gain:.1f} (own Delta BIC {a_own:.1f})")
             if _vanished(alt.model.effects[a.effect]) or a_own < THRESHOLD:
                 continue            # not significant by itself with the rest in
-            if gain > TIE or (abs(gain) <= TIE and c.effect in NONLINEAR and a.effect not in NONLINEAR
+            margin = TIE
+            if a.effect == "actuator.ar1" and c.effect in ("sensor.bias_markov", "sensor.bias_walk"):
+                margin = S.drift_margin(alt, cur) or TIE      # a slow drift stays the sensor's bias
+                if TIE < gain <= margin:
+                    say(f"  {c.effect} kept: a drift this slow through the plant's gain, and the AR(1)'s "
+                        f"lead within {margin:.1f} (its spread)")
+            if gain > margin or (abs(gain) <= TIE and c.effect in NONLINEAR and a.effect not in NONLINEAR
                               and a.k <= c.k):
                 # better; or as good and linear in place of a nonlinearity: a saturation or dead zone
                 # that the data cannot tell from a gain (a two-level command) shows no clipping
