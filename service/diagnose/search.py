@@ -425,7 +425,8 @@ class Inner:
         self.mod, self.mod_index = mod, mod_index
         tr = (lambda A: np.einsum("...ii->...", A).real) if self.multi else (lambda A: A)
         tot = float(np.sum(self.G * tr(I)))
-        self.vref = np.array([tot / max(float(np.sum(self.G * tr(u))), 1e-300) for u in self.U])
+        # a source with (almost) no power in these bins: its reference capped, so its bound stays finite
+        self.vref = np.minimum([tot / max(float(np.sum(self.G * tr(u))), 1e-300) for u in self.U], 1e290)
         self.hi = self.vref * 1e4
         if self.multi:
             p = I.shape[1]
