@@ -276,6 +276,37 @@ def test_a_slow_drift_stays_the_sensor_bias_when_the_ar1_leads_within_its_spread
     assert TIE < lead < margin and margin > DISTINCT_Z * 1.5
 
 
+def test_a_mean_candidate_is_searched_beside_the_fitted_mean_effects_before_they_move():
+    """Generated case 229 (a lag of 0.417 s and a scale factor of +3.4 % hidden, under a sine):
+    after the lag is in, the scale factor is screened jointly with it. It starts mid-range
+    (+25 %); searched second, the lag first ran its coarse grid against that gain and both ended
+    on the ridge they share (tau 0.449 s, +6.2 %), 120 below the truth in 2 Delta l, so
+    the scale factor scored -86 and was never offered. The candidate's own coarse grid now comes
+    first: the screen reaches the truth's likelihood."""
+    from service.diagnose.search import Fit, Hypotheses
+
+    base = ("name = \"c\"\n[sampling]\nTs = 0.01\n[plant]\n"
+            "A = [[0.0, 1.0, 0.0, 0.0], [-7.44572, -0.97604, 3.63507, 0.39042], [0.0, 0.0, 0.0, 1.0], "
+            "[2.54125, 0.27294, -2.54125, -0.27294]]\nB = [[0.0], [1.0], [0.0], [0.0]]\n"
+            "C = [[0.0, 0.0, 1.0, 0.0]]\nL = [[0.0], [0.0], [0.0], [0.6990936790619721]]\n"
+            "[command]\nkind = \"sine\"\namplitude = 1.6698769717127342\nfrequency_hz = 0.2689\n"
+            "[process.white]\nstd = 0.3885\n[sensor.white]\nstd = 0.02674\n[actuator.white]\nstd = 0.6688\n")
+    truth = parse_model(base + "[sensor.scale_factor]\nerror = 0.0343\n[actuator.lag]\ntau_s = 0.4172\n")
+    nominal = parse_model(base)
+    rec = truth.simulate(55_000, seed=1229)
+    S = Search(nominal, Data(rec.y, rec.u, nominal.Ts, True))
+    H = S.H
+    lag = H.fit(nominal.with_effect("actuator.lag", {"tau_s": 0.01}), {"actuator.lag": ["tau_s"]}, new=("actuator.lag",))
+    st = S._noise_or_mean(lag, "sensor.scale_factor", "add")[0]
+    assert st.model.effects["sensor.scale_factor"].param_dict()["error"] == pytest.approx(0.25)
+    fit = H.fit(st.model, st.free, new=("sensor.scale_factor", "actuator.lag"),
+                only=("sensor.scale_factor", "actuator.lag"))
+    at_truth = H.inner_fit(truth, {}).loglik
+    assert 2 * (fit.loglik - at_truth) > -2.0
+    assert 2 * (fit.loglik - lag.loglik) - math.log(S.data.n_bic) > THRESHOLD
+    assert fit.model.effects["sensor.scale_factor"].param_dict()["error"] == pytest.approx(0.0343, rel=0.3)
+
+
 def test_a_local_refit_follows_a_shape_parameter_beyond_its_first_bracket():
     """A refit searches a shape parameter locally (golden section in one step either side of its
     value) when it starts from a fitted value: after another effect is added, a correlation time

@@ -845,6 +845,11 @@ class Hypotheses:
         best = self.inner_fit(model, free)
         outer = [(e, spec) for e in free for spec in CATALOGUE[e].fit.shape if spec[0] in free[e]
                  and (not screen or e in new) and (only is None or e in only)]
+        # the new effects first, in the order given: a candidate searched jointly with the mean
+        # effects already in gets its coarse grid beside their fitted values, before they move
+        # (a scale factor started mid-range at +25 % sent a fitted lag along the ridge the two
+        # share, and two rounds stopped 120 below the truth in 2 Delta l: generated case 229)
+        outer.sort(key=lambda x: new.index(x[0]) if x[0] in new else len(new))
         if "sensor.tone" in free and "frequency_hz" in free["sensor.tone"] and (not screen or "sensor.tone" in new):
             best = self._fit_tone_frequency(best)
         for rnd in range(1 if screen else rounds):
