@@ -65,6 +65,7 @@ COMB_LINES = 20           # ... and a command with more such lines is a comb (a 
 HARMONICS = 7             # a residual line at up to the 7th harmonic of a command line is the mean response's
 WORKERS = 2               # candidates fitted concurrently (threads) on long records
 PARALLEL_MIN = 50_000     # samples x outputs from which they are
+MORE_ROUNDS = 2           # extra rounds a joint search may take while a round still gains > 1 in l
 SCREEN_N = 1 << 18        # records of at least 2 SCREEN_N samples are screened on their first SCREEN_N
 GRID_TOL = 1e-6           # values within GRID_TOL * step of the grid count as on it
 
@@ -852,13 +853,62 @@ class Hypotheses:
         outer.sort(key=lambda x: new.index(x[0]) if x[0] in new else len(new))
         if "sensor.tone" in free and "frequency_hz" in free["sensor.tone"] and (not screen or "sensor.tone" in new):
             best = self._fit_tone_frequency(best)
-        for rnd in range(1 if screen else rounds):
+        n_rounds = 1 if screen else rounds
+        rnd = 0
+        while rnd < n_rounds:
             before = best.loglik
+            x0 = self._coords(best, outer)
             for e, spec in outer:
                 best = self._search(best, e, spec, coarse=(rnd == 0 and e in new),
                                     n_grid=7 if screen else 9, n_golden=6 if screen else 10)
-            if best.loglik - before < 0.05:
+            if rnd > 0 or not new:
+                best = self._pattern(best, outer, x0)
+            gain = best.loglik - before
+            if gain < 0.05:
                 break
+            rnd += 1
+            if rnd == n_rounds and not screen and len(outer) > 1 and gain > 1.0 and n_rounds < rounds + MORE_ROUNDS:
+                n_rounds += 1           # still climbing a ridge the parameters share: one more round
+        return best
+
+    def _coords(self, fit: Fit, outer) -> np.ndarray:
+        """The searched parameters in the search's coordinates (ln for log-spaced ones)."""
+        out = []
+        for e, spec in outer:
+            v = _shape_value(fit.model.effects[e], spec[0], self.data.Ts)
+            out.append(np.nan if v is None else (math.log(v) if spec[4] == "log" and v > 0 else float(v)))
+        return np.array(out)
+
+    def _pattern(self, fit: Fit, outer, x0: np.ndarray) -> Fit:
+        """Hooke-Jeeves pattern moves: after a round of one-parameter searches moved several
+        parameters, try continuing along that displacement (1, 2, 4 times it) while it gains. Two
+        parameters that trade off (a lag and a scale factor both set the response's amplitude)
+        form a ridge that coordinate searches climb in small zigzags."""
+        if len(outer) < 2:
+            return fit
+        x1 = self._coords(fit, outer)
+        dx = x1 - x0
+        if not np.all(np.isfinite(dx)) or np.count_nonzero(np.abs(dx) > 1e-12) < 2:
+            return fit
+        best = fit
+        for lam in (1.0, 2.0, 4.0):
+            x = x1 + lam * dx
+            m = fit.model
+            try:
+                for (e, spec), xi in zip(outer, x):
+                    lo, hi, spacing = self._bounds(spec)
+                    v = math.exp(xi) if spacing == "log" else float(xi)
+                    if not lo <= v <= hi:
+                        raise ValueError("outside the parameter's range")
+                    m = _set(m, e, {spec[0]: v})
+                if _radius(m.Ad) >= 1.0 and _radius(self.base.Ad) < 1.0:
+                    break
+                f = self.inner_fit(m, fit.free)
+            except (ModelError, ValueError, np.linalg.LinAlgError):
+                break
+            if f.loglik <= best.loglik:
+                break
+            best = f
         return best
 
     def _bounds(self, spec):
