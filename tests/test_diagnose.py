@@ -276,6 +276,34 @@ def test_a_slow_drift_stays_the_sensor_bias_when_the_ar1_leads_within_its_spread
     assert TIE < lead < margin and margin > DISTINCT_Z * 1.5
 
 
+def test_a_slow_ar1_that_only_led_while_an_effect_was_missing_gives_way_to_the_bias():
+    """Generated case 300 (a Gauss-Markov bias of tau 7.6 s and a scale factor of +7.5 % hidden;
+    plant time constant 0.24 s): with the scale factor still missing, an actuator AR(1) of tau
+    6.8 s led the bias by 290 in Delta BIC and was added; once the scale factor is in, the two tie
+    exactly (2 Delta l 0.0). The exchange pass now applies the drift rule in this direction too
+    (the bias unless the AR(1) beats it by drift_margin), then the backward pass runs again: the
+    process-noise refit that step 3 added beside the AR(1) (std 0.437 for the model's 0.4406) is
+    no longer needed and goes back to the model's value. Before: AR(1), scale factor and that
+    refit were reported."""
+    truth = parse_model("name = \"c\"\n[sampling]\nTs = 0.002\n[plant]\nA = [[-4.223873242258644]]\n"
+                        "B = [[4.770707580783538]]\nC = [[1.0]]\nL = [[4.223873242258644]]\n"
+                        "[command]\nkind = \"sine\"\namplitude = 1.27309662106284\nfrequency_hz = 0.6503\n"
+                        "[process.white]\nstd = 0.4406\n[sensor.white]\nstd = 0.01937\n[actuator.white]\nstd = 0.38\n"
+                        "[sensor.bias_markov]\nstd = 0.06688\ntau_s = 7.567\n[sensor.scale_factor]\nerror = 0.0746\n")
+    nominal = truth.without_effect("sensor.bias_markov").without_effect("sensor.scale_factor")
+    rec = truth.simulate(180_000, seed=1300)
+    logs = []
+    rep = diagnose(nominal, rec.t, rec.y, rec.u, log=logs.append)
+    assert any(x.startswith("exchange: sensor.bias_markov in place of actuator.ar1") for x in logs)
+    assert any(x.startswith("drop: process.white back at the model's values") for x in logs)
+    got = {m["effect"]: m for m in rep["missing"]}
+    assert set(got) == {"sensor.bias_markov", "sensor.scale_factor"}
+    assert "actuator.ar1" in [a["effect"] for a in got["sensor.bias_markov"]["alternatives"]]
+    assert got["sensor.bias_markov"]["params"]["tau_s"] == pytest.approx(7.567, rel=0.3)
+    assert got["sensor.scale_factor"]["params"]["error"] == pytest.approx(0.0746, rel=0.3)
+    assert rep["error_after"] < 1.5
+
+
 def test_a_mean_candidate_is_searched_beside_the_fitted_mean_effects_before_they_move():
     """Generated case 229 (a lag of 0.417 s and a scale factor of +3.4 % hidden, under a sine):
     after the lag is in, the scale factor is screened jointly with it. It starts mid-range

@@ -83,7 +83,11 @@ def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
     rest). Before that, a backward pass undoes the least needed addition or changed value while it
     is not significant given the others (a refitted process noise that stood in for a colored
     actuator noise before that was fitted; a walk added after a Gauss-Markov bias can make the bias
-    redundant). The last step, with nothing changed since it, keeps its own decision: only its
+    redundant); after an exchange it runs again (a refit that stood beside the effect exchanged
+    out may not be needed beside its replacement). A slow actuator AR(1) and a sensor bias follow
+    the drift rule both ways (:meth:`.search.Search.drift_margin`): the bias stays unless the
+    AR(1) beats it by that margin, and replaces the AR(1) unless beaten by it. The last step, with
+    nothing changed since it, keeps its own decision: only its
     leaders (their joint thorough refits reused) are compared again, for the nonlinearity tie rule.
     Returns the fit and whether anything changed."""
     import math
@@ -113,32 +117,37 @@ def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
             undone[key] = (cur, S.refit_all(Fit(m, free, -math.inf), thorough=True))
         return undone[key][1]
 
-    # backward: while the least needed addition is not significant given the others, drop it
-    while True:
-        owns = []
-        todo = [c for c in accepted if c.mode.split(":")[0] in ("add", "refit", "replace") and c.effect in cur.model.effects
-                and not (c.mode.startswith("replace:") and c.mode.split(":", 1)[1] in cur.model.effects)]
+    def backward():
+        """While the least needed addition is not significant given the others, drop it."""
+        nonlocal cur, swapped
+        while True:
+            owns = []
+            todo = [c for c in accepted if c.mode.split(":")[0] in ("add", "refit", "replace") and c.effect in cur.model.effects
+                    and not (c.mode.startswith("replace:") and c.mode.split(":", 1)[1] in cur.model.effects)]
 
-        def try_without(c):
-            try:
-                return without(c)
-            except (ModelError, ValueError, np.linalg.LinAlgError):
-                return None
+            def try_without(c):
+                try:
+                    return without(c)
+                except (ModelError, ValueError, np.linalg.LinAlgError):
+                    return None
 
-        for c, d in zip(todo, S._map(try_without, todo)):
-            if d is not None:
-                owns.append((2 * (cur.loglik - d.loglik) - c.k * log_n, c, d))
-        if not owns:
-            break
-        own, c, d = min(owns, key=lambda x: x[0])
-        if own >= THRESHOLD:
-            break
-        what = {"refit": f"{c.effect} back at the model's values",
-                "replace": f"{c.mode.split(':', 1)[-1]} back in place of {c.effect}"}.get(c.mode.split(":")[0], c.effect)
-        say(f"drop: {what} (Delta BIC {own:.1f} once the others are in)")
-        accepted.remove(c)
-        cur, swapped = d, True
+            for c, d in zip(todo, S._map(try_without, todo)):
+                if d is not None:
+                    owns.append((2 * (cur.loglik - d.loglik) - c.k * log_n, c, d))
+            if not owns:
+                break
+            own, c, d = min(owns, key=lambda x: x[0])
+            if own >= THRESHOLD:
+                break
+            what = {"refit": f"{c.effect} back at the model's values",
+                    "replace": f"{c.mode.split(':', 1)[-1]} back in place of {c.effect}"}.get(c.mode.split(":")[0], c.effect)
+            say(f"drop: {what} (Delta BIC {own:.1f} once the others are in)")
+            accepted.remove(c)
+            cur, swapped = d, True
+
+    backward()
     # exchange
+    any_exchange = False
     for c in list(accepted):
         i = accepted.index(c)
         if c.mode != "add" or c.effect not in cur.model.effects:
@@ -185,11 +194,19 @@ def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
             if _vanished(alt.model.effects[a.effect]) or a_own < THRESHOLD:
                 continue            # not significant by itself with the rest in
             margin = TIE
-            if a.effect == "actuator.ar1" and c.effect in ("sensor.bias_markov", "sensor.bias_walk"):
+            bias = ("sensor.bias_markov", "sensor.bias_walk")
+            if a.effect == "actuator.ar1" and c.effect in bias:
                 margin = S.drift_margin(alt, cur) or TIE      # a slow drift stays the sensor's bias
                 if TIE < gain <= margin:
                     say(f"  {c.effect} kept: a drift this slow through the plant's gain, and the AR(1)'s "
                         f"lead within {margin:.1f} (its spread)")
+            elif c.effect == "actuator.ar1" and a.effect in bias:
+                slow = S.drift_margin(cur, alt)               # ... and becomes it unless clearly worse
+                if slow is not None:
+                    margin = -slow
+                    if -slow < gain <= TIE:
+                        say(f"  {a.effect} for a drift this slow through the plant's gain: the AR(1)'s lead "
+                            f"{-gain:+.1f} is within {slow:.1f} (its spread)")
             if gain > margin or (abs(gain) <= TIE and c.effect in NONLINEAR and a.effect not in NONLINEAR
                               and a.k <= c.k):
                 # better; or as good and linear in place of a nonlinearity: a saturation or dead zone
@@ -209,6 +226,9 @@ def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
             accepted[i] = a
             step_of[id(a)] = step_of[id(c)]
             cur, swapped = alt, True
+            any_exchange = True
+    if any_exchange:    # an effect the exchanged one needed may not be needed now
+        backward()
     return cur, swapped
 
 
