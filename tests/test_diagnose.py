@@ -250,6 +250,17 @@ def test_lr_spread_is_the_spread_of_the_likelihood_ratio_over_records():
     assert lr_spread(Fit(None, {}, 0.0, inner=Inner(EA, np.ones(nb), EA, []), v=np.zeros(0)), other) is None
 
 
+def _diagnose_hidden(truth, hidden: tuple, n: int, seed: int):
+    """A record of ``truth`` (n samples, ``seed``) diagnosed against ``truth`` without the
+    ``hidden`` effects: the report and the log lines."""
+    nominal = truth
+    for eid in hidden:
+        nominal = nominal.without_effect(eid)
+    rec = truth.simulate(n, seed=seed)
+    logs = []
+    return diagnose(nominal, rec.t, rec.y, rec.u, log=logs.append), logs
+
+
 def test_a_slow_drift_stays_the_sensor_bias_when_the_ar1_leads_within_its_spread():
     """Generated case 323 (a Gauss-Markov bias of tau 26 s and a quantization hidden; no command;
     plant time constant 0.12 s): after the quantization, an actuator AR(1) of tau 17 s led the
@@ -263,10 +274,7 @@ def test_a_slow_drift_stays_the_sensor_bias_when_the_ar1_leads_within_its_spread
                         "[command]\nkind = \"none\"\n[process.white]\nstd = 8.322\n[sensor.white]\nstd = 0.01154\n"
                         "[actuator.white]\nstd = 5.029\n[sensor.quantization]\nstep = 0.0334\n"
                         "[sensor.bias_markov]\nstd = 0.05556\ntau_s = 26.47\n")
-    nominal = truth.without_effect("sensor.bias_markov").without_effect("sensor.quantization")
-    rec = truth.simulate(25_500, seed=1323)
-    logs = []
-    rep = diagnose(nominal, rec.t, rec.y, rec.u, log=logs.append)
+    rep, logs = _diagnose_hidden(truth, ("sensor.bias_markov", "sensor.quantization"), 25_500, 1323)
     assert [m["effect"] for m in rep["missing"]] == ["sensor.quantization", "sensor.bias_markov"]
     kept = [x for x in logs if "kept: a drift this slow" in x]
     assert len(kept) == 1
@@ -290,10 +298,7 @@ def test_a_slow_ar1_that_only_led_while_an_effect_was_missing_gives_way_to_the_b
                         "[command]\nkind = \"sine\"\namplitude = 1.27309662106284\nfrequency_hz = 0.6503\n"
                         "[process.white]\nstd = 0.4406\n[sensor.white]\nstd = 0.01937\n[actuator.white]\nstd = 0.38\n"
                         "[sensor.bias_markov]\nstd = 0.06688\ntau_s = 7.567\n[sensor.scale_factor]\nerror = 0.0746\n")
-    nominal = truth.without_effect("sensor.bias_markov").without_effect("sensor.scale_factor")
-    rec = truth.simulate(180_000, seed=1300)
-    logs = []
-    rep = diagnose(nominal, rec.t, rec.y, rec.u, log=logs.append)
+    rep, logs = _diagnose_hidden(truth, ("sensor.bias_markov", "sensor.scale_factor"), 180_000, 1300)
     assert any(x.startswith("exchange: sensor.bias_markov in place of actuator.ar1") for x in logs)
     assert any(x.startswith("drop: process.white back at the model's values") for x in logs)
     got = {m["effect"]: m for m in rep["missing"]}
@@ -312,7 +317,6 @@ def test_a_mean_candidate_is_searched_beside_the_fitted_mean_effects_before_they
     the scale factor scored -86 and was never offered. The candidate's own coarse grid now comes
     first: the screen reaches the truth's likelihood. Searched in the old order, pattern moves
     along the ridge reach it too."""
-    from service.diagnose.search import Fit, Hypotheses
 
     base = ("name = \"c\"\n[sampling]\nTs = 0.01\n[plant]\n"
             "A = [[0.0, 1.0, 0.0, 0.0], [-7.44572, -0.97604, 3.63507, 0.39042], [0.0, 0.0, 0.0, 1.0], "
