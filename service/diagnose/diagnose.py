@@ -93,7 +93,7 @@ def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
     import math
 
     from ..model import ModelError
-    from .search import CHIBAR2_95, EXACT_RANK, EXACT_TIE, TIE, Fit
+    from .search import CHIBAR2_95, DRIFT_BIASES, EXACT_RANK, EXACT_TIE, TIE, Fit
 
     swapped = False
     log_n = math.log(S.data.n_bic)
@@ -194,13 +194,12 @@ def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
             if _vanished(alt.model.effects[a.effect]) or a_own < THRESHOLD:
                 continue            # not significant by itself with the rest in
             margin = TIE
-            bias = ("sensor.bias_markov", "sensor.bias_walk")
-            if a.effect == "actuator.ar1" and c.effect in bias:
+            if a.effect == "actuator.ar1" and c.effect in DRIFT_BIASES:
                 margin = S.drift_margin(alt, cur) or TIE      # a slow drift stays the sensor's bias
                 if TIE < gain <= margin:
                     say(f"  {c.effect} kept: a drift this slow through the plant's gain, and the AR(1)'s "
                         f"lead within {margin:.1f} (its spread)")
-            elif c.effect == "actuator.ar1" and a.effect in bias:
+            elif c.effect == "actuator.ar1" and a.effect in DRIFT_BIASES:
                 slow = S.drift_margin(cur, alt)               # ... and becomes it unless clearly worse
                 if slow is not None:
                     margin = -slow

@@ -1097,6 +1097,7 @@ EXACT_RANK = {"replace": 0, "add": 1, "refit": 2}     # on an exact tie: the use
 TIE = 2.0                 # within which candidates count as equally supported (ranking units: Search.choice, or Delta BIC)
 EXACT_TIE = 0.5           # ... and within which they are the same fit (chain order decides)
 DISTINCT_Z = 1.96         # a likelihood ratio this many of its standard deviations tells two fits apart
+DRIFT_BIASES = ("sensor.bias_markov", "sensor.bias_walk")   # the sensor's models of a slow drift
 
 
 def plant_time_constant(model) -> float:
@@ -1273,7 +1274,7 @@ class Search:
             return first
         bias = []
         for c in pool:
-            if c.effect in ("sensor.bias_markov", "sensor.bias_walk"):
+            if c.effect in DRIFT_BIASES:
                 margin = self.drift_margin(first.fit, c.fit)
                 if margin is not None and key(c) > key(first) - margin:
                     bias.append(c)
