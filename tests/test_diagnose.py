@@ -261,6 +261,30 @@ def _diagnose_hidden(truth, hidden: tuple, n: int, seed: int):
     return diagnose(nominal, rec.t, rec.y, rec.u, log=logs.append), logs
 
 
+def test_a_drift_the_views_see_is_added_when_bic_alone_would_stop():
+    """Generated case 21 (an actuator AR(1) and a Gauss-Markov bias of tau 18 s hidden; Ts 5 ms,
+    390 s): after the AR(1) the bias scored Delta BIC -1.5 (2 Delta l = 21 for 2 parameters, but
+    ln n = 11.3 each), and the search stopped with the model error at 1.84, the Allan view 11x
+    off. The views' rule adds the best candidate by the likelihood-ratio test when the error stays
+    above ERROR_OK and falls by a third with it: the bias, at its planted tau."""
+    from service.diagnose.diagnose import ERROR_FALL, ERROR_OK
+
+    truth = parse_model("name = \"c\"\n[sampling]\nTs = 0.005\n[plant]\nA = [[-1.0936947349271349]]\n"
+                        "B = [[0.7904620537341346]]\nC = [[1.0]]\nL = [[1.0936947349271349]]\n"
+                        "[command]\nkind = \"prbs\"\namplitude = 1.9373996680487635\nbit_s = 1.4362\norder = 9\n"
+                        "[process.white]\nstd = 0.3011\n[sensor.white]\nstd = 0.009348\n"
+                        "[sensor.bias_markov]\nstd = 0.01484\ntau_s = 17.96\n[actuator.ar1]\nstd = 0.06944\ntau_s = 0.2019\n")
+    rep, logs = _diagnose_hidden(truth, ("sensor.bias_markov", "actuator.ar1"), 78_000, 1021)
+    assert [m["effect"] for m in rep["missing"]] == ["actuator.ar1", "sensor.bias_markov"]
+    ar1, bias = rep["missing"]
+    assert ar1["accepted_by"] == "bic" and ar1["score"] >= THRESHOLD
+    assert bias["accepted_by"] == "error" and bias["score"] < THRESHOLD and "views' word" in bias["evidence"]
+    assert abs(bias["params"]["tau_s"] / 17.96 - 1) < 0.3 and abs(bias["params"]["std"] / 0.01484 - 1) < 0.3
+    e1, e2 = rep["steps"][0]["error"], rep["steps"][1]["error"]
+    assert e1 > ERROR_OK and e2 <= ERROR_FALL * e1 and rep["error_after"] <= ERROR_OK
+    assert [s["accepted_by"] for s in rep["steps"]] == ["bic", "error"]
+
+
 def test_a_slow_drift_stays_the_sensor_bias_when_the_ar1_leads_within_its_spread():
     """Generated case 323 (a Gauss-Markov bias of tau 26 s and a quantization hidden; no command;
     plant time constant 0.12 s): after the quantization, an actuator AR(1) of tau 17 s led the

@@ -1167,16 +1167,17 @@ class Search:
         clearly."""
         return 2 * (fit.loglik - cur.loglik) - k * CHIBAR2_95
 
-    def candidates(self, cur: Fit) -> list[Candidate]:
+    def candidates(self, cur: Fit, bar: float = THRESHOLD) -> list[Candidate]:
         """Every candidate screened (its own parameters searched, the rest refitted only in their
         variances; on a long record on its first :data:`SCREEN_N` samples, then the variances
         refitted and the candidate scored on the whole record), then the ``n_full`` best fitted
         jointly with everything freed so far on the whole record (every searched parameter from a
-        coarse grid). The significant ones (Delta BIC > THRESHOLD) come
+        coarse grid). The significant ones (Delta BIC > :data:`THRESHOLD`) come
         first, ranked by :meth:`choice`, the others by Delta BIC; near-ties (within :data:`TIE`)
         resolved towards fewer effects: a replacement first, then a changed value, then an
         addition; within a mode the best score, and the signal chain's order on an exact tie
-        (:data:`EXACT_TIE`)."""
+        (:data:`EXACT_TIE`). ``bar``: the Delta BIC that counts as significant (the model-error rule
+        of :func:`.diagnose._by_error` ranks every candidate by the choice score: ``-inf``)."""
         out: list[Candidate] = []
         starts = self.starts(cur)
 
@@ -1209,7 +1210,7 @@ class Search:
             c.start = st
             out.append(c)
         out.sort(key=lambda c: -c.score)
-        leaders = [c for c in out[:self.n_full] if c.score >= THRESHOLD - 30]
+        leaders = [c for c in out[:self.n_full] if c.score >= bar - 30]
 
         def full_fit(c):
             try:
@@ -1226,19 +1227,19 @@ class Search:
             c.loglik = c.fit.loglik
             c.sel = self.choice(c.fit, cur, c.k)
         # significant candidates first, ranked by the choice score; the rest by Delta BIC
-        out.sort(key=lambda c: (c.score < THRESHOLD, -(c.sel if c.score >= THRESHOLD else c.score)))
+        out.sort(key=lambda c: (c.score < bar, -(c.sel if c.score >= bar else c.score)))
         if out:
-            key = (lambda c: c.sel) if out[0].score >= THRESHOLD else (lambda c: c.score)
+            key = (lambda c: c.sel) if out[0].score >= bar else (lambda c: c.score)
             top = key(out[0])
-            near = [c for c in out if key(c) > top - TIE and (c.score >= THRESHOLD) == (out[0].score >= THRESHOLD)]
+            near = [c for c in out if key(c) > top - TIE and (c.score >= bar) == (out[0].score >= bar)]
             # the preferred mode first; within it the best score, and on an exact tie (identical
             # spectra, e.g. process and actuator white noise through the same input) chain order
             rank = min(MODE_RANK[c.mode.split(":")[0]] for c in near)
             same = [c for c in near if MODE_RANK[c.mode.split(":")[0]] == rank]
             best = max(key(c) for c in same)
             first = min((c for c in same if key(c) > best - EXACT_TIE), key=lambda c: CATALOGUE[c.effect].chain_order)
-            sig = out[0].score >= THRESHOLD
-            first = self._drift_as_bias(first, [c for c in out if (c.score >= THRESHOLD) == sig
+            sig = out[0].score >= bar
+            first = self._drift_as_bias(first, [c for c in out if (c.score >= bar) == sig
                                                 and MODE_RANK[c.mode.split(":")[0]] == rank], key)
             exact = [c for c in near if key(c) > max(key(x) for x in near) - EXACT_TIE]
             modes = {c.mode.split(":")[0] for c in exact}
