@@ -403,10 +403,12 @@ def variance_view(r, t, gam_parts, j, W, model=None, gam_long=None, mod=None, jk
     def predict():
         parts = {eid: expected_window_stats(g[:, j:j + 1], W, W - 1)[:, 0] for eid, g in gam_parts.items()}
         R = sum(parts.values())                       # expected autocovariance within a window
-        var = windowed_variance_var(sum(g[:W, j] for g in gam_parts.values()), W)
+        gsum = sum(g[:W, j] for g in gam_parts.values())
+        var = windowed_variance_var(gsum, W)
         inflate = _window_correlation(gam_long, W, n_win, var) if gam_long is not None else 1.0
-        return {eid: p[:1].copy() for eid, p in parts.items()}, R[0], var, inflate    # what the view uses
-    parts, E, var, inflate = predict() if model is None else \
+        kurt = window_kurtosis(gsum, W)
+        return {eid: p[:1].copy() for eid, p in parts.items()}, R[0], var, inflate, kurt   # what the view uses
+    parts, E, var, inflate, kurt = predict() if model is None else \
         _cached(model, "variance_view", (j, W, n_win, gam_long is not None, jkey), predict)
     nu = np.full(n_win, 2 * E**2 / var)
     contrib = {eid: np.full(n_win, p[0]) for eid, p in parts.items()}
@@ -421,7 +423,10 @@ def variance_view(r, t, gam_parts, j, W, model=None, gam_long=None, mod=None, jk
     v = View("variance", j, centres, "time [s]", "variance of y in the window [units^2]", emp, pred, lo, hi,
              contributions=contrib,
              z=(emp - pred) / (np.sqrt(var) * scale), notes=[f"windows of {W} samples, mean removed"])
-    return _finish(v, n_win, by_band=True, error_var=float(np.sum(_z2_var_linear(nu))) / n_win**2 * inflate)
+    # Var(z^2) = E z^4 - 1 = 2 + 12 sum lambda^4 / (sum lambda^2)^2 (:func:`window_kurtosis`; the
+    # chi-squared's 2 + 12 / nu when that is not finite)
+    z2_var = 2.0 + 12.0 * kurt if np.isfinite(kurt) else _z2_var_linear(nu[0])
+    return _finish(v, n_win, by_band=True, error_var=float(z2_var) / n_win * inflate)
 
 
 def _window_covariances(gam: np.ndarray, W: int, n_win: int, var0: float, H: int = 20) -> np.ndarray:
@@ -481,6 +486,65 @@ def windowed_variance_var(gam: np.ndarray, W: int) -> float:
     s_hh = 2.0 * W * np.sum(h**2) + 2.0 * np.sum(h) ** 2
     s_gh = 2.0 * W * np.sum(g**2) - W**2 * G**2
     return float(2.0 * (s_gg + s_hh - 2.0 * s_gh) / W**2)
+
+
+KURT_DENSE = 400          # windows up to this many samples: all eigenvalues (dense); longer:
+KURT_TOP = 12             # ... the largest eigenvalues by Lanczos, and the rest's sum lambda^4 by
+KURT_PROBES = 16          # ... Hutchinson's estimator on the deflated matrix (fixed Rademacher probes)
+
+
+def window_kurtosis(gam: np.ndarray, W: int) -> float:
+    """sum lambda^4 / (sum lambda^2)^2 over the eigenvalues lambda of the covariance C = P (-Gamma) P
+    of a demeaned window of W samples (Gamma_ij = gamma(|i - j|), P the centring matrix). The
+    windowed sample variance is the Gaussian quadratic form sum lambda_i chi2_1 / W, whose
+    standardized z has E z^4 = 3 + 12 sum lambda^4 / (sum lambda^2)^2 (its cumulants are
+    2^(r-1) (r-1)! sum lambda^r). The chi-squared of matching mean and variance (nu = (sum
+    lambda)^2 / sum lambda^2) gives 3 + 12 / nu instead, which understates it when a few
+    eigenvalues dominate: a plant or a drift slower than the window (generated case 56: 12 / nu =
+    0.65 against 9.6; the view's error measured sd 0.66 over 40 records, predicted 0.23, now 0.48).
+    Up to :data:`KURT_DENSE` samples from every eigenvalue. Beyond, sum lambda^2 = ||C||_F^2 exactly
+    (:func:`windowed_variance_var`), the :data:`KURT_TOP` largest eigenvalues by Lanczos
+    (matrix-vector products by FFT, a fixed start), and the rest's sum lambda^4 = tr(C_rest^4)
+    by Hutchinson's estimator E ||C_rest^2 z||^2 over :data:`KURT_PROBES` fixed Rademacher
+    probes z, C_rest = C with the top eigenpairs removed: its spectrum is flat enough for a few
+    probes (within 1 % of the dense value on the seed's windows of 1000 to 2000 samples)."""
+    g_ = -np.asarray(gam[:W], float)
+    s2 = windowed_variance_var(gam, W) * W**2 / 2.0            # sum lambda^2 = ||C||_F^2
+    if not (s2 > 0 and np.isfinite(s2)):
+        return float("nan")
+    if W <= KURT_DENSE:
+        i = np.arange(W)
+        Cm = g_[np.abs(i[:, None] - i[None, :])]
+        Cm = Cm - Cm.mean(axis=0, keepdims=True)
+        Cm = Cm - Cm.mean(axis=1, keepdims=True)
+        lam = np.linalg.eigvalsh(Cm)
+        return float(np.sum(lam**4) / np.sum(lam**2) ** 2)
+    from scipy.sparse.linalg import ArpackError, LinearOperator, eigsh
+
+    nfft = 1 << int(np.ceil(np.log2(2 * W)))
+    F = np.fft.rfft(np.concatenate([g_, np.zeros(nfft - 2 * W + 1), g_[:0:-1]]))
+
+    def mv(x):
+        x = np.asarray(x, float)
+        y = np.fft.irfft(F[:, None] * np.fft.rfft(x - x.mean(axis=0), nfft, axis=0), nfft, axis=0)[:W]
+        return y - y.mean(axis=0)
+
+    rng = np.random.default_rng(0)
+    try:
+        lam, V = eigsh(LinearOperator((W, W), matvec=lambda x: mv(np.asarray(x).reshape(W, 1))[:, 0],
+                                      matmat=mv, dtype=float),
+                       k=KURT_TOP, which="LA", tol=1e-5, v0=rng.standard_normal(W))
+    except ArpackError:
+        return float("nan")
+
+    def rest(X):                                               # C with the top eigenpairs removed
+        X = X - V @ (V.T @ X)
+        Y = mv(X)
+        return Y - V @ (V.T @ Y)
+
+    Z = rng.choice([-1.0, 1.0], size=(W, KURT_PROBES))
+    tail = float(np.mean(np.sum(rest(rest(Z)) ** 2, axis=0)))
+    return float((np.sum(lam**4) + tail) / s2**2)
 
 
 def acf_view(r, Ts, gam_parts, j, M, max_lag, model=None, gam_long=None, jkey=None, mod=None):
