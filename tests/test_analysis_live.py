@@ -288,5 +288,5 @@ def test_live_ranking_names_the_missing_effect_like_the_offline_diagnosis(tmp_pa
     assert rk["samples"] == count and rk["revision"] == 0
     m, o = rk["missing"][0], off["missing"][0]
     assert m["effect"] == o["effect"] == "actuator.ar1" and m["mode"] == o["mode"]
-    assert m["params"] == o["params"] and m["score"] == o["score"]
+    assert m["params"] == o["params"] and m["score"] == o["score"] and m["accepted_by"] == o["accepted_by"] == "bic"
     assert last["ranking"]["missing"][0]["effect"] == "actuator.ar1"

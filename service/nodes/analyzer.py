@@ -219,7 +219,7 @@ def rank(data: dict) -> dict:
     with COMPUTE:       # the prediction caches are shared by model text: one computation at a time
         rep = diagnose(model, data["t"], data["y"], data["u"], at_rest=data["at_rest"], max_effects=1)
     return {"revision": data["revision"], "t": float(data["t"][-1]), "samples": int(data["t"].size),
-            "missing": [{k: m[k] for k in ("effect", "mode", "params", "interval", "score", "evidence")}
+            "missing": [{k: m[k] for k in ("effect", "mode", "params", "interval", "score", "accepted_by", "evidence")}
                         for m in rep["missing"]],
             "candidates": [{k: c[k] for k in ("effect", "mode", "score")} for c in rep["candidates"][:5]],
             "threshold": rep["threshold"], "seconds": rep["seconds"]}
