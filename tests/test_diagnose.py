@@ -261,6 +261,21 @@ def _diagnose_hidden(truth, hidden: tuple, n: int, seed: int):
     return diagnose(nominal, rec.t, rec.y, rec.u, log=logs.append), logs
 
 
+def test_a_constant_command_from_rest_is_a_step():
+    """A record from rest whose command is constant and not zero (the default step, time_s = 0) has
+    a command: the plant steps at t = 0, so the mean effects (lag, saturation, dead zone, scale
+    factor) are candidates. A command that is zero throughout, or constant in a record that does
+    not start at rest, has none."""
+    y = np.zeros((400, 1))
+    assert Data(y, np.ones((400, 1)), 0.01, True).has_command
+    assert not Data(y, np.ones((400, 1)), 0.01, False).has_command
+    assert not Data(y, np.zeros((400, 1)), 0.01, True).has_command
+    assert not Data(y, None, 0.01, True).has_command
+    u = np.zeros((400, 1))
+    u[200:] = 1.0
+    assert Data(y, u, 0.01, False).has_command
+
+
 def test_a_drift_the_views_see_is_added_when_bic_alone_would_stop():
     """Generated case 21 (an actuator AR(1) and a Gauss-Markov bias of tau 18 s hidden; Ts 5 ms,
     390 s): after the AR(1) the bias scored Delta BIC -1.5 (2 Delta l = 21 for 2 parameters, but

@@ -100,7 +100,10 @@ class Data:
         self.nf = W.n_freqs(self.M)
         self.n_bic = self.N * self.p
         self.t = np.arange(self.N) * self.Ts
-        self.has_command = self.u is not None and bool(np.any(np.ptp(self.u, axis=0) > 0))
+        # a command that varies, or (a record from rest) one that is not zero: a constant command
+        # from sample 0 is a step at t = 0 for a plant at rest (the default step, time_s = 0)
+        self.has_command = self.u is not None and self.u.size > 0 and bool(
+            np.any(np.ptp(self.u, axis=0) > 0) or (self.at_rest and np.any(self.u != 0)))
         self.umax = float(np.max(np.abs(self.u))) if self.u is not None and self.u.size else 0.0
         self.T = self.N * self.Ts
         self.groups = W.Groups(self.M, REL_BW)
