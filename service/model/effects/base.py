@@ -167,7 +167,7 @@ def parse_rho_tau(table: Table, n: int, Ts: float) -> tuple[np.ndarray, np.ndarr
         raise table.error("rho", "give exactly one of rho (per sample, |rho| < 1) or tau_s (s, > 0)")
     if table.has("rho"):
         rho = table.vector("rho", n, check=lambda v: bool(np.all(np.abs(v) < 1)), expect="|rho| < 1")
-        with np.errstate(divide="ignore"):
+        with np.errstate(divide="ignore", over="ignore"):          # a huge Ts: tau = inf
             tau = np.where(rho > 0, -Ts / np.log(np.where(rho > 0, rho, 0.5)), np.nan)
         return rho, tau
     tau = table.vector("tau_s", n, check=lambda v: bool(np.all(v > 0)), expect="time constants in s > 0")
