@@ -714,14 +714,6 @@ def model_error(views: list) -> float:
     return float(np.sum(w[ok] * e[ok]) / np.sum(w[ok])) if ok.any() else float("nan")
 
 
-def model_error_sd(views: list) -> float:
-    """The model error's standard deviation under the model: 1 / sqrt(sum_v 1 / Var(error_v)) for
-    the precision-weighted mean of :func:`model_error` (the views taken as independent)."""
-    w = 1.0 / np.maximum(np.array([v.error_var for v in views], float), 1e-12)
-    ok = np.isfinite(w) & np.isfinite(np.array([v.error for v in views], float))
-    return float(1.0 / np.sqrt(np.sum(w[ok]))) if ok.any() else float("nan")
-
-
 # -- regions -------------------------------------------------------------------------------------------
 def regions_of(view: View) -> list[Region]:
     out = []
