@@ -280,8 +280,9 @@ def test_a_drift_the_views_see_is_added_when_bic_alone_would_stop():
     """Generated case 21 (an actuator AR(1) and a Gauss-Markov bias of tau 18 s hidden; Ts 5 ms,
     390 s): after the AR(1) the bias scored Delta BIC -1.5 (2 Delta l = 21 for 2 parameters, but
     ln n = 11.3 each), and the search stopped with the model error at 1.84, the Allan view 11x
-    off. The views' rule adds the best candidate by the likelihood-ratio test when the error stays
-    above ERROR_OK and falls by a third with it: the bias, at its planted tau."""
+    off. The views' rule adds the best candidate when the error stays above ERROR_OK, its
+    likelihood-ratio test passes at 5 % family-wise over the candidates, and the error falls by a
+    third with it: the bias, at its planted tau."""
     from service.diagnose.diagnose import ERROR_FALL, ERROR_OK
 
     truth = parse_model("name = \"c\"\n[sampling]\nTs = 0.005\n[plant]\nA = [[-1.0936947349271349]]\n"
