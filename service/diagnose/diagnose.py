@@ -8,8 +8,8 @@
 3. Add the best candidate when its Delta BIC exceeds :data:`.search.THRESHOLD`, refit everything
    freed so far jointly, and repeat while something significant remains (``max_effects``). When
    nothing passes that threshold but the model error still exceeds :data:`ERROR_OK` (the views
-   see the model fail), the best candidate is added if its likelihood-ratio test passes at 5 % and
-   it brings the model error down by a third (:func:`_by_error`).
+   see the model fail), the best candidate is added if its likelihood-ratio test passes at 5 %
+   family-wise over the candidates and it brings the model error down by a third (:func:`_by_error`).
 4. Report: the model error before, after each step and at the end; each added effect with its
    fitted parameters (the model file's names), 95 % profile intervals, score and one sentence of
    evidence; the extended model file.
@@ -243,6 +243,13 @@ def _vanished(eff) -> bool:
     return bool(sizes) and all(not np.any(v) for v in sizes)
 
 
+def _step(c, model, error, Ts: float) -> dict:
+    """A step's entry in the report: candidate ``c`` as fitted in ``model``, the model error after."""
+    return {"effect": c.effect, "mode": c.mode, "score": float(c.score),
+            "error": None if error is None else float(error), "accepted_by": "error" if c.by_error else "bic",
+            "params": _report_params(c.effect, model.effects[c.effect].param_dict(), Ts)}
+
+
 def _by_error(S, cur, accepted, steps, comps, step_models, max_effects, t, y, u, burn, say):
     """Nothing passes the Delta BIC threshold, but the views still see the model fail (model error
     above :data:`ERROR_OK`): the best candidate by :meth:`.search.Search.choice` is added when
@@ -281,9 +288,7 @@ def _by_error(S, cur, accepted, steps, comps, step_models, max_effects, t, y, u,
             f"model error {comps[-1].error:.3g} -> {cmp.error:.3g})")
         c.by_error = (float(comps[-1].error), float(cmp.error))
         cmp.model_name = f"+ {c.effect}"
-        steps.append({"effect": c.effect, "mode": c.mode, "score": float(c.score), "error": float(cmp.error),
-                      "accepted_by": "error",
-                      "params": _report_params(c.effect, new.model.effects[c.effect].param_dict(), S.nominal.Ts)})
+        steps.append(_step(c, new.model, cmp.error, S.nominal.Ts))
         comps.append(cmp)
         step_models.append(new.model)
         accepted.append(c)
@@ -395,9 +400,7 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0)
         pending.append((len(steps), _later(bg, lambda m=new.model, rev=len(comps):
                                             compare(m, t, y, u, burn=burn, revision=rev))))
         comps.append(None)
-        steps.append({"effect": best.effect, "mode": best.mode, "score": float(best.score), "error": None,
-                      "accepted_by": "bic",
-                      "params": _report_params(best.effect, new.model.effects[best.effect].param_dict(), model.Ts)})
+        steps.append(_step(best, new.model, None, model.Ts))
         accepted.append(best)
         step_models.append(new.model)
         say(f"step {len(steps)}: {best.mode} {best.effect} (Delta BIC {best.score:.1f})")
@@ -420,9 +423,7 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0)
             cmp.model_name = f"+ {c.effect}"
             comps.append(cmp)
             step_models.append(fit.model)
-            steps.append({"effect": c.effect, "mode": c.mode, "score": float(c.score), "error": float(cmp.error),
-                          "accepted_by": "bic",
-                          "params": _report_params(c.effect, fit.model.effects[c.effect].param_dict(), model.Ts)})
+            steps.append(_step(c, fit.model, cmp.error, model.Ts))
     cur = _prefer_replacements(S, cur, accepted, say)
     cur = _by_error(S, cur, accepted, steps, comps, step_models, max_effects, t, y, u, burn, say)
     final = cur.model
@@ -441,7 +442,7 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0)
                  "params": _report_params(a.effect, a.fit.model.effects[a.effect].param_dict(), model.Ts)}
                 for a in c.alternatives if a.effect in a.fit.model.effects]
         evidence = CATALOGUE[c.effect].explain(params, model.Ts, {"band": band} if band else None)
-        if getattr(c, "by_error", None):
+        if c.by_error:
             e0, e1 = c.by_error
             evidence += (f"; added on the views' word: Delta BIC {c.score:.1f} is under the threshold "
                          f"{THRESHOLD:g}, but it takes the model error from {e0:.3g} to {e1:.3g}")
@@ -455,7 +456,7 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0)
             "interval": {k: [float(a) for a in v] for k, v in iv.items()},
             "score": float(c.score),
             "mode": c.mode,
-            "accepted_by": "error" if getattr(c, "by_error", None) else "bic",
+            "accepted_by": "error" if c.by_error else "bic",
             "evidence": evidence,
             "alternatives": alts,
         })

@@ -1046,6 +1046,7 @@ class Candidate:
     loglik: float = float("nan")
     alternatives: list = field(default_factory=list)   # other effects the data support as well
     full: bool = False              # fit is already the joint thorough refit (Search.refit_all)
+    by_error: tuple | None = None   # added on the views' word: (model error before, after)
 
 
 def _scale_name(eff) -> tuple[str, int]:
