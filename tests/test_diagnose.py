@@ -276,6 +276,56 @@ def test_a_constant_command_from_rest_is_a_step():
     assert Data(y, u, 0.01, False).has_command
 
 
+def test_a_saturation_under_a_step_at_t0_is_found_in_the_taper_ramp():
+    """Generated case 15's truth (a first-order plant, a saturation at 0.787) under a unit step at
+    t = 0 from rest: the mean response differs from the nominal's only in its first second, where
+    the periodogram's taper weighs the record down to nothing; before the ramps' term
+    (:class:`.whittle.Ramps`) no mean effect scored at all. Now the saturation is found at its
+    limit, inside its interval."""
+    truth = parse_model("name = \"c\"\n[sampling]\nTs = 0.02\n[plant]\nA = [[-4.882280066997175]]\n"
+                        "B = [[2.9884213620332103]]\nC = [[1.0]]\nL = [[4.882280066997175]]\n"
+                        "[command]\nkind = \"step\"\namplitude = 1.0\ntime_s = 0.0\n"
+                        "[process.white]\nstd = 0.316\n[sensor.white]\nstd = 0.03821\n"
+                        "[actuator.saturation]\nlimit = 0.7867\n")
+    rep, logs = _diagnose_hidden(truth, ("actuator.saturation",), 25_000, 1015)
+    assert [m["effect"] for m in rep["missing"]] == ["actuator.saturation"]
+    sat = rep["missing"][0]
+    assert sat["score"] >= THRESHOLD and sat["accepted_by"] == "bic"
+    lo, hi = sat["interval"]["limit"]
+    assert lo <= 0.7867 <= hi and abs(sat["params"]["limit"] / 0.7867 - 1) < 0.1
+
+
+def test_the_ramps_whitener_whitens():
+    """The ramps' whitener (cepstral minimum phase of a Welch spectrum) turns a differenced AR(2)
+    resonance plus white noise into white noise: lag-1..10 autocorrelations of the whitened series
+    within 4 / sqrt(n) of zero (they are 0.3-0.9 before), and its spectrum flat where the input's
+    spans four decades."""
+    from scipy.signal import lfilter, welch
+
+    from service.diagnose.whittle import Ramps
+
+    rng = np.random.default_rng(7)
+    n = 200_000
+    x = lfilter([1.0], [1.0, -1.8, 0.9], rng.standard_normal(n + 1)) + 0.5 * rng.standard_normal(n + 1)
+    d = np.diff(x)[:, None]
+    h = Ramps(d, True).h[0]
+    e = lfilter(h, [1.0], d[:, 0])[h.size:]
+
+    def acf(z, k):
+        z = z - z.mean()
+        return float(z[k:] @ z[:-k] / (z @ z))
+
+    assert max(abs(acf(d[:, 0], k)) for k in range(1, 11)) > 0.3
+    assert max(abs(acf(e, k)) for k in range(1, 11)) < 4 / math.sqrt(e.size)
+    assert h[0] == 1.0
+    # flat within 10 % in octave bands above the lowest 4 of 4097 bins (where the floor holds the
+    # whitener's gain), while the input's band powers span four decades there
+    S, Sd = welch(e, nperseg=8192)[1], welch(d[:, 0], nperseg=8192)[1]
+    bands = [(4, 8), (8, 16), (16, 64), (64, 256), (256, 1024), (1024, 4097)]
+    assert max(Sd[a:b].mean() for a, b in bands) > 1e3 * min(Sd[a:b].mean() for a, b in bands)
+    assert all(abs(S[a:b].mean() / S.mean() - 1) < 0.1 for a, b in bands)
+
+
 def test_a_drift_the_views_see_is_added_when_bic_alone_would_stop():
     """Generated case 21 (an actuator AR(1) and a Gauss-Markov bias of tau 18 s hidden; Ts 5 ms,
     390 s): after the AR(1) the bias scored Delta BIC -1.5 (2 Delta l = 21 for 2 parameters, but

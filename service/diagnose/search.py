@@ -7,6 +7,8 @@ the effect is there but a value is wrong). Every hypothesis is scored by one lik
     l = l_Whittle(residual spectrum | the hypothesis' noise spectrum)      (:mod:`.whittle`)
         + l_grid   (values on a grid: quantization)
         + l_mod    (residual power that follows the slope: jitter)
+        + l_ramp   (the first and last tenth of the record, which the periodogram's taper weighs
+                    down: the mean response there, by whitened least squares; :class:`.whittle.Ramps`)
 
 and hypotheses are compared by Delta BIC = 2 Delta l - k ln n (k free parameters added, n the
 number of samples times outputs; Schwarz 1978). A candidate is added when its Delta BIC exceeds
@@ -67,6 +69,7 @@ WORKERS = 2               # candidates fitted concurrently (threads) on long rec
 PARALLEL_MIN = 50_000     # samples x outputs from which they are
 MORE_ROUNDS = 2           # extra rounds a joint search may take while a round still gains > 1 in l
 SCREEN_N = 1 << 18        # records of at least 2 SCREEN_N samples are screened on their first SCREEN_N
+RAMPS = True              # the taper ramps' time-domain term (:class:`.whittle.Ramps`)
 GRID_TOL = 1e-6           # values within GRID_TOL * step of the grid count as on it
 
 
@@ -83,6 +86,7 @@ class Data:
     at_rest: bool
     k0: int = 0
     notes: list = field(default_factory=list)
+    ramps: object = None          # the taper ramps' term (:class:`.whittle.Ramps`), set by the first Hypotheses
 
     def __post_init__(self):
         self.y = np.asarray(self.y, float).reshape(len(self.y), -1)
@@ -304,6 +308,7 @@ class Evaluator:
         self._parts: dict = {}
         self._pgram: dict = {}
         self._slope: dict = {}
+        self._ramp: dict = {}
         self.evals = 0
 
     def mean(self, model):
@@ -351,6 +356,21 @@ class Evaluator:
             got = self._pgram[key] = (r, yd, fitted, self.data.group(I))
         r, yd, fitted, Ig = got
         return r, yd, None if fitted is None else fitted.copy(), Ig
+
+    def ramp_term(self, model, free_tone: bool) -> float:
+        """l_ramp (:class:`.whittle.Ramps`) of the residual, cached like its periodogram."""
+        ramps = self.data.ramps
+        if not ramps:
+            return 0.0
+        tone = model.effects.get("sensor.tone")
+        key = (_mean_key(model), repr(tone.param_dict()) if tone is not None else None, free_tone)
+        got = self._ramp.get(key)
+        if got is None:
+            if len(self._ramp) > 64:
+                self._ramp.clear()
+            r = self.grouped_periodogram(model, free_tone)[0]
+            got = self._ramp[key] = ramps(np.diff(r[self.data.k0:], axis=0))
+        return got
 
     def residual(self, model, free_tone: bool):
         """r (N, p) with the tones removed, and the tone parameters fitted (amplitude per output)."""
@@ -762,6 +782,12 @@ class Hypotheses:
         self.data = data
         self.ev = Evaluator(data)
         self.base = base_model
+        if data.ramps is None:
+            # the ramps' whitener: from the first model's residual (the nominal), one per record
+            data.ramps = False
+            if RAMPS and data.M >= W.RAMP_MIN:
+                r = self.ev.residual(base_model, False)[0]
+                data.ramps = W.Ramps(np.diff(r[data.k0:], axis=0), data.at_rest)
 
     # one evaluation: outer parameters fixed (in ``model``), the free variances fitted
     def inner_fit(self, model, free: dict) -> Fit:
@@ -821,6 +847,7 @@ class Hypotheses:
             l += Modulation(dd, ydot, d.k0, 1.0)(std_s**2)[0]
         if d.grid is not None:
             l += self.grid_loglik(model)
+        l += self.ev.ramp_term(model, "sensor.tone" in free)
         fitted = model
         for (e, sname, pw), vi, ref in zip(scales, v, refs):
             fitted = _set(fitted, e, {sname: float(ref * vi ** (1.0 / pw))})

@@ -42,7 +42,7 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests" / "bench"))
 
-from hidden_set import make_case, score_case  # noqa: E402
+from hidden_set import MEAN_EFFECTS, make_case, score_case, with_step  # noqa: E402
 
 from service.diagnose.diagnose import diagnose  # noqa: E402
 from service.model import load_model, parse_model  # noqa: E402
@@ -79,10 +79,10 @@ def big(log) -> dict:
     return out
 
 
-def cases(seeds, log) -> list[dict]:
+def cases(seeds, log, variant=None) -> list[dict]:
     rows = []
     for seed in seeds:
-        case = make_case(seed)
+        case = make_case(seed) if variant is None else variant(make_case(seed))
         truth, nominal = parse_model(case.truth, "truth"), parse_model(case.nominal, "nominal")
         rec = truth.simulate(int(round(case.duration / truth.Ts)), seed=case.seed)
         t0 = time.perf_counter()
@@ -117,7 +117,7 @@ def _failed(rows) -> list:
             f"{r['error_after']:.3g}" for r in rows if not r["ok"]]
 
 
-def render(meta, bigr, rows, nrows, scan=(), planted=None, n_scan=0) -> str:
+def render(meta, bigr, rows, nrows, scan=(), planted=None, n_scan=0, steps=(), n_step=0) -> str:
     L = [BEGIN, "", f"Run: {meta['date']} (local time), wall {meta['wall']:.0f} s. Machine: nproc {os.cpu_count()}, "
          f"{platform.platform()}; Python {platform.python_version()}, numpy {np.__version__}. Load average at "
          f"start {meta['load0']}, at end {meta['load1']}.", ""]
@@ -160,6 +160,14 @@ def render(meta, bigr, rows, nrows, scan=(), planted=None, n_scan=0) -> str:
               f"{sum(r['params_ok'] for r in scan)}/{len(scan)}, error_after <= 1.5 and < before "
               f"{sum(r['error_ok'] for r in scan)}/{len(scan)}. Seeds: {', '.join(str(r['seed']) for r in scan)}.", ""]
         L += _failed(scan) + [""]
+    if steps:
+        L += [f"Every generated case with a planted mean effect ({', '.join(MEAN_EFFECTS)}) among seeds 0..{n_step - 1}, "
+              "its command replaced by a step of the same amplitude at t = 0 (`hidden_set.with_step`; the generator "
+              f"itself never steps): {sum(r['ok'] for r in steps)}/{len(steps)} meet all criteria; planted on top "
+              f"{sum(r['ranked'] for r in steps)}/{len(steps)}, parameters within 30 % "
+              f"{sum(r['params_ok'] for r in steps)}/{len(steps)}, error_after <= 1.5 and < before "
+              f"{sum(r['error_ok'] for r in steps)}/{len(steps)}.", ""]
+        L += _failed(steps) + [""]
     if nrows:
         L += ["Null scenarios (3 min each): false positives (anything reported):", "",
               "| scenario | seeds | false positives |", "|---|---|---|"]
@@ -188,6 +196,8 @@ def main(argv=None):
     ap.add_argument("--planted", default="sensor.jitter",
                     help="also run every case of seeds 0..SCAN-1 where this effect is planted")
     ap.add_argument("--scan", type=int, default=400)
+    ap.add_argument("--step", type=int, default=80,
+                    help="also run every case of seeds 0..STEP-1 with a mean effect under a step at t = 0")
     ap.add_argument("--no-big", action="store_true")
     ap.add_argument("--write", action="store_true")
     ap.add_argument("--json")
@@ -203,13 +213,18 @@ def main(argv=None):
         seeds = [s for s in range(a.scan) if a.planted in make_case(s).hidden]
         log(f"{a.planted} is planted in seeds {seeds} of 0..{a.scan - 1}")
         scan = cases(seeds, log)
+    steps = []
+    if a.step:
+        seeds = [s for s in range(a.step) if set(make_case(s).hidden) & set(MEAN_EFFECTS)]
+        log(f"mean effects are planted in seeds {seeds} of 0..{a.step - 1}; each under a step at t = 0")
+        steps = cases(seeds, log, variant=with_step)
     nrows = nulls(a.nulls, log) if a.nulls else []
     meta["wall"] = time.perf_counter() - t0
     meta["load1"] = " ".join(f"{x:.2f}" for x in os.getloadavg())
-    block = render(meta, bigr, rows, nrows, scan, a.planted, a.scan)
+    block = render(meta, bigr, rows, nrows, scan, a.planted, a.scan, steps, a.step)
     print(block)
     if a.json:
-        Path(a.json).write_text(json.dumps({"big": bigr, "cases": rows, "nulls": nrows, "scan": scan}, default=str,
+        Path(a.json).write_text(json.dumps({"big": bigr, "cases": rows, "nulls": nrows, "scan": scan, "steps": steps}, default=str,
                                            indent=1))
     if a.write:
         write_results(block)

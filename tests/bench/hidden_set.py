@@ -11,6 +11,7 @@ Used by ``bench_diagnose.py`` (hit rates, times) and, with a few fixed seeds, by
 from __future__ import annotations
 
 import math
+import tomllib
 from dataclasses import dataclass
 
 import numpy as np
@@ -255,3 +256,18 @@ def score_case(case: Case, rep: dict) -> dict:
     out["tied"] = sorted(e for e in planted - got if any(
         a["effect"] == e and abs(a["score"] - m["score"]) <= 0.5 for m in missing for a in m.get("alternatives", [])))
     return out
+
+
+MEAN_EFFECTS = ("actuator.lag", "actuator.saturation", "actuator.deadzone", "sensor.scale_factor")
+
+
+def with_step(case: Case, time_s: float = 0.0) -> Case:
+    """The case under a step command of the same amplitude at ``time_s`` (the catalogue's step;
+    at 0 the default): its mean effects then show only in the step's transient and level."""
+    def step(text):
+        d = tomllib.loads(text)
+        amp = float(d["command"].get("amplitude", 1.0))
+        d["command"] = {"kind": "step", "amplitude": amp, "time_s": float(time_s)}
+        return dumps_toml(d)
+    return Case(case.name + "-step", step(case.truth), step(case.nominal), case.hidden, case.duration, case.seed)
+
