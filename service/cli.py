@@ -446,7 +446,8 @@ def cmd_analyze(args) -> int:
     series = load_series(args, model, truth=bool(args.rrd or png))    # truth only for the views
     burn = None if (args.burn == "auto" and series.starts_at_rest) else \
         (0 if args.burn == "auto" else int(round(float(args.burn) / model.Ts)))
-    cmp = compare(model, series.t, series.y, series.u, truth=series.truth, burn=burn)
+    cmp = compare(model, series.t, series.y, series.u, truth=series.truth, burn=burn,
+                  level=series.starts_at_rest)
     extra = {}
     if args.rrd:
         from viewers.rerun_log import log_comparisons

@@ -12,6 +12,7 @@ random draw has a fixed seed.
 from __future__ import annotations
 
 import json
+import math
 import subprocess
 import sys
 from pathlib import Path
@@ -111,6 +112,31 @@ def test_window_variance_spread_is_exact_for_long_memory():
     m2, m4 = got, np.mean((v - v.mean()) ** 4)
     se = np.sqrt((m4 - (K - 3) / (K - 1) * m2**2) / K)
     assert abs(got - want) < 4 * se, (got, want, se)
+
+
+def test_level_view_is_calibrated_with_a_walk_and_a_gauss_markov_bias():
+    """The level view (window means of y - E[y] on a record from rest) under a right model whose
+    bias walk (b_0 random) and Gauss-Markov bias move every window's mean together: over 300
+    records the view's error has mean 1 within 4 of its predicted standard errors and its spread
+    within 40 % of the predicted one (the windows' correlations in it)."""
+    m = parse_model('name = "lv"\n[sampling]\nTs = 0.01\n[plant]\nm = 1.0\nc = 0.8\nk = 4.0\n'
+                    '[command]\nkind = "step"\namplitude = 1.0\n[process.white]\nstd = 0.5\n'
+                    '[sensor.white]\nstd = 0.01\n[sensor.bias_walk]\nstd = 0.002\ninitial_std = 0.01\n'
+                    '[sensor.bias_markov]\nstd = 0.005\ntau_s = 3.0\n', "lv")
+    R = 300
+    err, err_var = [], []
+    for seed in range(R):
+        rec = m.simulate(4000, seed=seed)
+        v = compare(m, rec.t, rec.y, rec.u, burn=None, level=True).view("level", 0)
+        err.append(v.error)
+        err_var.append(v.error_var)
+    err = np.array(err)
+    sd_pred = math.sqrt(float(np.mean(err_var)))
+    assert abs(err.mean() - 1.0) < 4 * sd_pred / math.sqrt(R), (err.mean(), sd_pred)
+    assert 0.6 < err.std() / sd_pred < 1.4, (err.std(), sd_pred)
+    # without a record from rest there is no level view
+    with pytest.raises(KeyError):
+        compare(m, rec.t, rec.y, rec.u, burn=None).view("level", 0)
 
 
 def test_window_variance_kurtosis_is_exact():
@@ -311,9 +337,11 @@ def test_rrd_holds_the_numbers_of_compare(seed_recording, tmp_path):
     rep = json.loads(r.stdout)
     # the same data, computed here: the simulate file holds model.simulate(n, seed) exactly
     rec = load_model("seed").simulate(REC_N, seed=REC_SEED)
-    c = compare(load_model("seed-nominal"), rec.t, rec.y, rec.u, burn=None)
+    # a record from rest (seq 0): its absolute level is predicted, so the level view is in
+    c = compare(load_model("seed-nominal"), rec.t, rec.y, rec.u, burn=None, level=True)
     assert rep["error"] == c.error and rep["error_per_view"] == c.error_per_view
     ch = read_chunks(rrd)
+    assert np.array_equal(column(ch["/rev0/out0/level"], "z")[0], c.view("level").z)
     v = c.view("psd")
     emp = ch["/rev0/out0/psd/plot/empirical"]
     assert np.array_equal(column(emp, "x")[0], v.x)
@@ -324,7 +352,7 @@ def test_rrd_holds_the_numbers_of_compare(seed_recording, tmp_path):
     ov = ch["/error/overall"]
     assert column(ov, "revision") == [0]
     assert np.concatenate(column(ov, "Scalars:scalars")).tolist() == [rep["error"]]
-    for name in VIEWS:
+    for name in VIEWS + ("level",):
         assert np.concatenate(column(ch[f"/error/{name}"], "Scalars:scalars")).tolist() == [rep["error_per_view"][name]]
     png = rrd.with_suffix(".png")
     assert rep["rrd"] == str(rrd) and rep["png"] == str(png)
@@ -579,6 +607,6 @@ def test_live_update_ends_at_the_newest_complete_sample():
         if k < 997:
             an.cmd.put(k, float(rec.t[k]), rec.u[k])
     got = an.analyse()
-    ref = compare(mdl, rec.t[:997], rec.y[:997], rec.u[:997], burn=None)
+    ref = compare(mdl, rec.t[:997], rec.y[:997], rec.u[:997], burn=None, level=True)   # seq 0: from rest
     assert got is not None and got.t.size == 997
     assert got.error == ref.error and got.error_per_view == ref.error_per_view

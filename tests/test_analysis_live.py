@@ -197,7 +197,7 @@ def test_hot_reload_changes_the_error_within_one_update(tmp_path, spawn):
     # the live number is compare() on the same prefix of the file (the stream starts at rest: burn auto)
     m = s1["samples"]
     data = seed_model.simulate(n, seed=FILE_SEED)
-    ref = compare(seed_model, data.t[:m], data.y[:m], data.u[:m], burn=None)
+    ref = compare(seed_model, data.t[:m], data.y[:m], data.u[:m], burn=None, level=True)
     assert s1["error"] == ref.error and s1["error_per_view"] == ref.error_per_view
     assert s1["model_source"] == str(model_file)
     # broken edit: kept revision 1, one line naming the problem, no traceback

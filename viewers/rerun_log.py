@@ -110,10 +110,11 @@ COLORS = {
 CONTRIB_COLORS = [(148, 103, 189), (23, 190, 207), (227, 119, 194), (188, 189, 34), (140, 86, 75),
                   (120, 200, 120), (200, 160, 90), (100, 120, 220)]
 VIEW_COLORS = {"variance": (148, 103, 189), "acf": (200, 160, 90), "psd": (70, 150, 230),
-               "allan": (44, 170, 44)}
-VIEW_TITLES = {"variance": "variance", "acf": "autocovariance", "psd": "PSD", "allan": "Allan deviation"}
+               "allan": (44, 170, 44), "level": (214, 39, 40)}
+VIEW_TITLES = {"variance": "variance", "acf": "autocovariance", "psd": "PSD", "allan": "Allan deviation",
+               "level": "level (window mean of y - E[y])"}
 # unit of a view's x axis, for Region.describe(unit)
-VIEW_UNITS = {"variance": "s", "acf": "s", "psd": "Hz", "allan": "s"}
+VIEW_UNITS = {"variance": "s", "acf": "s", "psd": "Hz", "allan": "s", "level": "s"}
 
 
 class ViewerInputError(ValueError):
@@ -653,7 +654,7 @@ def build_blueprint(comparisons: list, history: bool = False):
                                               name=f"variance y[{i}], data vs model (error {err('variance')})",
                                               axis_x=link))
             bottom = []
-            for n in ("psd", "acf", "allan"):
+            for n in ("psd", "acf", "allan", "level"):
                 if n in names:
                     v = c.view(n, i)
                     scale = {(True, True): " log-log", (True, False): " log x", (False, True): " log y"}.get(

@@ -62,7 +62,7 @@ from ..model import ModelError
 from ..model.predict import allan_from_variogram
 from ..stats import oadev, welch
 from ..stats.psd import log_bin_groups
-from .results import Comparison, Region, View
+from .results import VIEW_NAMES, Comparison, Region, View
 
 FAMILY_ALPHA = 0.05
 JITTER_LEVEL_STEP = 0.005     # the jitter's level over the record is applied on a grid of this step in ln
@@ -429,6 +429,65 @@ def variance_view(r, t, gam_parts, j, W, model=None, gam_long=None, mod=None, jk
     return _finish(v, n_win, by_band=True, error_var=float(z2_var) / n_win * inflate)
 
 
+def _tri_sums(g: np.ndarray, W: int, centres: np.ndarray) -> np.ndarray:
+    """sum_{i,l < W} g(|c + l - i|) = sum_{|d| < W} (W - |d|) g(c + d) for each c in ``centres``
+    (c >= W - 1, so that c + d >= 0), by prefix sums of g and m g(m)."""
+    m = np.arange(g.size, dtype=float)
+    P1 = np.concatenate([[0.0], np.cumsum(g)])
+    P2 = np.concatenate([[0.0], np.cumsum(m * g)])
+    c = np.asarray(centres, int)
+    lo, mid, hi = c - W + 1, c + 1, c + W
+    left = (W - c) * (P1[mid] - P1[lo]) + (P2[mid] - P2[lo])          # m = c-W+1..c: (W - c + m) g(m)
+    right = (W + c) * (P1[hi] - P1[mid]) - (P2[hi] - P2[mid])         # m = c+1..c+W-1: (W + c - m) g(m)
+    return left + right
+
+
+def level_view(r, t, gam_parts, j, W, start: int, var_stat: float, walk0: float, walk_q: float, model=None,
+               jkey=None):
+    """The residual's mean over the variance view's windows against its prediction, 0: the mean
+    response's error (a steady-state level that a saturation, a dead zone or a scale factor
+    changes under a step) that every other view removes with the windows' and segments' means.
+    Only for a record from rest, whose absolute level the model predicts.
+
+    Var of a window mean = s - E[window variance] for the stationary parts (s their variance,
+    :func:`expected_window_stats`) plus, for the bias walk from b_0, Var(b_0) + Q (k_0 + c_W)
+    (k_0 the window's first sample counted from the record's start, c_W = (W - 1)(2W - 1) / 6W);
+    windows h apart covary by s - (1 / W^2) sum_{|d|<W} (W - |d|) gamma(hW + d) and, the walk,
+    Var(b_0) + Q (k_a + (W - 1) / 2). z = mean / sd is N(0, 1) under the model; the view's error
+    variance is 2 sum rho_ab^2 / n^2 over the windows' correlations (a slow bias moves every
+    window's mean together: the view then weighs little in the model error)."""
+    n_win = r.size // W
+    if n_win < 2:
+        raise AnalysisError(f"record too short for the level window of {W} samples")
+    emp = r[: n_win * W].reshape(n_win, W).mean(axis=1)
+    centres = t[: n_win * W].reshape(n_win, W).mean(axis=1)
+
+    def predict():
+        stat = {e: g[:, j] for e, g in gam_parts.items() if e != "sensor.bias_walk"}
+        g_stat = sum(stat.values()) if stat else np.zeros(n_win * W + 1)
+        e_win = float(expected_window_stats(g_stat[:, None], W, 0)[0, 0]) if stat else 0.0
+        k0 = start + W * np.arange(n_win)
+        c_w = (W - 1) * (2 * W - 1) / (6.0 * W)
+        var = (var_stat - e_win) + walk0 + walk_q * (k0 + c_w)
+        h = np.arange(1, n_win)
+        cov_h = var_stat - _tri_sums(g_stat, W, h * W) / W**2 if h.size else np.zeros(0)
+        C = np.empty((n_win, n_win))
+        for a in range(n_win):
+            C[a, a] = var[a]
+            for b in range(a + 1, n_win):
+                C[a, b] = C[b, a] = cov_h[b - a - 1] + walk0 + walk_q * (k0[a] + (W - 1) / 2.0)
+        sd = np.sqrt(np.maximum(var, 1e-300))
+        rho = C / np.outer(sd, sd)
+        return sd, 2.0 * float(np.sum(rho**2)) / n_win**2
+    sd, err_var = predict() if model is None else \
+        _cached(model, "level_view", (j, W, n_win, start, jkey), predict)
+    zc = sps.norm.ppf(1 - FAMILY_ALPHA / (2 * n_win))
+    v = View("level", j, centres, "time [s]", "mean of y - E[y] in the window [units]", emp, np.zeros(n_win),
+             -zc * sd, zc * sd, z=emp / sd,
+             notes=[f"windows of {W} samples; the record's absolute level (it starts at rest)"])
+    return _finish(v, n_win, error_var=err_var)
+
+
 def _window_covariances(gam: np.ndarray, W: int, n_win: int, var0: float, H: int = 20) -> np.ndarray:
     """Cov_h, h = 1..(up to H), between the sample variances (mean removed) of windows of W samples
     h windows apart (Gaussian): Cov = (2/W^2) ||P T P||_F^2 with T_ij = -gamma(|hW + j - i|) and P
@@ -748,12 +807,13 @@ def check_samples(model, t, y):
 
 def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *, truth=None,
             burn: int | None = 0, settings: dict | None = None, revision: int = 0,
-            notes: list | None = None) -> Comparison:
+            notes: list | None = None, level: bool = False) -> Comparison:
     """Compare samples y (N, p) at times t (N,) (regular, period model.Ts) with ``model``.
 
     ``u`` (N, m): the recorded command (None: the model's own command generator). ``burn``:
     samples to skip at the start (None: the model's transient from rest, capped at half the
-    record). ``settings`` override :func:`default_settings`.
+    record). ``settings`` override :func:`default_settings`. ``level``: the record starts at rest
+    (sample 0 of a noiselab stream), so its absolute level is predicted: add the level view.
     """
     y, t = check_samples(model, t, y)
     pr = predictor_of(model)
@@ -782,6 +842,12 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
         gam["sensor.jitter"] = gam["sensor.jitter"] * np.exp(steps * JITTER_LEVEL_STEP)
         jkey = tuple(int(x) for x in steps)
     corr = 5 * _cached(model, "transient", 0, lambda: transient_samples(model)) + 10
+    # predicted variance of y_k: stationary part + the walk's growth (R_b,k = R_b,0 + k Q_b)
+    st = pr.steady_state()
+    walk_rate = np.broadcast_to(st.bias_var_rate * model.Ts, (model.p,))
+    walk0 = sum((e.init_std**2 for e in model.effects.values() if e.id == "sensor.bias_walk"), np.zeros(model.p))
+    var_stat = st.var_y if st.var_y is not None else np.full(model.p, np.nan)
+    level = level and bool(np.all(np.isfinite(var_stat)))
     gam_short = {eid: g[:L_need] for eid, g in gam.items()}
     jobs = []
     for j in range(model.p):
@@ -795,6 +861,9 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
                  lambda rj=rj, j=j, mj=mj: psd_view(rj, model.Ts, gam_short, j, s["nperseg"], s["bins_per_decade"],
                                                     model, mod=mj, jkey=jkey),
                  lambda rj=rj, j=j, mj=mj: allan_view(rj, model.Ts, gam, j, corr, model, mod=mj, jkey=jkey)]
+        if level:
+            jobs.append(lambda rj=rj, j=j: level_view(rj, ta, gam, j, s["window"], burn, float(var_stat[j]),
+                                                      float(walk0[j]), float(walk_rate[j]), model, jkey=jkey))
     if r.size >= VIEW_THREADS_MIN and VIEW_THREADS > 1:
         # independent views: their transforms and array arithmetic release the GIL
         with ThreadPoolExecutor(max_workers=VIEW_THREADS) as pool:
@@ -802,17 +871,13 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
     else:
         views = [f() for f in jobs]
     per_view = {}
-    for name in ("variance", "acf", "psd", "allan"):
+    for name in VIEW_NAMES:
         errs = [v.error for v in views if v.name == name]
-        per_view[name] = float(np.mean(errs))
+        if errs:
+            per_view[name] = float(np.mean(errs))
     error = model_error(views)
     regions = [rg for v in views for rg in regions_of(v)]
-    # predicted std of y_k: stationary part + the walk's growth (R_b,k = R_b,0 + k Q_b)
-    st = pr.steady_state()
-    walk_rate = st.bias_var_rate * model.Ts
-    walk0 = sum((e.init_std**2 for e in model.effects.values() if e.id == "sensor.bias_walk"), np.zeros(model.p))
     k = np.arange(n)[:, None]
-    var_stat = st.var_y if st.var_y is not None else np.full(model.p, np.nan)
     y_sd = np.sqrt(var_stat + walk0 + k * walk_rate)
     nts = list(notes or [])
     if burn:

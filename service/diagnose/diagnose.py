@@ -279,7 +279,7 @@ def _by_error(S, cur, accepted, steps, comps, step_models, max_effects, t, y, u,
                 f"{len(cands)} candidates)")
             break
         new = c.fit if c.full else S.refit_all(c.fit, thorough=True)
-        cmp = compare(new.model, t, y, u, burn=burn, revision=len(comps))
+        cmp = compare(new.model, t, y, u, burn=burn, level=S.data.at_rest, revision=len(comps))
         if cmp.error > ERROR_FALL * comps[-1].error:
             say(f"model error {comps[-1].error:.3g}; {c.mode} {c.effect} (Delta BIC {c.score:.1f}) would "
                 f"leave it at {cmp.error:.3g}: not added")
@@ -358,7 +358,7 @@ def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MA
     # more thread: the candidate maps leave a core idle at their ends)
     bg = ThreadPoolExecutor(max_workers=1) if S.workers > 1 else None
     try:
-        before = _later(bg, lambda: compare(model, t, y, u, burn=burn, revision=0))
+        before = _later(bg, lambda: compare(model, t, y, u, burn=burn, level=S.data.at_rest, revision=0))
         try:
             return _diagnose(model, t, y, u, S, data, before, burn, say, bg, max_effects, t0)
         except Exception:
@@ -398,7 +398,7 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0)
         # a leader's fit is already the joint thorough refit: not repeated
         new = best.fit if best.full else S.refit_all(best.fit, thorough=True)
         pending.append((len(steps), _later(bg, lambda m=new.model, rev=len(comps):
-                                            compare(m, t, y, u, burn=burn, revision=rev))))
+                                            compare(m, t, y, u, burn=burn, level=S.data.at_rest, revision=rev))))
         comps.append(None)
         steps.append(_step(best, new.model, None, model.Ts))
         accepted.append(best)
@@ -419,7 +419,7 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0)
         steps, comps, step_models = [], [before], [model]
         for i, fit in enumerate(_replay(S, start, cur, accepted), 1):
             c = accepted[i - 1]
-            cmp = compare(fit.model, t, y, u, burn=burn, revision=i)
+            cmp = compare(fit.model, t, y, u, burn=burn, level=S.data.at_rest, revision=i)
             cmp.model_name = f"+ {c.effect}"
             comps.append(cmp)
             step_models.append(fit.model)
@@ -427,7 +427,7 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0)
     cur = _prefer_replacements(S, cur, accepted, say)
     cur = _by_error(S, cur, accepted, steps, comps, step_models, max_effects, t, y, u, burn, say)
     final = cur.model
-    after_f = _later(bg, lambda: compare(final, t, y, u, burn=burn, revision=len(comps) - 1)) if accepted else None
+    after_f = _later(bg, lambda: compare(final, t, y, u, burn=burn, level=S.data.at_rest, revision=len(comps) - 1)) if accepted else None
     missing = []
     # the profile-likelihood intervals of the effects found, concurrently on long records
     tasks = [(i, key, f) for i, c in enumerate(accepted) for key, f in interval_tasks(S.H, cur, c.effect)]

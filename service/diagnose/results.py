@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-VIEW_NAMES = ("variance", "acf", "psd", "allan")
+VIEW_NAMES = ("variance", "acf", "psd", "allan", "level")   # level: records from rest only
 
 
 @dataclass
@@ -28,7 +28,7 @@ class View:
 
     name: str                      # one of VIEW_NAMES
     output: int                    # measurement component
-    x: np.ndarray                  # frequency [Hz] | lag [s] | tau [s] | window centre time [s]
+    x: np.ndarray                  # frequency [Hz] | lag [s] | tau [s] | window centre time [s] (variance, level)
     x_label: str
     y_label: str
     empirical: np.ndarray

@@ -200,7 +200,7 @@ class LiveAnalyzer:
         self.last_data = {"t": t, "y": y, "u": u, "at_rest": first == 0, "revision": self.revision,
                           "model": self.model}
         try:
-            return compare(self.model, t, y, u, burn=burn, revision=self.revision,
+            return compare(self.model, t, y, u, burn=burn, revision=self.revision, level=first == 0,
                            notes=[] if not bad.size else [f"analysed seq {first}..{top} (incomplete samples before)"])
         except AnalysisError as exc:
             print(f"noiselab analyze: {exc}", file=self.log, flush=True)
