@@ -327,10 +327,7 @@ class Predictor:
         signal-dependent variance std_s^2 E[ydot_k^2]."""
         mean = self.mean_response(n, command)
         n = mean.t.size
-        owners_sys = None
-        P = None
         parts: dict = {}
-        Ps = []
         const = not self._nonlin
         dstd = np.sqrt(mean.distortion_var)
         ls = self.linear_system(None if const else mean.gain[0], None if const else dstd[0])

@@ -26,7 +26,6 @@ the previous model kept) and starts a new revision, so adding an effect shows th
 
 from __future__ import annotations
 
-import os
 import queue
 import sys
 import threading
