@@ -344,8 +344,7 @@ class Evaluator:
     def grouped_periodogram(self, model, free_tone: bool):
         """:meth:`residual` and the group means of its periodogram, cached: only the mean effects
         and the tone change them, not the noise parameters most evaluations vary."""
-        tone = model.effects.get("sensor.tone")
-        key = (_mean_key(model), repr(tone.param_dict()) if tone is not None else None, free_tone)
+        key = _residual_key(model, free_tone)
         got = self._pgram.get(key)
         if got is None:
             if len(self._pgram) > 8:
@@ -362,8 +361,7 @@ class Evaluator:
         ramps = self.data.ramps
         if not ramps:
             return 0.0
-        tone = model.effects.get("sensor.tone")
-        key = (_mean_key(model), repr(tone.param_dict()) if tone is not None else None, free_tone)
+        key = _residual_key(model, free_tone)
         got = self._ramp.get(key)
         if got is None:
             if len(self._ramp) > 64:
@@ -395,6 +393,12 @@ class Evaluator:
                 w = 2 * np.pi * freq[j] * d.Ts * np.arange(d.N)
                 r[:, j] -= scale * (a * np.sin(w) + b * np.cos(w))
         return r, yd, fitted
+
+
+def _residual_key(model, free_tone: bool) -> tuple:
+    """What the residual depends on: the mean response and the tone (fitted freely or held)."""
+    tone = model.effects.get("sensor.tone")
+    return _mean_key(model), repr(tone.param_dict()) if tone is not None else None, free_tone
 
 
 def _mean_key(model, gain: bool = True) -> str:
