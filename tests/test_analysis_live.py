@@ -198,7 +198,8 @@ def test_hot_reload_changes_the_error_within_one_update(tmp_path, spawn):
     m = s1["samples"]
     data = seed_model.simulate(n, seed=FILE_SEED)
     ref = compare(seed_model, data.t[:m], data.y[:m], data.u[:m], burn=None, level=True)
-    assert s1["error"] == ref.error and s1["error_per_view"] == ref.error_per_view
+    # (failed twice in about ten runs under load, live against offline: the message keeps both sides)
+    assert s1["error"] == ref.error and s1["error_per_view"] == ref.error_per_view, (s1, ref.error_per_view, ref.notes)
     assert s1["model_source"] == str(model_file)
     # broken edit: kept revision 1, one line naming the problem, no traceback
     assert s2["revision"] == 1
