@@ -113,7 +113,9 @@ class LiveAnalyzer:
 
     # Zenoh callback: only queue
     def on_sample(self, sample) -> None:
-        self.q.put((str(sample.key_expr), sample.payload.to_bytes()))
+        key = str(sample.key_expr)
+        if key.rsplit("/", 1)[-1] in ("measurement", "command"):
+            self.q.put((key, sample.payload.to_bytes()))
 
     def drain(self) -> None:
         while True:
@@ -280,8 +282,11 @@ def run_live(session, model_spec: str, *, device: str | None, window_s: float, u
     ranker = _Ranker(an, rank_s, rank_stop, log) if rank_s > 0 else None
     if ranker is not None:
         ranker.start()
-    keys = [wire.key(an.device, k) for k in ("measurement", "command")]
-    subs = [session.declare_subscriber(k, an.on_sample) for k in keys]
+    # one declaration for the device's streams: a publisher that waits for a subscriber (replay,
+    # emulate) then sees measurement and command matched at once. Two declarations let a replay
+    # that waits for any match start between them and lose the first commands (seq 0 incomplete:
+    # the analysis no longer starts at rest). The other kinds (truth, our own analysis) are ignored.
+    subs = [session.declare_subscriber(f"{wire.PREFIX}/{wire.check_name(an.device)}/*", an.on_sample)]
     pub = session.declare_publisher(wire.key(an.device, wire.ANALYSIS))
     print(f"{READY_MARK} noiselab/{an.device}/measurement, window {window_s:g} s, "
           f"update every {update_s:g} s, model {an.model.source}", file=log, flush=True)
