@@ -86,7 +86,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.diagnose.results import VIEW_NAMES, Comparison, View
+from service.diagnose.results import VIEW_NAMES, VIEW_UNITS, Comparison, View
 
 RERUN_VERSION_CHECKED = "0.41.0"
 
@@ -113,8 +113,6 @@ VIEW_COLORS = {"variance": (148, 103, 189), "acf": (200, 160, 90), "psd": (70, 1
                "allan": (44, 170, 44), "level": (214, 39, 40)}
 VIEW_TITLES = {"variance": "variance", "acf": "autocovariance", "psd": "PSD", "allan": "Allan deviation",
                "level": "level (window mean of y - E[y])"}
-# unit of a view's x axis, for Region.describe(unit)
-VIEW_UNITS = {"variance": "s", "acf": "s", "psd": "Hz", "allan": "s", "level": "s"}
 
 
 class ViewerInputError(ValueError):

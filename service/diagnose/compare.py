@@ -469,13 +469,12 @@ def level_view(r, t, gam_parts, j, W, start: int, var_stat: float, walk0: float,
         k0 = start + W * np.arange(n_win)
         c_w = (W - 1) * (2 * W - 1) / (6.0 * W)
         var = (var_stat - e_win) + walk0 + walk_q * (k0 + c_w)
-        h = np.arange(1, n_win)
-        cov_h = var_stat - _tri_sums(g_stat, W, h * W) / W**2 if h.size else np.zeros(0)
-        C = np.empty((n_win, n_win))
-        for a in range(n_win):
-            C[a, a] = var[a]
-            for b in range(a + 1, n_win):
-                C[a, b] = C[b, a] = cov_h[b - a - 1] + walk0 + walk_q * (k0[a] + (W - 1) / 2.0)
+        from scipy.linalg import toeplitz
+        cov_h = var_stat - _tri_sums(g_stat, W, np.arange(1, n_win) * W) / W**2
+        # stationary part by window distance; the walk's by the earlier window's first sample
+        C = toeplitz(np.concatenate([[var_stat - e_win], cov_h])) + walk0 + \
+            walk_q * (np.minimum.outer(k0, k0) + (W - 1) / 2.0)
+        np.fill_diagonal(C, var)
         sd = np.sqrt(np.maximum(var, 1e-300))
         rho = C / np.outer(sd, sd)
         return sd, 2.0 * float(np.sum(rho**2)) / n_win**2

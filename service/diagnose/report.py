@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-UNITS = {"variance": "s", "acf": "s", "psd": "Hz", "allan": "s", "level": "s"}
+from .results import VIEW_UNITS as UNITS
 
 
 def _clean(v):

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 VIEW_NAMES = ("variance", "acf", "psd", "allan", "level")   # level: records from rest only
+VIEW_UNITS = {"variance": "s", "acf": "s", "psd": "Hz", "allan": "s", "level": "s"}   # of each view's x
 
 
 @dataclass
