@@ -1145,6 +1145,15 @@ def plant_time_constant(model) -> float:
     return math.inf if np.any(re >= 0) else float(1.0 / np.min(-re))
 
 
+def _exact_tie(c, lead, key) -> bool:
+    """``c`` and ``lead`` are the same fit: scores within :data:`EXACT_TIE` with as many free
+    parameters (identical spectra, e.g. process and actuator white noise through one input). Two
+    candidates of different sizes within it are not a tie: their scores already weigh the extra
+    parameter (a walk and a Gauss-Markov bias, whose choice score is the likelihood-ratio test of
+    1/tau > 0, are as the test decides, not as the signal chain's order)."""
+    return key(c) > key(lead) - EXACT_TIE and c.k == lead.k
+
+
 # Near-ties (the data cannot tell the candidates apart, e.g. white actuator and process noise through
 # the same input, or saturation, dead zone and scale factor under a two-level command) are ranked
 # by: a replacement, then a changed value, then an addition (the fewest effects: a wrong value of
@@ -1271,12 +1280,13 @@ class Search:
             # spectra, e.g. process and actuator white noise through the same input) chain order
             rank = min(MODE_RANK[c.mode.split(":")[0]] for c in near)
             same = [c for c in near if MODE_RANK[c.mode.split(":")[0]] == rank]
-            best = max(key(c) for c in same)
-            first = min((c for c in same if key(c) > best - EXACT_TIE), key=lambda c: CATALOGUE[c.effect].chain_order)
+            lead = max(same, key=key)
+            first = min((c for c in same if _exact_tie(c, lead, key)), key=lambda c: CATALOGUE[c.effect].chain_order)
             sig = out[0].score >= bar
             first = self._drift_as_bias(first, [c for c in out if (c.score >= bar) == sig
                                                 and MODE_RANK[c.mode.split(":")[0]] == rank], key)
-            exact = [c for c in near if key(c) > max(key(x) for x in near) - EXACT_TIE]
+            lead = max(near, key=key)
+            exact = [c for c in near if _exact_tie(c, lead, key)]
             modes = {c.mode.split(":")[0] for c in exact}
             if {"add", "refit"} <= modes:
                 # an exact tie between a new effect and a changed value (identical spectra): the data
