@@ -42,7 +42,7 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests" / "bench"))
 
-from hidden_set import MEAN_EFFECTS, make_case, score_case, with_step  # noqa: E402
+from hidden_set import MEAN_EFFECTS, WRONG, make_case, score_case, with_step, with_wrong_value  # noqa: E402
 
 from service.diagnose.diagnose import diagnose  # noqa: E402
 from service.model import load_model, parse_model  # noqa: E402
@@ -117,7 +117,7 @@ def _failed(rows) -> list:
             f"{r['error_after']:.3g}" for r in rows if not r["ok"]]
 
 
-def render(meta, bigr, rows, nrows, scan=(), planted=None, n_scan=0, steps=(), n_step=0) -> str:
+def render(meta, bigr, rows, nrows, scan=(), planted=None, n_scan=0, steps=(), n_step=0, wrong=(), n_wrong=0) -> str:
     L = [BEGIN, "", f"Run: {meta['date']} (local time), wall {meta['wall']:.0f} s. Machine: nproc {os.cpu_count()}, "
          f"{platform.platform()}; Python {platform.python_version()}, numpy {np.__version__}. Load average at "
          f"start {meta['load0']}, at end {meta['load1']}.", ""]
@@ -168,6 +168,14 @@ def render(meta, bigr, rows, nrows, scan=(), planted=None, n_scan=0, steps=(), n
               f"{sum(r['params_ok'] for r in steps)}/{len(steps)}, error_after <= 1.5 and < before "
               f"{sum(r['error_ok'] for r in steps)}/{len(steps)}.", ""]
         L += _failed(steps) + [""]
+    if wrong:
+        L += [f"Every generated case among seeds 0..{n_wrong - 1} with a hidden effect that `hidden_set.WRONG` lists, that "
+              "effect put in the nominal at a wrong value (one parameter times a factor of 0.3 to 4, or a scale factor of the wrong sign; `hidden_set.with_wrong_value`): "
+              f"{sum(r['ok'] for r in wrong)}/{len(wrong)} meet all criteria; planted on top "
+              f"{sum(r['ranked'] for r in wrong)}/{len(wrong)}, parameters within 30 % "
+              f"{sum(r['params_ok'] for r in wrong)}/{len(wrong)}, error_after <= 1.5 and < before "
+              f"{sum(r['error_ok'] for r in wrong)}/{len(wrong)}.", ""]
+        L += ["<details><summary>Failed cases</summary>", ""] + _failed(wrong) + ["", "</details>", ""]
     if nrows:
         L += ["Null scenarios (3 min each): false positives (anything reported):", "",
               "| scenario | seeds | false positives |", "|---|---|---|"]
@@ -198,6 +206,8 @@ def main(argv=None):
     ap.add_argument("--scan", type=int, default=400)
     ap.add_argument("--step", type=int, default=80,
                     help="also run every case of seeds 0..STEP-1 with a mean effect under a step at t = 0")
+    ap.add_argument("--wrong", type=int, default=80,
+                    help="also run every case of seeds 0..WRONG-1 with a hidden effect present in the nominal at a wrong value")
     ap.add_argument("--no-big", action="store_true")
     ap.add_argument("--write", action="store_true")
     ap.add_argument("--json")
@@ -218,13 +228,18 @@ def main(argv=None):
         seeds = [s for s in range(a.step) if set(make_case(s).hidden) & set(MEAN_EFFECTS)]
         log(f"mean effects are planted in seeds {seeds} of 0..{a.step - 1}; each under a step at t = 0")
         steps = cases(seeds, log, variant=with_step)
+    wrong = []
+    if a.wrong:
+        seeds = [s for s in range(a.wrong) if set(make_case(s).hidden) & set(WRONG)]
+        log(f"effects of hidden_set.WRONG are planted in seeds {seeds} of 0..{a.wrong - 1}; each in the nominal at a wrong value")
+        wrong = cases(seeds, log, variant=with_wrong_value)
     nrows = nulls(a.nulls, log) if a.nulls else []
     meta["wall"] = time.perf_counter() - t0
     meta["load1"] = " ".join(f"{x:.2f}" for x in os.getloadavg())
-    block = render(meta, bigr, rows, nrows, scan, a.planted, a.scan, steps, a.step)
+    block = render(meta, bigr, rows, nrows, scan, a.planted, a.scan, steps, a.step, wrong, a.wrong)
     print(block)
     if a.json:
-        Path(a.json).write_text(json.dumps({"big": bigr, "cases": rows, "nulls": nrows, "scan": scan, "steps": steps}, default=str,
+        Path(a.json).write_text(json.dumps({"big": bigr, "cases": rows, "nulls": nrows, "scan": scan, "steps": steps, "wrong": wrong}, default=str,
                                            indent=1))
     if a.write:
         write_results(block)

@@ -271,3 +271,38 @@ def with_step(case: Case, time_s: float = 0.0) -> Case:
         return dumps_toml(d)
     return Case(case.name + "-step", step(case.truth), step(case.nominal), case.hidden, case.duration, case.seed)
 
+
+
+# "present with a wrong value" (issue 5: "an effect absent from the model, or present with a wrong
+# parameter"): the generator itself does that only for white process and sensor noise and for
+# white actuator noise that is really AR(1); these put any other hidden effect into the nominal at a
+# wrong value (the case's seed picks one of the two)
+WRONG = {"actuator.ar1": (("tau_s", 3.0), ("std", 0.4)), "actuator.lag": (("tau_s", 0.4), ("tau_s", 2.5)),
+         "actuator.saturation": (("limit", 1.25), ("limit", 0.8)), "actuator.deadzone": (("width", 0.4), ("width", 2.0)),
+         "sensor.scale_factor": (("error", 0.3), ("error", -1.0)), "sensor.bias_walk": (("std", 0.3), ("std", 3.0)),
+         "sensor.bias_markov": (("tau_s", 4.0), ("std", 0.4)), "sensor.tone": (("amplitude", 0.4), ("amplitude", 2.0)),
+         "sensor.quantization": (("step", 0.5), ("step", 2.0)), "sensor.jitter": (("std_s", 0.4), ("std_s", 2.5))}
+
+
+def with_wrong_value(case: Case) -> Case | None:
+    """The case with its first hidden effect that :data:`WRONG` lists in the nominal at a wrong
+    value (one parameter times a factor; a saturation's limit kept below the command's
+    amplitude); a replaced effect (white actuator noise that is really AR(1)) leaves the nominal.
+    None when no hidden effect is listed. The expected report is unchanged: every hidden effect,
+    at its planted values."""
+    eid = next((e for e in case.hidden if e in WRONG), None)
+    if eid is None:
+        return None
+    nominal, truth = tomllib.loads(case.nominal), tomllib.loads(case.truth)
+    g, s = eid.split(".")
+    params = dict(truth[g][s])
+    key, factor = WRONG[eid][case.seed % 2]
+    params[key] = params[key] * factor
+    if eid == "actuator.saturation" and params["limit"] >= 0.98 * float(truth["command"].get("amplitude", 1.0)):
+        params["limit"] = truth[g][s]["limit"] * 0.8
+    mode = case.hidden[eid].get("mode", "")
+    if mode.startswith("replace:"):
+        rg, rs = mode.split(":", 1)[1].split(".")
+        nominal.get(rg, {}).pop(rs, None)
+    nominal.setdefault(g, {})[s] = params
+    return Case(case.name + "-wrong", case.truth, dumps_toml(nominal), case.hidden, case.duration, case.seed)
