@@ -1087,6 +1087,22 @@ def _scale_name(eff) -> tuple[str, int]:
     return type(eff).fit.scale, 2
 
 
+TONE_SIDE = 25            # bins either side of a tone candidate that give the data's own background
+TONE_MIN_BINS = 5         # ... of which at least this many below it (a line needs a background on both sides)
+                          # and twice as many in all (near Nyquist the side above is short)
+
+
+def _stands_out(x: np.ndarray, i: int, thr: float) -> bool:
+    """Bin ``i`` of the periodogram ``x`` over its neighbours' mean (the median of bins 3 to
+    :data:`TONE_SIDE` away on each side, over ln 2: robust to other lines) exceeds ``thr``."""
+    lo = x[max(1, i - TONE_SIDE): max(1, i - 2)]
+    hi = x[i + 3: i + TONE_SIDE + 1]
+    if lo.size < TONE_MIN_BINS or lo.size + hi.size < 2 * TONE_MIN_BINS:
+        return False
+    back = float(np.median(np.concatenate([lo, hi]))) / math.log(2.0)
+    return x[i] > thr * max(back, 1e-300)
+
+
 def tone_peaks(I: np.ndarray, E: np.ndarray, M: int, Ts: float, max_peaks: int = 3,
                exclude: tuple | None = None) -> list[tuple[int, float]]:
     """(output, frequency Hz) of bins whose I/E exceeds what Exp(1) allows over all bins (P < 1e-3),
@@ -1094,10 +1110,18 @@ def tone_peaks(I: np.ndarray, E: np.ndarray, M: int, Ts: float, max_peaks: int =
     excluded line and under 1 % of its I/E: a strong line leaks through the taper's sidelobes).
     ``exclude``: frequencies (Hz) that are no tones (the command's lines and harmonics) and the
     half-widths (bins) of their zones, the main lobe of an off-bin line and the uncertainty of the
-    frequency included; their leakage beyond is skipped as sidelobes."""
+    frequency included; their leakage beyond is skipped as sidelobes.
+
+    A line also stands out from the data's own spectrum around it: I over the mean of its
+    neighbours (the median of bins 3 to :data:`TONE_SIDE` away on both sides, over ln 2) beyond
+    what Exp(1) allows at P < 1e-3 per output, with at least :data:`TONE_MIN_BINS` of those below
+    it. A broad excess that the model lacks is no line, however far it rises over the model: a
+    bias walk missing from the model made its lowest bins stand out, and a "tone" of 1.2 cycles
+    in the record (0.0025 Hz in 470 s) was reported in its place (generated case 47)."""
     out = []
     nf = I.shape[0]
     thr = math.log(nf / 1e-3)
+    thr_local = math.log(nf / 1e-3) / 2
     ex_bins, ex_half = (np.zeros(0), np.zeros(0)) if exclude is None else \
         (np.asarray(exclude[0], float) * M * Ts, np.asarray(exclude[1], float))
     for j in range(I.shape[1]):
@@ -1119,6 +1143,8 @@ def tone_peaks(I: np.ndarray, E: np.ndarray, M: int, Ts: float, max_peaks: int =
                 continue
             if any(abs(i - c) <= 50 and ratio[i] < 0.01 * rc for c, rc in chosen + lines):
                 continue                                # a sidelobe of a stronger line
+            if not _stands_out(I[:, j], int(i), thr_local):
+                continue                                # a broad excess, not a line
             chosen.append((int(i), float(ratio[i])))
             if len(chosen) >= max_peaks:
                 break
