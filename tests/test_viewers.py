@@ -45,7 +45,8 @@ def _finish(v: View) -> View:
     return v
 
 
-def make_comparison(rng, revision: int, p: int, with_tone_effect: bool, truth: bool = True) -> Comparison:
+def make_comparison(rng, revision: int, p: int, with_tone_effect: bool, truth: bool = True,
+                    level: bool = False) -> Comparison:
     """A model with sensor.white + process.white; the data hold a tone at 5 Hz too. Revision with
     ``with_tone_effect`` has the tone in the model (error about 1), otherwise the PSD and ACF are
     flagged around it. The recording (t, y, truth) depends on p only, as for model revisions
@@ -104,7 +105,14 @@ def make_comparison(rng, revision: int, p: int, with_tone_effect: bool, truth: b
         views.append(_finish(View("allan", j, tau, "tau [s]", "Allan deviation [units]", emp, pred, 0.8 * pred,
                                   1.25 * pred, contributions=parts, z=np.log(emp / pred) / 0.1,
                                   log_x=True, log_y=True)))
-    per_view = {n: float(np.mean([v.error for v in views if v.name == n])) for n in ("variance", "acf", "psd", "allan")}
+        if level:       # window means of y - E[y] against 0 (a record from rest)
+            xc = (np.arange(20) + 0.5) * N / 20 * TS
+            sd_w = np.full(20, 0.05 * (j + 1) / np.sqrt(N / 20))
+            emp = sd_w * rng.standard_normal(20) + (0.0 if with_tone_effect else 3 * sd_w)
+            views.append(_finish(View("level", j, xc, "time [s]", "mean of y - E[y] in the window [units]", emp,
+                                      np.zeros(20), -3 * sd_w, 3 * sd_w, z=emp / sd_w)))
+    names = ("variance", "acf", "psd", "allan") + (("level",) if level else ())
+    per_view = {n: float(np.mean([v.error for v in views if v.name == n])) for n in names}
     regions = [rg for v in views for rg in _regions(v)]
     return Comparison(model_name="seed+tone" if with_tone_effect else "seed", model_source=f"model_r{revision}.toml",
                       revision=revision, Ts=TS, t=t, y=y, y_mean=mean, y_sd=sd,
@@ -122,6 +130,12 @@ def two_revisions():
 def two_outputs():
     rng = np.random.default_rng(7)
     return [make_comparison(rng, 2, 2, False, truth=False)]
+
+
+@pytest.fixture(scope="module")
+def with_level():
+    rng = np.random.default_rng(11)
+    return [make_comparison(rng, 0, 2, False, level=True), make_comparison(rng, 1, 2, True, level=True)]
 
 
 # -- reading an .rrd back ----------------------------------------------------------------------------------
@@ -331,7 +345,7 @@ def test_report_lists_errors_and_regions(two_revisions):
 
 
 # -- the PNG ------------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("which", ["two_revisions", "two_outputs"])
+@pytest.mark.parametrize("which", ["two_revisions", "two_outputs", "with_level"])
 def test_summary_png(tmp_path, request, which):
     import matplotlib.image as mpimg
 
@@ -344,3 +358,23 @@ def test_summary_png(tmp_path, request, which):
     assert img.shape[:2] == (h, w)
     assert img.shape[2] in (3, 4)
     assert float(np.std(img[..., :3])) > 0.05         # not a blank canvas
+
+
+def test_summary_png_has_a_level_panel_per_output_when_the_record_is_from_rest(with_level, two_outputs):
+    """A record from rest has the level view: one panel per output, between the measurement and
+    the variance, with the previous revision's model line; without it the layout is unchanged."""
+    from viewers.summary_png import summary_figure
+
+    axes = summary_figure(with_level).axes
+    titles = [ax.get_title() for ax in axes]
+    assert sum(t.startswith("level") for t in titles) == 2
+    for j in range(2):      # measurement | level | variance, left to right, in one row
+        x0 = {name: ax.get_position().x0 for ax in axes for name in ("level", "variance")
+              if ax.get_title().startswith(f"{name}") and f"y[{j}]" in ax.get_title()}
+        meas = [ax for ax in axes if ax.get_title(loc="left") == f"y[{j}]"]
+        assert len(meas) == 1 and meas[0].get_position().x1 < x0["level"] < x0["variance"]
+        level = next(ax for ax in axes if ax.get_title().startswith(f"level (window mean of y - E[y]) y[{j}]"))
+        assert len(level.get_lines()) >= 3      # data, model, previous revision's model
+    titles = [ax.get_title() for ax in summary_figure(two_outputs).axes]
+    assert not any(t.startswith("level") for t in titles)
+    assert sum(t.startswith("variance") for t in titles) == 2

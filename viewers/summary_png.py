@@ -160,6 +160,15 @@ def _shared_legend(ax, effects: list, previous: bool) -> None:
 def write_summary_png(comparisons: list, path: str) -> None:
     """Write the one-figure summary of ``comparisons`` (one per model revision) to ``path``
     (PNG, :func:`figure_size_px` pixels). Parent directories are created."""
+    comps = validate_comparisons(comparisons)
+    fig = summary_figure(comps)
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(str(out), dpi=DPI, format="png")
+
+
+def summary_figure(comparisons: list):
+    """The summary as a matplotlib Figure (on its own Agg canvas)."""
     # Figure + the Agg canvas directly: no pyplot, so no global figure state and no display
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -173,14 +182,17 @@ def write_summary_png(comparisons: list, path: str) -> None:
     fig = Figure(figsize=(w_px / DPI, h_px / DPI), dpi=DPI)
     FigureCanvasAgg(fig)
     ratios = [ROW_PX] * (2 * p) + [LAST_ROW_PX]
-    gs = fig.add_gridspec(2 * p + 1, 3, height_ratios=ratios, left=0.05, right=0.985, top=1 - 80 / h_px,
-                          bottom=50 / h_px, hspace=0.5, wspace=0.2)
+    # 12 columns: the measurement over 2/3 of a row beside the variance, or over 1/2 beside the
+    # level view (records from rest) and the variance; psd, acf and allan a third each below
+    has_level = any(v.name == "level" for v in c.views)
+    gs = fig.add_gridspec(2 * p + 1, 12, height_ratios=ratios, left=0.05, right=0.985, top=1 - 80 / h_px,
+                          bottom=50 / h_px, hspace=0.5, wspace=1.8)
     fig.suptitle(f"noiselab: {c.model_name}, revision {c.revision}: model error {_fmt(c.error)}"
                  + (f"   (revision {comps[0].revision}, {comps[0].model_name}: {_fmt(comps[0].error)})"
                     if len(comps) > 1 else ""), fontsize=14, fontweight="bold", y=1 - 14 / h_px, va="top")
     t = np.asarray(c.t, float)
     for i in range(p):
-        ax = fig.add_subplot(gs[2 * i, 0:2])
+        ax = fig.add_subplot(gs[2 * i, 0:6] if has_level else gs[2 * i, 0:8])
         mean, sd = np.asarray(c.y_mean, float)[:, i], np.asarray(c.y_sd, float)[:, i]
         ax.fill_between(t, mean - 2 * sd, mean + 2 * sd, color=_c("band", 0.45), lw=0, label="mean +- 2 sd")
         ax.plot(t, np.asarray(c.y, float)[:, i], lw=0.6, color=_c((110, 110, 110)), label=f"y[{i}] measured")
@@ -190,12 +202,16 @@ def write_summary_png(comparisons: list, path: str) -> None:
         ax.set_xlim(t[0], t[-1])
         ax.set_xlabel("time [s]")
         ax.set_ylabel(f"y[{i}]")
-        ax.set_title(f"y[{i}]: measurement, truth, predicted mean with the 2-sigma band", fontsize=10, loc="left")
+        ax.set_title(f"y[{i}]" if has_level else f"y[{i}]: measurement, truth, predicted mean with the 2-sigma band",
+                     fontsize=10, loc="left")
         ax.grid(True, alpha=0.35)
         ax.legend(fontsize=8, loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=4, frameon=False,
                   borderaxespad=0.2)
-        slots = {"variance": gs[2 * i, 2], "psd": gs[2 * i + 1, 0], "acf": gs[2 * i + 1, 1],
-                 "allan": gs[2 * i + 1, 2]}
+        slots = {"variance": gs[2 * i, 8:12], "psd": gs[2 * i + 1, 0:4], "acf": gs[2 * i + 1, 4:8],
+                 "allan": gs[2 * i + 1, 8:12]}
+        if has_level:
+            slots["level"] = gs[2 * i, 6:9]
+            slots["variance"] = gs[2 * i, 9:12]
         for name, slot in slots.items():
             try:
                 v = c.view(name, i)
@@ -212,7 +228,7 @@ def write_summary_png(comparisons: list, path: str) -> None:
             _plot_view(fig.add_subplot(slot), v, pv, effects, regs,
                        f"{VIEW_TITLES[name]} y[{i}]{' (log-log)' if v.log_x and v.log_y else ''}: "
                        f"error {_fmt(v.error)}" + (f", {n_fl} flagged" if n_fl else ""),
-                       contributions=name != "variance")
+                       contributions=name not in ("variance", "level"))
     last = gs[2 * p, :].subgridspec(1, 3, width_ratios=[1.0, 1.4, 0.6], wspace=0.12)
     # error per revision
     ax = fig.add_subplot(last[0, 0])
@@ -239,6 +255,4 @@ def write_summary_png(comparisons: list, path: str) -> None:
     ax.text(0.0, 1.0, _report_text(comps), va="top", ha="left", family="monospace", fontsize=8,
             transform=ax.transAxes)
     _shared_legend(fig.add_subplot(last[0, 2]), effects, prev is not None)
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(str(out), dpi=DPI, format="png")
+    return fig
