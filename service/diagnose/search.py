@@ -25,7 +25,8 @@ it back). How each effect is fitted is declared by the effect itself (``Effect.f
 * ``mean`` effects (scale factor, lag, saturation, dead zone) change the predicted response to the
   recorded command: the residual is recomputed for each value of their parameter;
 * ``line`` (tone): a deterministic sinusoid in a record; peaks of I_f / E_f beyond what the
-  exponential distribution allows over all bins (P < 1e-3) are candidates (except at a line of the
+  exponential distribution allows over all bins (P < 1e-3) that also stand out from the data's
+  spectrum around them (:func:`tone_peaks`) are candidates (except at a line of the
   recorded command or one of its first :data:`HARMONICS` harmonics: the mean response's error), the frequency refined by
   maximizing the periodogram, amplitude and phase by least squares; 3 parameters;
 * ``grid`` (quantization): every value on a grid of step Delta. Under any continuous model the
@@ -1113,9 +1114,9 @@ def tone_peaks(I: np.ndarray, E: np.ndarray, M: int, Ts: float, max_peaks: int =
     frequency included; their leakage beyond is skipped as sidelobes.
 
     A line also stands out from the data's own spectrum around it: I over the mean of its
-    neighbours (the median of bins 3 to :data:`TONE_SIDE` away on both sides, over ln 2) beyond
-    what Exp(1) allows at P < 1e-3 per output, with at least :data:`TONE_MIN_BINS` of those below
-    it. A broad excess that the model lacks is no line, however far it rises over the model: a
+    neighbours (the median of bins 3 to :data:`TONE_SIDE` away on both sides, over ln 2) above
+    half the model test's threshold (that test controls false lines; this one only tells a line
+    from a broad excess), with at least :data:`TONE_MIN_BINS` of those bins below it. A broad excess that the model lacks is no line, however far it rises over the model: a
     bias walk missing from the model made its lowest bins stand out, and a "tone" of 1.2 cycles
     in the record (0.0025 Hz in 470 s) was reported in its place (generated case 47)."""
     out = []
