@@ -361,7 +361,7 @@ def bench_allan_run(n: int, repeat: int, wait: float | None) -> dict:
     if cp.returncode != 0:
         raise SystemExit(f"bench_allan.py failed: {cp.stdout}{cp.stderr}")
     num = r"([0-9.eE+-]+)"
-    m1 = re.search(rf"(\d+) octave taus", cp.stdout)
+    m1 = re.search(r"(\d+) octave taus", cp.stdout)
     m2 = re.search(rf"noiselab\s+{num} s", cp.stdout)
     m3 = re.search(rf"allantools\s*{num} s", cp.stdout)
     m4 = re.search(rf"ratio allantools/noiselab {num}x, max relative difference {num}", cp.stdout)
