@@ -3,7 +3,7 @@ false positives on null cases.
 
 Run on demand, not by pytest (``pyproject.toml`` ignores ``tests/bench``)::
 
-    .venv/bin/python tests/bench/bench_diagnose.py                 # everything (~15 min on 2 cores)
+    .venv/bin/python tests/bench/bench_diagnose.py                 # everything (~25 min on 2 cores)
     .venv/bin/python tests/bench/bench_diagnose.py --write         # ... and update RESULTS.md
     .venv/bin/python tests/bench/bench_diagnose.py --cases 40 --nulls 0 --no-big
 
@@ -20,6 +20,9 @@ Run on demand, not by pytest (``pyproject.toml`` ignores ``tests/bench``)::
    the false-positive rate (anything reported).
 4. Every case of seeds 0..SCAN-1 where one effect (``--planted``, default the jitter, which the
    generator rarely plants: none in seeds 0..39) is planted, scored alike.
+5. Variants of the generated cases (``--step``, ``--wrong``): the mean effects' cases under a step
+   at t = 0 from rest (``hidden_set.with_step``), and every hidden effect that the generator only
+   ever leaves out put in the nominal at a wrong value (``hidden_set.with_wrong_value``).
 """
 
 from __future__ import annotations
@@ -199,7 +202,7 @@ def write_results(block: str) -> None:
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--cases", type=int, default=40)
+    ap.add_argument("--cases", type=int, default=80)
     ap.add_argument("--nulls", type=int, default=10, help="seeds per null scenario")
     ap.add_argument("--planted", default="sensor.jitter",
                     help="also run every case of seeds 0..SCAN-1 where this effect is planted")
