@@ -120,6 +120,13 @@ def _failed(rows) -> list:
             f"{r['error_after']:.3g}" for r in rows if not r["ok"]]
 
 
+def _criteria(rows) -> str:
+    n = len(rows)
+    return (f"{sum(r['ok'] for r in rows)}/{n} meet all criteria; planted on top {sum(r['ranked'] for r in rows)}/{n}, "
+            f"parameters within 30 % {sum(r['params_ok'] for r in rows)}/{n}, error_after <= 1.5 and < before "
+            f"{sum(r['error_ok'] for r in rows)}/{n}")
+
+
 def render(meta, bigr, rows, nrows, scan=(), planted=None, n_scan=0, steps=(), n_step=0, wrong=(), n_wrong=0) -> str:
     L = [BEGIN, "", f"Run: {meta['date']} (local time), wall {meta['wall']:.0f} s. Machine: nproc {os.cpu_count()}, "
          f"{platform.platform()}; Python {platform.python_version()}, numpy {np.__version__}. Load average at "
@@ -158,26 +165,17 @@ def render(meta, bigr, rows, nrows, scan=(), planted=None, n_scan=0, steps=(), n
         L += ["", "<details><summary>Failed cases</summary>", ""] + _failed(rows) + ["", "</details>", ""]
     if scan:
         L += [f"Every generated case with a planted `{planted}` among seeds 0..{n_scan - 1} (the generator plants it "
-              f"rarely): {sum(r['ok'] for r in scan)}/{len(scan)} meet all criteria; planted on top "
-              f"{sum(r['ranked'] for r in scan)}/{len(scan)}, parameters within 30 % "
-              f"{sum(r['params_ok'] for r in scan)}/{len(scan)}, error_after <= 1.5 and < before "
-              f"{sum(r['error_ok'] for r in scan)}/{len(scan)}. Seeds: {', '.join(str(r['seed']) for r in scan)}.", ""]
+              f"rarely): {_criteria(scan)}. Seeds: {', '.join(str(r['seed']) for r in scan)}.", ""]
         L += _failed(scan) + [""]
     if steps:
         L += [f"Every generated case with a planted mean effect ({', '.join(MEAN_EFFECTS)}) among seeds 0..{n_step - 1}, "
               "its command replaced by a step of the same amplitude at t = 0 (`hidden_set.with_step`; the generator "
-              f"itself never steps): {sum(r['ok'] for r in steps)}/{len(steps)} meet all criteria; planted on top "
-              f"{sum(r['ranked'] for r in steps)}/{len(steps)}, parameters within 30 % "
-              f"{sum(r['params_ok'] for r in steps)}/{len(steps)}, error_after <= 1.5 and < before "
-              f"{sum(r['error_ok'] for r in steps)}/{len(steps)}.", ""]
+              f"itself never steps): {_criteria(steps)}.", ""]
         L += _failed(steps) + [""]
     if wrong:
         L += [f"Every generated case among seeds 0..{n_wrong - 1} with a hidden effect that `hidden_set.WRONG` lists, that "
-              "effect put in the nominal at a wrong value (one parameter times a factor of 0.3 to 4, or a scale factor of the wrong sign; `hidden_set.with_wrong_value`): "
-              f"{sum(r['ok'] for r in wrong)}/{len(wrong)} meet all criteria; planted on top "
-              f"{sum(r['ranked'] for r in wrong)}/{len(wrong)}, parameters within 30 % "
-              f"{sum(r['params_ok'] for r in wrong)}/{len(wrong)}, error_after <= 1.5 and < before "
-              f"{sum(r['error_ok'] for r in wrong)}/{len(wrong)}.", ""]
+              "effect put in the nominal at a wrong value (one parameter times a factor of 0.3 to 4, or a scale factor "
+              f"of the wrong sign; `hidden_set.with_wrong_value`): {_criteria(wrong)}.", ""]
         L += ["<details><summary>Failed cases</summary>", ""] + _failed(wrong) + ["", "</details>", ""]
     if nrows:
         L += ["Null scenarios (3 min each): false positives (anything reported):", "",
