@@ -99,7 +99,7 @@ def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
     import math
 
     from ..model import ModelError
-    from .search import CHIBAR2_95, DRIFT_BIASES, EXACT_RANK, EXACT_TIE, TIE, Fit
+    from .search import CHIBAR2_95, DRIFT_BIASES, EXACT_RANK, TIE, Fit, exact_tie
 
     swapped = False
     log_n = math.log(S.data.n_bic)
@@ -219,9 +219,10 @@ def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
                 trials.append((gain, a, alt, a_own - own))
         if trials:
             # the best; among equally good (identical spectra) the preferred mode, then chain order
-            lead = max(trials, key=lambda x: x[0])
-            gain, a, alt, d_bic = min((x for x in trials if x[0] > lead[0] - EXACT_TIE and x[1].k == lead[1].k), key=lambda x: (
-                EXACT_RANK[x[1].mode.split(":")[0]], CATALOGUE[x[1].effect].chain_order))
+            gains = {id(x[1]): x[0] for x in trials}
+            lead = max(trials, key=lambda x: x[0])[1]
+            gain, a, alt, d_bic = min((x for x in trials if exact_tie(x[1], lead, lambda c: gains[id(c)])),
+                                      key=lambda x: (EXACT_RANK[x[1].mode.split(":")[0]], CATALOGUE[x[1].effect].chain_order))
             say(f"exchange: {a.effect} in place of {c.effect} (2 Delta l - Delta k chi2 = {gain:+.1f}, "
                 f"Delta BIC {d_bic:+.1f}, with everything else in)")
             a.score = float(c.score + d_bic)

@@ -1116,13 +1116,14 @@ def tone_peaks(I: np.ndarray, E: np.ndarray, M: int, Ts: float, max_peaks: int =
     A line also stands out from the data's own spectrum around it: I over the mean of its
     neighbours (the median of bins 3 to :data:`TONE_SIDE` away on both sides, over ln 2) above
     half the model test's threshold (that test controls false lines; this one only tells a line
-    from a broad excess), with at least :data:`TONE_MIN_BINS` of those bins below it. A broad excess that the model lacks is no line, however far it rises over the model: a
-    bias walk missing from the model made its lowest bins stand out, and a "tone" of 1.2 cycles
-    in the record (0.0025 Hz in 470 s) was reported in its place (generated case 47)."""
+    from a broad excess), with at least :data:`TONE_MIN_BINS` of those bins below it. A broad
+    excess that the model lacks is no line, however far it rises over the model: a bias walk
+    missing from the model made its lowest bins stand out, and a "tone" of 1.2 cycles in the
+    record (0.0025 Hz in 470 s) was reported in its place (generated case 47)."""
     out = []
     nf = I.shape[0]
     thr = math.log(nf / 1e-3)
-    thr_local = math.log(nf / 1e-3) / 2
+    thr_local = thr / 2
     ex_bins, ex_half = (np.zeros(0), np.zeros(0)) if exclude is None else \
         (np.asarray(exclude[0], float) * M * Ts, np.asarray(exclude[1], float))
     for j in range(I.shape[1]):
@@ -1172,7 +1173,7 @@ def plant_time_constant(model) -> float:
     return math.inf if np.any(re >= 0) else float(1.0 / np.min(-re))
 
 
-def _exact_tie(c, lead, key) -> bool:
+def exact_tie(c, lead, key) -> bool:
     """``c`` and ``lead`` are the same fit: scores within :data:`EXACT_TIE` with as many free
     parameters (identical spectra, e.g. process and actuator white noise through one input). Two
     candidates of different sizes within it are not a tie: their scores already weigh the extra
@@ -1308,12 +1309,12 @@ class Search:
             rank = min(MODE_RANK[c.mode.split(":")[0]] for c in near)
             same = [c for c in near if MODE_RANK[c.mode.split(":")[0]] == rank]
             lead = max(same, key=key)
-            first = min((c for c in same if _exact_tie(c, lead, key)), key=lambda c: CATALOGUE[c.effect].chain_order)
+            first = min((c for c in same if exact_tie(c, lead, key)), key=lambda c: CATALOGUE[c.effect].chain_order)
             sig = out[0].score >= bar
             first = self._drift_as_bias(first, [c for c in out if (c.score >= bar) == sig
                                                 and MODE_RANK[c.mode.split(":")[0]] == rank], key)
             lead = max(near, key=key)
-            exact = [c for c in near if _exact_tie(c, lead, key)]
+            exact = [c for c in near if exact_tie(c, lead, key)]
             modes = {c.mode.split(":")[0] for c in exact}
             if {"add", "refit"} <= modes:
                 # an exact tie between a new effect and a changed value (identical spectra): the data
