@@ -594,6 +594,28 @@ def test_quantization_grid_detected():
     assert quantization_grid(np.random.default_rng(2).normal(0, 1, (5000, 1))) == [None]
 
 
+def test_a_coarse_quantizer_on_a_slow_signal_is_found_alone():
+    """A quantizer of step 0.02 beside a sensor noise of 0.002 on a signal that crosses a step every
+    ~10 samples (an undithered encoder): its error is a sawtooth, correlated over ~5 samples, not
+    step^2/12 of white noise. With the error taken as white, the true model read a model error of
+    about 41 and the search added a Gauss-Markov "bias" of tau 0.01 s and a zero sensor noise to
+    imitate the correlation (error after 7.3). With the correlated error predicted
+    (:func:`service.model.effects.sensor_quantization.quantization_acf`) the quantizer alone is
+    reported and the error falls to about 1."""
+    truth = parse_model('name = "q"\n[sampling]\nTs = 0.005\n[plant]\nm = 1.0\nc = 1.0\nk = 10.0\n'
+                        '[command]\nkind = "sine"\namplitude = 1.0\nfrequency_hz = 0.4\n'
+                        "[process.white]\nstd = 0.5\n[sensor.white]\nstd = 0.002\n"
+                        "[sensor.quantization]\nstep = 0.02\n", "truth")
+    from service.diagnose.compare import compare
+
+    rec = truth.simulate(24_000, seed=1)
+    assert compare(truth, rec.t, rec.y, rec.u, burn=None, level=True).error < 1.5
+    rep, _ = _diagnose_hidden(truth, ("sensor.quantization",), 24_000, 1)
+    assert [m["effect"] for m in rep["missing"]] == ["sensor.quantization"]
+    assert rep["missing"][0]["params"]["step"] == pytest.approx(0.02, rel=1e-6)
+    assert rep["error_after"] < 1.5 < rep["error_before"]
+
+
 def test_command_lines_and_their_harmonics_are_no_tone():
     """A sine command has one line (its frequency, to a bin); a chirp and PRBS none, also when they
     repeat within the record (a comb of thousands of weak lines up to the Nyquist frequency, whose

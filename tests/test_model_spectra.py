@@ -45,6 +45,12 @@ CASES = {
     "sensor.tone": "[sensor.white]\nstd = 0.002\n[sensor.tone]\namplitude = 0.01\nfrequency_hz = 7.0",
     "sensor.jitter": "[sensor.white]\nstd = 0.0005\n[sensor.jitter]\nstd_s = 0.002",
     "sensor.quantization": "[sensor.white]\nstd = 0.01\n[sensor.quantization]\nstep = 0.005",
+    # a coarse step (25x the sensor noise) on a signal that crosses few steps per sample: the
+    # quantizer's error is a correlated sawtooth, not white (predicted lag-1 correlation 0.55);
+    # the signal's random part spans ~1 step (std 0.9 step), where the formula's dropped terms
+    # (exp(-2 pi^2 sigma^2 / step^2)) are below 1e-7
+    "sensor.quantization coarse": "[process.white]\nstd = 1.0\n[sensor.white]\nstd = 0.002\n"
+                                  "[sensor.quantization]\nstep = 0.05",
 }
 
 N = 1 << 19

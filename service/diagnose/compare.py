@@ -226,6 +226,21 @@ def _gamma_parts_uncached(model, L: int) -> dict:
     return vg
 
 
+def quantization_gamma(model, gam: dict, mean_y: np.ndarray, k0: int, jkey=None) -> np.ndarray:
+    """The quantizer's variogram (L, p) over this record: its error is correlated when the signal
+    moves by less than a step between samples (:mod:`service.model.effects.sensor_quantization`),
+    so it depends on the record's own mean response (``mean_y`` from sample ``k0``), cached by it."""
+    import hashlib
+    L = next(iter(gam.values())).shape[0]
+    h = hashlib.blake2b(np.ascontiguousarray(mean_y, float).tobytes(), digest_size=16).hexdigest()
+
+    def compute():
+        pr = predictor_of(model)
+        R = pr.quantization_acf(gam, pr.motion(mean_y.shape[0], mean_y, k0))
+        return R[0] - R
+    return _cached(model, "quantization", (L, k0, h, jkey), compute)
+
+
 def expected_window_stats(gam: np.ndarray, M: int, max_lag: int) -> np.ndarray:
     """E[segment autocovariance] (biased, 1/M, segment mean removed) at lags 0..max_lag for each
     column of ``gam`` (variogram, rows d = 0..>=M-1). Returns (max_lag+1, K)."""
@@ -840,6 +855,9 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
         gam = dict(gam)
         gam["sensor.jitter"] = gam["sensor.jitter"] * np.exp(steps * JITTER_LEVEL_STEP)
         jkey = tuple(int(x) for x in steps)
+    if "sensor.quantization" in model.effects:
+        gam = dict(gam)
+        gam["sensor.quantization"] = quantization_gamma(model, gam, mean.y[burn:], burn, jkey)
     corr = 5 * _cached(model, "transient", 0, lambda: transient_samples(model)) + 10
     # predicted variance of y_k: stationary part + the walk's growth (R_b,k = R_b,0 + k Q_b)
     st = pr.steady_state()

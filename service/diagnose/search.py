@@ -72,6 +72,8 @@ MORE_ROUNDS = 2           # extra rounds a joint search may take while a round s
 SCREEN_N = 1 << 18        # records of at least 2 SCREEN_N samples are screened on their first SCREEN_N
 RAMPS = True              # the taper ramps' time-domain term (:class:`.whittle.Ramps`)
 GRID_TOL = 1e-6           # values within GRID_TOL * step of the grid count as on it
+QUANT_LAGS = 8192         # lags of the quantizer's correlated error kept in the likelihood
+QUANT_ROUNDS = 3          # refits of the variances with the quantizer's part from the fitted ones
 
 
 # -- the data ---------------------------------------------------------------------------------------------
@@ -310,6 +312,7 @@ class Evaluator:
         self._pgram: dict = {}
         self._slope: dict = {}
         self._ramp: dict = {}
+        self._quant: dict = {}
         self.evals = 0
 
     def mean(self, model):
@@ -330,6 +333,50 @@ class Evaluator:
         d = self.data
         return W.expected_parts(model, d.M, d.k0, d.at_rest, ydot_sq=ydot_sq, cache=self._parts, groups=d.groups,
                                 cross=d.p > 1)
+
+    def quant_part(self, model):
+        """The quantizer's part of E I_f with its error correlated as the model predicts over this
+        record (:mod:`service.model.effects.sensor_quantization`: it depends on the other sources
+        and on the record's mean response), or None where the plant has no stationary prediction.
+        The mean response's factors are cached by the mean and the steps."""
+        from ..model.effects.sensor_quantization import white_enough
+        d = self.data
+        pr = model.predictor()
+        pr.steady_state()
+        # white noises bound the variogram at lags >= 1 from below: often white already
+        white = sum((np.broadcast_to(prm[0], (d.p,)) for eid, kind, *prm in pr._primitives()
+                     if kind == "white" and eid != "sensor.quantization"), np.zeros(d.p))
+        if white_enough(model.effects["sensor.quantization"].params["step"], white):
+            return None
+        K = int(min(d.M, QUANT_LAGS))
+        acf = pr.acf(K, quantization=False)
+        if any(v is None for v in acf.values()):
+            return None
+        lag = np.arange(K)[:, None]
+        gam = {eid: R[0] - R for eid, R in acf.items()}
+        for eid, kind, *prm in pr._primitives():
+            if kind == "walk":
+                gam[eid] = lag * prm[0] / 2.0 * np.ones(d.p)
+        g = sum(v for eid, v in gam.items() if eid != "sensor.quantization" and not eid.startswith("sensor.tone"))
+        if K < 2 or white_enough(model.effects["sensor.quantization"].params["step"], np.min(g[1:], axis=0)):
+            return None
+        # the motion's factors cost transforms of the record's length: shared between mean responses
+        # whose increments agree to 2 significant digits at lags 1, 8, 64 and 512 (the searches of a
+        # lag or a scale factor try many nearby ones; the part changes with them at second order)
+        tone = model.effects.get("sensor.tone")
+        ym = self.mean(model)[0][d.k0:]
+        inc = [np.sqrt(np.mean((ym[h:] - ym[:-h]) ** 2, axis=0)) for h in (1, 8, 64, 512) if h < ym.shape[0]]
+        key = (tuple(float(f"{v:.2g}") for v in np.concatenate(inc)) if inc else (),
+               repr(tone.param_dict()) if tone is not None else None,
+               repr(model.effects["sensor.quantization"].param_dict()))
+        got = self._quant.get(key)
+        if got is None:
+            if len(self._quant) > 8:
+                self._quant.clear()
+            got = self._quant[key] = (pr.motion(ym.shape[0], ym, d.k0), {})
+        motion, cache = got
+        R = pr.quantization_acf(gam, motion, cache)
+        return W.acf_part(R, d.M, d.groups, cross=d.p > 1)
 
     def slope_power(self, model, ydot: np.ndarray) -> np.ndarray:
         """:func:`.whittle.slope_power` of the model's mean slope ``ydot``, cached by its mean response
@@ -842,9 +889,29 @@ class Hypotheses:
             if "sensor.jitter" in scale_ids:
                 i = scale_ids.index("sensor.jitter")
                 mod, mod_index = Modulation(dd, ydot, d.k0, refs[i] ** 2), i
+        qid = "sensor.quantization"
+        qpart = self.ev.quant_part(model) if qid in model.effects else None
+        if qpart is not None:
+            # the quantizer's error is correlated when the signal crosses few steps per sample; how
+            # much depends on the other sources' variances: from the model's values, then again
+            # from the fitted ones until they settle (the part is not linear in them)
+            E0 = E0 - parts[qid] + qpart
+            parts = dict(parts)
+            parts[qid] = qpart
         inner = Inner(Ig, d.weights / W.taper(d.M)[2], E0, U, mod, mod_index)
         v0 = np.array([(c / ref) ** pw for c, ref, (_, _, pw) in zip(cur, refs, scales)]) if scales else None
         v, l = inner.optimize(v0)
+        for _ in range(QUANT_ROUNDS if qpart is not None and scales else 0):
+            trial = model
+            for (e, sname, pw), vi, ref in zip(scales, v, refs):
+                trial = _set(trial, e, {sname: float(ref * vi ** (1.0 / pw))})
+            new_q = self.ev.quant_part(trial)
+            if new_q is None or np.allclose(new_q, parts[qid], rtol=1e-3, atol=0):
+                break
+            E0 = E0 - parts[qid] + new_q
+            parts[qid] = new_q
+            inner = Inner(Ig, d.weights / W.taper(d.M)[2], E0, U, mod, mod_index)
+            v, l = inner.optimize(v)
         if "sensor.jitter" in model.effects and "sensor.jitter" not in scale_ids:
             # a fixed jitter still explains (or not) the modulation
             dd = np.diff(r[d.k0:], axis=0)

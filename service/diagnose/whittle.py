@@ -293,6 +293,24 @@ def white_part(var: np.ndarray, M: int, groups: Groups | None = None) -> np.ndar
 _WHITE: dict = {}
 
 
+def acf_part(R: np.ndarray, M: int, groups: Groups | None = None, cross: bool = False) -> np.ndarray:
+    """E I_f of a stationary source with autocovariance R(h) (K, p), h = 0..K-1 (zero beyond),
+    independent between outputs (the quantizer's error): Rd(h) = 2 R(h) - R(h-1) - R(h+1), R(-1) =
+    R(1). ``groups``: their means; ``cross``: diagonal cross-periodogram matrices."""
+    R = np.asarray(R, float)
+    K, p = R.shape
+    Rp = np.concatenate([R, np.zeros((2, p))])
+    prev = np.concatenate([R[1:2] if K > 1 else np.zeros((1, p)), Rp[:K]])     # R(h-1), h = 0..K
+    Rd = 2.0 * Rp[:K + 1] - prev - Rp[1:K + 2]
+    K1 = min(K + 1, M)
+    a = Rd[:K1] * (taper(M)[1][:K1, None] / M)
+    if cross:
+        A = np.zeros((K1, p, p))
+        A[:, np.arange(p), np.arange(p)] = a
+        return groups.cross(A) if groups is not None else _cross_spectrum(A, M)
+    return groups.spectrum(a) if groups is not None else _spectrum(a, M)
+
+
 def walk_part(q: np.ndarray, M: int, groups: Groups | None = None) -> np.ndarray:
     """A random walk with increment variance q (p,) per sample: white after differencing
     (c_w(0) / M = 1)."""

@@ -474,9 +474,11 @@ class Predictor:
                     lines.append((eid, float(prm[1][j]), float(prm[0][j] ** 2 / 2.0), j))
         return out, lines
 
-    def acf(self, lags: int | np.ndarray) -> dict:
+    def acf(self, lags: int | np.ndarray, quantization: bool = True) -> dict:
         """Autocovariance R(d) per stationary effect, d = 0..lags-1 (samples): {id: (L, p)}.
-        The bias walk is nonstationary and has no ACF (see :meth:`variogram`)."""
+        The bias walk is nonstationary and has no ACF (see :meth:`variogram`). The quantizer's
+        error is correlated over the model's own command (:meth:`quantization_acf`); with
+        ``quantization=False`` it is left white (a caller that has the record's motion)."""
         L = int(lags) if np.isscalar(lags) else int(np.max(lags)) + 1
         st = self.steady_state()
         mdl = self.model
@@ -518,7 +520,41 @@ class Predictor:
                 out[eid] = R
             elif kind == "tone":
                 out[eid] = prm[0] ** 2 / 2.0 * np.cos(2 * np.pi * d[:, None] * prm[1] * mdl.Ts)
+        if quantization and "sensor.quantization" in mdl.effects and all(v is not None for v in out.values()):
+            gam = {eid: R[0] - R for eid, R in out.items()}
+            for eid, kind, *prm in self._primitives():
+                if kind == "walk":
+                    gam[eid] = d[:, None] * prm[0] / 2.0 * np.ones(mdl.p)
+            out["sensor.quantization"] = self.quantization_acf(gam, self.motion(max(L, self.horizon)))
         return out
+
+    # -- the quantizer's correlated error (:mod:`.effects.sensor_quantization`) ----------------------------
+    def motion(self, n: int, mean_y: np.ndarray | None = None, k0: int = 0) -> np.ndarray:
+        """The deterministic part of the signal before the quantizer over n samples: the mean
+        response (``mean_y`` from sample ``k0``, default the model's own command after its
+        transient) plus the tones (phase 0: only their increments matter, over many periods)."""
+        mdl = self.model
+        if mean_y is None:
+            k0 = _settle_samples(mdl)
+            mean_y = self.mean_response(k0 + n).y[k0:]
+        mean_y = np.asarray(mean_y, float)
+        t = (k0 + np.arange(mean_y.shape[0])) * mdl.Ts
+        out = mean_y.copy()
+        for eid, kind, *prm in self._primitives():
+            if kind == "tone":
+                out = out + np.asarray(prm[0], float) * np.sin(2 * np.pi * t[:, None] * np.asarray(prm[1], float))
+        return out
+
+    def quantization_acf(self, gam: dict, motion: np.ndarray | None, cache: dict | None = None) -> np.ndarray:
+        """R_e(d) of the quantizer's error (L, p) from the other effects' variograms ``gam`` ({id:
+        (L, p)}; the quantizer's own and the tones', which are in ``motion``, are left out)."""
+        from .effects.sensor_quantization import quantization_acf
+        q = self.model.effects["sensor.quantization"]
+        tones = {eid for eid, kind, *_ in self._primitives() if kind == "tone"}
+        L = next(iter(gam.values())).shape[0]
+        g = sum((v for eid, v in gam.items() if eid != q.id and eid not in tones and v is not None),
+                np.zeros((L, self.model.p)))
+        return quantization_acf(q.params["step"], g, motion, cache)
 
     def expected_welch(self, nperseg: int, window: str = "hann") -> dict:
         """E[Welch estimate] of the centered measurement per stationary effect: {id: (nperseg//2+1, p)}
