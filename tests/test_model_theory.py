@@ -142,6 +142,46 @@ def test_quantization_uniform_model_fails_for_a_slow_signal_locked_to_the_grid()
     assert any("quantization" in note and "may not hold" in note for note in notes)
 
 
+@pytest.mark.parametrize("sigma_over_step,rho,motion", [(0.6, 0.95, "sine"), (0.8, 0.99, "none"),
+                                                          (0.05, 0.0, "ramp")])
+def test_quantization_error_autocovariance_monte_carlo(sigma_over_step, rho, motion):
+    """R_e(d) of quantization_acf against the quantizer's error simulated directly: x_k = mu_k +
+    a Gaussian AR(1) of std sigma (gamma(d) = sigma^2 (1 - rho^d)), or a white dither (rho = 0),
+    with a deterministic motion mu (a sine crossing ~7 steps per period; a ramp of 0.13 step per
+    sample, whose error with a small dither is a sawtooth). The error e_k = Q(x_k) - x_k is
+    correlated at short lags (0.5 to 0.9 at lag 1 here); every lag up to 60 must be within 5
+    standard errors (Bartlett's, from the predicted autocovariance) of the prediction."""
+    from service.model.effects.sensor_quantization import quantization_acf
+
+    step, n, L = 0.1, 200_000, 61
+    rng = np.random.default_rng(7)
+    sigma = sigma_over_step * step
+    k = np.arange(n)
+    mu = {"sine": 0.35 * np.sin(2 * np.pi * k / 997.0), "none": np.zeros(n), "ramp": 0.013 * k}[motion]
+    e_ = rng.standard_normal(n) * sigma
+    if rho > 0:                                        # stationary AR(1) of std sigma from its first sample
+        from scipy.signal import lfilter
+        x = lfilter([np.sqrt(1 - rho**2)], [1, -rho], e_[1:], zi=[rho * e_[0]])[0]
+        x = np.concatenate([[e_[0]], x])
+    else:
+        x = e_
+    sig = mu + x
+    err = step * np.rint(sig / step) - sig
+    d = np.arange(L)
+    gamma = (sigma**2 * (1 - rho ** d) if rho > 0 else np.where(d > 0, sigma**2, 0.0))[:, None]
+    R = quantization_acf([step], gamma, None if motion == "none" else mu[:, None])[:, 0]
+    ec = err - err.mean()
+    emp = np.array([np.mean(ec[h:] * ec[:n - h]) for h in d])
+    # Bartlett: Var(r(h)) ~ (1/n) sum_j [R(j)^2 + R(j+h) R(j-h)], |j| < L, R taken as 0 beyond
+    Rf = lambda j: np.where(np.abs(j) < L, R[np.minimum(np.abs(j), L - 1)], 0.0)  # noqa: E731
+    j = np.arange(-(L - 1), L)
+    se = np.array([np.sqrt(np.sum(Rf(j) ** 2 + Rf(j + h) * Rf(j - h)) / n) for h in d])
+    assert abs(R[0] - step**2 / 12) < 1e-15
+    assert R[1] / R[0] > 0.3                              # the regime this is about: far from white
+    z = (emp - R) / se
+    assert np.all(np.abs(z) < 5), np.round(z, 1)
+
+
 def test_allan_variance_closed_forms():
     """White: var/m. Walk of increment variance q: q (2 m^2 + 1)/(6 m) (the discrete form of
     K^2 tau / 3, NIST SP 1065 Table 6)."""

@@ -72,7 +72,8 @@ MORE_ROUNDS = 2           # extra rounds a joint search may take while a round s
 SCREEN_N = 1 << 18        # records of at least 2 SCREEN_N samples are screened on their first SCREEN_N
 RAMPS = True              # the taper ramps' time-domain term (:class:`.whittle.Ramps`)
 GRID_TOL = 1e-6           # values within GRID_TOL * step of the grid count as on it
-QUANT_LAGS = 8192         # lags of the quantizer's correlated error kept in the likelihood
+QUANT_LAGS = 8192         # lags of the quantizer's correlated error kept in the likelihood, unless ...
+QUANT_TAIL = 1e-4         # ... it is still above this (relative) in their last quarter: then every lag
 QUANT_ROUNDS = 3          # refits of the variances with the quantizer's part from the fitted ones
 
 
@@ -348,17 +349,24 @@ class Evaluator:
                      if kind == "white" and eid != "sensor.quantization"), np.zeros(d.p))
         if white_enough(model.effects["sensor.quantization"].params["step"], white):
             return None
+        step = model.effects["sensor.quantization"].params["step"]
+
+        def variogram(K):
+            acf = pr.acf(K, quantization=False)
+            if any(v is None for v in acf.values()):
+                return None
+            gam = {eid: R[0] - R for eid, R in acf.items()}
+            for eid, kind, *prm in pr._primitives():
+                if kind == "walk":
+                    gam[eid] = np.arange(K)[:, None] * prm[0] / 2.0 * np.ones(d.p)
+            return gam
+
         K = int(min(d.M, QUANT_LAGS))
-        acf = pr.acf(K, quantization=False)
-        if any(v is None for v in acf.values()):
+        gam = variogram(K)
+        if gam is None:
             return None
-        lag = np.arange(K)[:, None]
-        gam = {eid: R[0] - R for eid, R in acf.items()}
-        for eid, kind, *prm in pr._primitives():
-            if kind == "walk":
-                gam[eid] = lag * prm[0] / 2.0 * np.ones(d.p)
         g = sum(v for eid, v in gam.items() if eid != "sensor.quantization" and not eid.startswith("sensor.tone"))
-        if K < 2 or white_enough(model.effects["sensor.quantization"].params["step"], np.min(g[1:], axis=0)):
+        if K < 2 or white_enough(step, np.min(g[1:], axis=0)):
             return None
         # the motion's factors cost transforms of the record's length: shared between mean responses
         # whose increments agree to 2 significant digits at lags 1, 8, 64 and 512 (the searches of a
@@ -376,6 +384,11 @@ class Evaluator:
             got = self._quant[key] = (pr.motion(ym.shape[0], ym, d.k0), {})
         motion, cache = got
         R = pr.quantization_acf(gam, motion, cache)
+        if K < d.M and np.any(np.max(np.abs(R[3 * K // 4:]), axis=0) > QUANT_TAIL * R[0]):
+            # still correlated at the last lags (a periodic command and a random part under a step:
+            # the error holds the command's harmonics): every lag of the record, so that the
+            # expected periodogram stays a spectrum (a cut one goes negative)
+            R = pr.quantization_acf(variogram(d.M), motion, cache)
         return W.acf_part(R, d.M, d.groups, cross=d.p > 1)
 
     def slope_power(self, model, ydot: np.ndarray) -> np.ndarray:

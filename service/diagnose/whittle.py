@@ -296,7 +296,9 @@ _WHITE: dict = {}
 def acf_part(R: np.ndarray, M: int, groups: Groups | None = None, cross: bool = False) -> np.ndarray:
     """E I_f of a stationary source with autocovariance R(h) (K, p), h = 0..K-1 (zero beyond),
     independent between outputs (the quantizer's error): Rd(h) = 2 R(h) - R(h-1) - R(h+1), R(-1) =
-    R(1). ``groups``: their means; ``cross``: diagonal cross-periodogram matrices."""
+    R(1). ``groups``: their means; ``cross``: diagonal cross-periodogram matrices. R is averaged
+    over a nonstationary record (the quantizer's error follows the mean response), so its transform
+    is floored at 0 where the averaging leaves it slightly negative."""
     R = np.asarray(R, float)
     K, p = R.shape
     Rp = np.concatenate([R, np.zeros((2, p))])
@@ -304,11 +306,12 @@ def acf_part(R: np.ndarray, M: int, groups: Groups | None = None, cross: bool = 
     Rd = 2.0 * Rp[:K + 1] - prev - Rp[1:K + 2]
     K1 = min(K + 1, M)
     a = Rd[:K1] * (taper(M)[1][:K1, None] / M)
+    E = np.maximum(groups.spectrum(a) if groups is not None else _spectrum(a, M), 0.0)
     if cross:
-        A = np.zeros((K1, p, p))
-        A[:, np.arange(p), np.arange(p)] = a
-        return groups.cross(A) if groups is not None else _cross_spectrum(A, M)
-    return groups.spectrum(a) if groups is not None else _spectrum(a, M)
+        out = np.zeros((E.shape[0], p, p), complex)
+        out[:, np.arange(p), np.arange(p)] = E
+        return out
+    return E
 
 
 def walk_part(q: np.ndarray, M: int, groups: Groups | None = None) -> np.ndarray:

@@ -20,9 +20,11 @@ Run on demand, not by pytest (``pyproject.toml`` ignores ``tests/bench``)::
    the false-positive rate (anything reported).
 4. Every case of seeds 0..SCAN-1 where one effect (``--planted``, default the jitter, which the
    generator rarely plants: none in seeds 0..39) is planted, scored alike.
-5. Variants of the generated cases (``--step``, ``--wrong``): the mean effects' cases under a step
-   at t = 0 from rest (``hidden_set.with_step``), and every hidden effect that the generator only
-   ever leaves out put in the nominal at a wrong value (``hidden_set.with_wrong_value``).
+5. Variants of the generated cases (``--step``, ``--wrong``, ``--coarse``): the mean effects' cases
+   under a step at t = 0 from rest (``hidden_set.with_step``), every hidden effect that the
+   generator only ever leaves out put in the nominal at a wrong value
+   (``hidden_set.with_wrong_value``), and the planted quantizers made coarse: a step of 10x the
+   sensor noise, whose error is correlated (``hidden_set.with_coarse_quantizer``).
 """
 
 from __future__ import annotations
@@ -45,7 +47,8 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests" / "bench"))
 
-from hidden_set import MEAN_EFFECTS, WRONG, make_case, score_case, with_step, with_wrong_value  # noqa: E402
+from hidden_set import (MEAN_EFFECTS, WRONG, make_case, score_case, with_coarse_quantizer, with_step,  # noqa: E402
+                        with_wrong_value)
 
 from service.diagnose.diagnose import diagnose  # noqa: E402
 from service.model import load_model, parse_model  # noqa: E402
@@ -127,7 +130,8 @@ def _criteria(rows) -> str:
             f"{sum(r['error_ok'] for r in rows)}/{n}")
 
 
-def render(meta, bigr, rows, nrows, scan=(), planted=None, n_scan=0, steps=(), n_step=0, wrong=(), n_wrong=0) -> str:
+def render(meta, bigr, rows, nrows, scan=(), planted=None, n_scan=0, steps=(), n_step=0, wrong=(), n_wrong=0,
+           coarse=(), n_coarse=0) -> str:
     L = [BEGIN, "", f"Run: {meta['date']} (local time), wall {meta['wall']:.0f} s. Machine: nproc {os.cpu_count()}, "
          f"{platform.platform()}; Python {platform.python_version()}, numpy {np.__version__}. Load average at "
          f"start {meta['load0']}, at end {meta['load1']}.", ""]
@@ -177,6 +181,12 @@ def render(meta, bigr, rows, nrows, scan=(), planted=None, n_scan=0, steps=(), n
               "effect put in the nominal at a wrong value (one parameter times a factor of 0.3 to 4, or a scale factor "
               f"of the wrong sign; `hidden_set.with_wrong_value`): {_criteria(wrong)}.", ""]
         L += ["<details><summary>Failed cases</summary>", ""] + _failed(wrong) + ["", "</details>", ""]
+    if coarse:
+        L += [f"Every generated case among seeds 0..{n_coarse - 1} with a planted quantizer, the quantizer made coarse "
+              "(step 10x the sensor noise, at most 0.7x the signal's std, cases where that is under "
+              "3x the sensor noise left out: an undithered encoder, whose error is correlated; "
+              f"`hidden_set.with_coarse_quantizer`): {_criteria(coarse)}.", ""]
+        L += _failed(coarse) + [""]
     if nrows:
         L += ["Null scenarios (3 min each): false positives (anything reported):", "",
               "| scenario | seeds | false positives |", "|---|---|---|"]
@@ -209,6 +219,8 @@ def main(argv=None):
                     help="also run every case of seeds 0..STEP-1 with a mean effect under a step at t = 0")
     ap.add_argument("--wrong", type=int, default=80,
                     help="also run every case of seeds 0..WRONG-1 with a hidden effect present in the nominal at a wrong value")
+    ap.add_argument("--coarse", type=int, default=200,
+                    help="also run every case of seeds 0..COARSE-1 with a planted quantizer, the quantizer made coarse")
     ap.add_argument("--no-big", action="store_true")
     ap.add_argument("--write", action="store_true")
     ap.add_argument("--json")
@@ -234,13 +246,19 @@ def main(argv=None):
         seeds = [s for s in range(a.wrong) if set(make_case(s).hidden) & set(WRONG)]
         log(f"effects of hidden_set.WRONG are planted in seeds {seeds} of 0..{a.wrong - 1}; each in the nominal at a wrong value")
         wrong = cases(seeds, log, variant=with_wrong_value)
+    coarse = []
+    if a.coarse:
+        seeds = [s for s in range(a.coarse) if with_coarse_quantizer(make_case(s)) is not None]
+        log(f"coarse quantizers: seeds {seeds} of 0..{a.coarse - 1}")
+        coarse = cases(seeds, log, variant=with_coarse_quantizer)
     nrows = nulls(a.nulls, log) if a.nulls else []
     meta["wall"] = time.perf_counter() - t0
     meta["load1"] = " ".join(f"{x:.2f}" for x in os.getloadavg())
-    block = render(meta, bigr, rows, nrows, scan, a.planted, a.scan, steps, a.step, wrong, a.wrong)
+    block = render(meta, bigr, rows, nrows, scan, a.planted, a.scan, steps, a.step, wrong, a.wrong, coarse, a.coarse)
     print(block)
     if a.json:
-        Path(a.json).write_text(json.dumps({"big": bigr, "cases": rows, "nulls": nrows, "scan": scan, "steps": steps, "wrong": wrong}, default=str,
+        Path(a.json).write_text(json.dumps({"big": bigr, "cases": rows, "nulls": nrows, "scan": scan, "steps": steps, "wrong": wrong,
+                                            "coarse": coarse}, default=str,
                                            indent=1))
     if a.write:
         write_results(block)

@@ -306,3 +306,30 @@ def with_wrong_value(case: Case) -> Case | None:
         nominal.get(rg, {}).pop(rs, None)
     nominal.setdefault(g, {})[s] = params
     return Case(case.name + "-wrong", case.truth, dumps_toml(nominal), case.hidden, case.duration, case.seed)
+
+
+def with_coarse_quantizer(case: Case) -> Case | None:
+    """The case with its planted quantizer made coarse: the step is 10x the sensor's white noise
+    (an undithered encoder or ADC), at most 0.7x the std of the signal (its random part and its mean
+    response over the first minute: so that it still spans the steps and the uniform model's
+    variance holds), and the case is left out (None) when
+    that is under 3x the sensor noise. The generator's own steps sit beside a sensor noise of 0.35
+    to several steps, where the quantizer's error is white; here it is correlated whenever the
+    signal crosses few steps per sample. None also when no quantizer is planted."""
+    if "sensor.quantization" not in case.hidden:
+        return None
+    truth = tomllib.loads(case.truth)
+    m = parse_model(case.truth)
+    st = m.predictor().steady_state()
+    sw = float(np.max(np.broadcast_to(truth.get("sensor", {}).get("white", {}).get("std", 0.0), (m.p,))))
+    rand = np.asarray(st.var_y, float) - sum(np.asarray(st.contributions.get(e, 0.0), float)
+                                              for e in ("sensor.white", "sensor.quantization"))
+    motion = np.var(m.predictor().mean_response(int(min(case.duration, 60.0) / m.Ts)).y, axis=0)
+    step = min(10.0 * sw, 0.7 * float(np.sqrt(np.min(rand + motion))))
+    if not step > 3.0 * sw:
+        return None
+    step = float(f"{step:.3g}")
+    truth["sensor"]["quantization"] = {"step": step}
+    hidden = {k: dict(v) for k, v in case.hidden.items()}
+    hidden["sensor.quantization"]["step"] = step
+    return Case(case.name + "-coarse", dumps_toml(truth), case.nominal, hidden, case.duration, case.seed)

@@ -107,22 +107,21 @@ def quantization_acf(step, gamma: np.ndarray, motion: np.ndarray | None = None,
         n = None if x is None else x.size
         if x is not None:
             nfft = 1 << int(np.ceil(np.log2(2 * n)))
-            pairs = np.maximum(n - np.arange(min(L, n)), 1)
         acc = np.zeros(L)
         last = np.zeros(L)
         for m in range(1, m_max + 1):
             f = np.exp(-a2 * m * m * g)
             if x is not None:
-                key = (j, m, L, D)
-                C = None if cache is None else cache.get(key)
-                if C is None:
+                key = (j, m, D)
+                c = None if cache is None else cache.get(key)
+                if c is None:                          # every lag the record has: sliced per call
                     z = np.exp(1j * (2.0 * np.pi * m / D) * x)
                     Z = np.fft.fft(z, nfft)
-                    c = np.fft.ifft(Z * np.conj(Z))[: min(L, n)].real / pairs
-                    C = np.zeros(L)
-                    C[: c.size] = c
+                    c = np.fft.ifft(Z * np.conj(Z))[:n].real / (n - np.arange(n))
                     if cache is not None:
-                        cache[key] = C
+                        cache[key] = c
+                C = np.zeros(L)
+                C[: min(L, n)] = c[:L]
                 f = f * C
             last = f
             acc += f / (m * m)
