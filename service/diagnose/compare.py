@@ -42,6 +42,10 @@ A jitter (sensor.jitter) is white noise whose variance follows the slope, std_s^
 is taken over the analysed record's own mean response, and the estimators' spreads are widened for
 the modulation (:func:`modulation_kappa`; the variance view predicts each window's own level).
 
+A quantizer's error is correlated when the signal crosses few steps per sample; how much depends
+on the other sources and on the mean response's increments over the record
+(:func:`quantization_gamma`, :mod:`service.model.effects.sensor_quantization`).
+
 The analysis starts after the model's transient from rest when the recording starts at rest
 (``burn``): noiselab's emulator starts every state at zero, and the predictions are stationary.
 """
@@ -218,7 +222,7 @@ def _gamma_parts(model, L: int) -> dict:
 
 
 def _gamma_parts_uncached(model, L: int) -> dict:
-    vg = predictor_of(model).variogram(L)
+    vg = predictor_of(model).variogram(L, quantization=False)    # compare() puts in the record's own
     bad = [eid for eid, v in vg.items() if v is None]
     if bad:
         raise AnalysisError(f"model {model.name}: the plant is not stable, so {', '.join(bad)} has no "

@@ -339,7 +339,8 @@ class Evaluator:
         """The quantizer's part of E I_f with its error correlated as the model predicts over this
         record (:mod:`service.model.effects.sensor_quantization`: it depends on the other sources
         and on the record's mean response), or None where the plant has no stationary prediction.
-        The mean response's factors are cached by the mean and the steps."""
+        The mean response's factors are cached by the steps, the tones and the rms increments of
+        the mean response (below)."""
         from ..model.effects.sensor_quantization import white_enough
         d = self.data
         pr = model.predictor()
@@ -347,9 +348,9 @@ class Evaluator:
         # white noises bound the variogram at lags >= 1 from below: often white already
         white = sum((np.broadcast_to(prm[0], (d.p,)) for eid, kind, *prm in pr._primitives()
                      if kind == "white" and eid != "sensor.quantization"), np.zeros(d.p))
-        if white_enough(model.effects["sensor.quantization"].params["step"], white):
-            return None
         step = model.effects["sensor.quantization"].params["step"]
+        if white_enough(step, white):
+            return None
 
         def variogram(K):
             acf = pr.acf(K, quantization=False)
@@ -369,14 +370,15 @@ class Evaluator:
         if K < 2 or white_enough(step, np.min(g[1:], axis=0)):
             return None
         # the motion's factors cost transforms of the record's length: shared between mean responses
-        # whose increments agree to 2 significant digits at lags 1, 8, 64 and 512 (the searches of a
-        # lag or a scale factor try many nearby ones; the part changes with them at second order)
+        # whose increments' rms agree to 3 significant digits at lags 1, 8, 64 and 512 (the searches
+        # of a lag or a scale factor try many nearby ones; 1 - C_m changes with them at first order,
+        # so the part is off by about 1 % at most)
         tone = model.effects.get("sensor.tone")
         ym = self.mean(model)[0][d.k0:]
         inc = [np.sqrt(np.mean((ym[h:] - ym[:-h]) ** 2, axis=0)) for h in (1, 8, 64, 512) if h < ym.shape[0]]
-        key = (tuple(float(f"{v:.2g}") for v in np.concatenate(inc)) if inc else (),
+        key = (tuple(float(f"{v:.3g}") for v in np.concatenate(inc)) if inc else (),
                repr(tone.param_dict()) if tone is not None else None,
-               repr(model.effects["sensor.quantization"].param_dict()))
+               repr(step))
         got = self._quant.get(key)
         if got is None:
             if len(self._quant) > 8:
@@ -903,6 +905,7 @@ class Hypotheses:
                 i = scale_ids.index("sensor.jitter")
                 mod, mod_index = Modulation(dd, ydot, d.k0, refs[i] ** 2), i
         qid = "sensor.quantization"
+        white_q = parts.get(qid)
         qpart = self.ev.quant_part(model) if qid in model.effects else None
         if qpart is not None:
             # the quantizer's error is correlated when the signal crosses few steps per sample; how
@@ -914,14 +917,16 @@ class Hypotheses:
         inner = Inner(Ig, d.weights / W.taper(d.M)[2], E0, U, mod, mod_index)
         v0 = np.array([(c / ref) ** pw for c, ref, (_, _, pw) in zip(cur, refs, scales)]) if scales else None
         v, l = inner.optimize(v0)
-        for _ in range(QUANT_ROUNDS if qpart is not None and scales else 0):
+        for _ in range(QUANT_ROUNDS if qid in model.effects and scales else 0):
             trial = model
             for (e, sname, pw), vi, ref in zip(scales, v, refs):
                 trial = _set(trial, e, {sname: float(ref * vi ** (1.0 / pw))})
             new_q = self.ev.quant_part(trial)
-            if new_q is None or np.allclose(new_q, parts[qid], rtol=1e-3, atol=0):
+            new_q = white_q if new_q is None else new_q          # white at the fitted values
+            if np.allclose(new_q, parts[qid], rtol=1e-3, atol=0):
                 break
             E0 = E0 - parts[qid] + new_q
+            parts = dict(parts)
             parts[qid] = new_q
             inner = Inner(Ig, d.weights / W.taper(d.M)[2], E0, U, mod, mod_index)
             v, l = inner.optimize(v)

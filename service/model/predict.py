@@ -584,11 +584,11 @@ class Predictor:
             out[eid] = E
         return out
 
-    def variogram(self, L: int) -> dict:
+    def variogram(self, L: int, quantization: bool = True) -> dict:
         """gamma(d) = E[(y_{k+d} - y_k)^2] / 2, d = 0..L-1, per effect {id: (L, p)}; stationary
-        effects R(0) - R(d), the bias walk d Q_b / 2."""
+        effects R(0) - R(d), the bias walk d Q_b / 2. ``quantization``: as in :meth:`acf`."""
         out = {}
-        for eid, R in self.acf(L).items():
+        for eid, R in self.acf(L, quantization).items():
             out[eid] = None if R is None else R[0] - R
         for eid, kind, *prm in self._primitives():
             if kind == "walk":

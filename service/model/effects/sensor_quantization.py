@@ -83,7 +83,8 @@ def quantization_acf(step, gamma: np.ndarray, motion: np.ndarray | None = None,
     part of the signal before the quantizer (everything else in the model); ``motion`` (n, p) its
     deterministic part over the record (None: none). Lags d >= n of the motion have no pairs in the
     record and are set to 0 (no estimator uses them). ``cache``: a dict for the motion's factors
-    C_m(d), reused while the motion and the steps are the same (the diagnosis varies the noise)."""
+    C_m(d), keyed by output, term and step: one dict per motion, the caller's to keep apart (the
+    diagnosis varies the noise, not the motion)."""
     gamma = np.asarray(gamma, float)
     L, p = gamma.shape
     step = np.broadcast_to(np.asarray(step, float), (p,))
@@ -114,10 +115,10 @@ def quantization_acf(step, gamma: np.ndarray, motion: np.ndarray | None = None,
             if x is not None:
                 key = (j, m, D)
                 c = None if cache is None else cache.get(key)
-                if c is None:                          # every lag the record has: sliced per call
+                if c is None or c.size < min(L, n):    # the lags asked for (a longer call recomputes)
                     z = np.exp(1j * (2.0 * np.pi * m / D) * x)
                     Z = np.fft.fft(z, nfft)
-                    c = np.fft.ifft(Z * np.conj(Z))[:n].real / (n - np.arange(n))
+                    c = (np.fft.ifft(Z * np.conj(Z))[:n].real / (n - np.arange(n)))[:min(L, n)].copy()
                     if cache is not None:
                         cache[key] = c
                 C = np.zeros(L)
@@ -127,6 +128,5 @@ def quantization_acf(step, gamma: np.ndarray, motion: np.ndarray | None = None,
             acc += f / (m * m)
         tail = np.pi**2 / 6.0 - np.sum(1.0 / np.arange(1, m_max + 1) ** 2)
         acc += tail * last
-        R[:, j] = D * D / (2.0 * np.pi**2) * acc
-        R[0, j] = D * D / 12.0
+        R[1:, j] = D * D / (2.0 * np.pi**2) * acc[1:]
     return R
