@@ -353,21 +353,12 @@ class Evaluator:
             return None
 
         def variogram(K):
-            acf = pr.acf(K, quantization=False)
-            if any(v is None for v in acf.values()):
-                return None
-            gam = {eid: R[0] - R for eid, R in acf.items()}
-            for eid, kind, *prm in pr._primitives():
-                if kind == "walk":
-                    gam[eid] = np.arange(K)[:, None] * prm[0] / 2.0 * np.ones(d.p)
-            return gam
+            gam = pr.variogram(K, quantization=False)
+            return None if any(v is None for v in gam.values()) else gam
 
         K = int(min(d.M, QUANT_LAGS))
         gam = variogram(K)
-        if gam is None:
-            return None
-        g = sum(v for eid, v in gam.items() if eid != "sensor.quantization" and not eid.startswith("sensor.tone"))
-        if K < 2 or white_enough(step, np.min(g[1:], axis=0)):
+        if gam is None or K < 2 or white_enough(step, np.min(pr.before_quantizer(gam)[1:], axis=0)):
             return None
         # the motion's factors cost transforms of the record's length: shared between mean responses
         # whose increments' rms agree to 3 significant digits at lags 1, 8, 64 and 512 (the searches

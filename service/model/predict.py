@@ -522,11 +522,15 @@ class Predictor:
                 out[eid] = prm[0] ** 2 / 2.0 * np.cos(2 * np.pi * d[:, None] * prm[1] * mdl.Ts)
         if quantization and "sensor.quantization" in mdl.effects and all(v is not None for v in out.values()):
             gam = {eid: R[0] - R for eid, R in out.items()}
-            for eid, kind, *prm in self._primitives():
-                if kind == "walk":
-                    gam[eid] = d[:, None] * prm[0] / 2.0 * np.ones(mdl.p)
+            gam.update(self._walk_variograms(L))
             out["sensor.quantization"] = self.quantization_acf(gam, self.motion(max(L, self.horizon)))
         return out
+
+    def _walk_variograms(self, L: int) -> dict:
+        """{effect id: d Q_b / 2, d = 0..L-1 (L, p)} of the bias walks."""
+        d = np.arange(L)[:, None]
+        return {eid: d * prm[0] / 2.0 * np.ones(self.model.p)
+                for eid, kind, *prm in self._primitives() if kind == "walk"}
 
     # -- the quantizer's correlated error (:mod:`.effects.sensor_quantization`) ----------------------------
     def motion(self, n: int, mean_y: np.ndarray | None = None, k0: int = 0) -> np.ndarray:
@@ -545,16 +549,22 @@ class Predictor:
                 out = out + np.asarray(prm[0], float) * np.sin(2 * np.pi * t[:, None] * np.asarray(prm[1], float))
         return out
 
-    def quantization_acf(self, gam: dict, motion: np.ndarray | None, cache: dict | None = None) -> np.ndarray:
-        """R_e(d) of the quantizer's error (L, p) from the other effects' variograms ``gam`` ({id:
-        (L, p)}; the quantizer's own and the tones', which are in ``motion``, are left out)."""
-        from .effects.sensor_quantization import quantization_acf
-        q = self.model.effects["sensor.quantization"]
+    def before_quantizer(self, gam: dict) -> np.ndarray:
+        """The variogram (L, p) of the random part of the signal before the quantizer: the sum of
+        the effects' variograms ``gam`` ({id: (L, p)}) but the quantizer's own and the tones' (the
+        tones are deterministic: in :meth:`motion`)."""
+        q = "sensor.quantization"
         tones = {eid for eid, kind, *_ in self._primitives() if kind == "tone"}
         L = next(iter(gam.values())).shape[0]
-        g = sum((v for eid, v in gam.items() if eid != q.id and eid not in tones and v is not None),
-                np.zeros((L, self.model.p)))
-        return quantization_acf(q.params["step"], g, motion, cache)
+        return sum((v for eid, v in gam.items() if eid != q and eid not in tones and v is not None),
+                   np.zeros((L, self.model.p)))
+
+    def quantization_acf(self, gam: dict, motion: np.ndarray | None, cache: dict | None = None) -> np.ndarray:
+        """R_e(d) of the quantizer's error (L, p) from the other effects' variograms ``gam`` ({id:
+        (L, p)}, :meth:`before_quantizer`) and the deterministic ``motion``."""
+        from .effects.sensor_quantization import quantization_acf
+        step = self.model.effects["sensor.quantization"].params["step"]
+        return quantization_acf(step, self.before_quantizer(gam), motion, cache)
 
     def expected_welch(self, nperseg: int, window: str = "hann") -> dict:
         """E[Welch estimate] of the centered measurement per stationary effect: {id: (nperseg//2+1, p)}
@@ -587,12 +597,8 @@ class Predictor:
     def variogram(self, L: int, quantization: bool = True) -> dict:
         """gamma(d) = E[(y_{k+d} - y_k)^2] / 2, d = 0..L-1, per effect {id: (L, p)}; stationary
         effects R(0) - R(d), the bias walk d Q_b / 2. ``quantization``: as in :meth:`acf`."""
-        out = {}
-        for eid, R in self.acf(L, quantization).items():
-            out[eid] = None if R is None else R[0] - R
-        for eid, kind, *prm in self._primitives():
-            if kind == "walk":
-                out[eid] = np.arange(L)[:, None] * prm[0] / 2.0 * np.ones(self.model.p)
+        out = {eid: None if R is None else R[0] - R for eid, R in self.acf(L, quantization).items()}
+        out.update(self._walk_variograms(L))
         return out
 
     def allan(self, m: np.ndarray) -> dict:
