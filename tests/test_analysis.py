@@ -556,6 +556,103 @@ def test_cached_predictions_give_the_uncached_numbers_and_stay_bounded():
     assert compare(other, rec.t, rec.y, rec.u, burn=None).error == c_small.error
 
 
+_COARSE_QUANT_DOC = """name = "q"
+[sampling]
+Ts = 0.005
+[plant]
+m = 1.0
+c = 1.0
+k = 10.0
+[command]
+kind = "sine"
+amplitude = 1.0
+frequency_hz = 0.4
+[process.white]
+std = 0.5
+[sensor.white]
+std = 0.002
+[sensor.quantization]
+step = 0.02
+"""
+
+
+def test_cached_predictions_follow_the_record_when_a_coarse_quantizer_makes_them_depend_on_it():
+    """A coarse quantizer's error is correlated over the record's own mean response, so every view's
+    prediction depends on the record, not only on the model: comparing one record and then another
+    (a live window sliding from a moving to a still command) gives the second's cold numbers. The
+    views' cache was keyed by the model alone, and the PSD view read 120 where its cold value is 2."""
+    from service.diagnose import compare as cm
+
+    text = _COARSE_QUANT_DOC
+    moving = parse_model(text, "moving")
+    still = parse_model(text.replace("amplitude = 1.0", "amplitude = 0.0"), "still")
+    a = moving.simulate(24_000, seed=1)
+    b = still.simulate(24_000, seed=2)
+    cm.cache_clear()
+    cold = compare(moving, b.t, b.y, b.u, burn=None)
+    cm.cache_clear()
+    first = compare(moving, a.t, a.y, a.u, burn=None)
+    warm = compare(moving, b.t, b.y, b.u, burn=None)
+    assert first.error != cold.error
+    assert warm.error == cold.error and warm.error_per_view == cold.error_per_view
+    for x, y in zip(warm.views, cold.views):
+        assert np.array_equal(x.predicted, y.predicted), x.name
+
+
+def test_psd_view_spread_holds_at_a_resonance_narrower_than_a_welch_bin():
+    """A lightly damped plant (zeta 0.01 at 1 Hz: half-power width 0.02 Hz, a Welch bin 0.024 Hz)
+    has a correlation time longer than a segment, so the bands at its resonance know less than the
+    flat-spectrum dof say. Over 100 right-model records the PSD view's z^2 at the resonance band
+    must average 1 (within 4 standard errors of the records' own spread): with the flat dof it
+    averaged 5.8, and right models of lightly damped plants read model errors above 1.5."""
+    from service.diagnose.compare import default_settings, predictor_of, psd_band_dof_factor, psd_view
+    from service.stats import welch
+    from service.stats.psd import log_bin_groups
+
+    wn = 2 * np.pi
+    mdl = parse_model(f"""name = "ld"
+[sampling]
+Ts = 0.01
+[plant]
+m = 1.0
+c = {2 * 0.01 * wn}
+k = {wn**2}
+[command]
+kind = "none"
+[process.white]
+std = 1.0
+[sensor.white]
+std = 0.001
+""", "light damping")
+    n, burn = 32_768, 3000
+    L = default_settings(n)["nperseg"]
+    gam = predictor_of(mdl).variogram(n + 1, quantization=False)
+    short = {k: g[:L] for k, g in gam.items()}
+    z_model, z_flat = [], []
+    for seed in range(100):
+        r = mdl.simulate(n + burn, seed=1000 + seed).y[burn:, 0]
+        z_model.append(psd_view(r, mdl.Ts, short, 0, L, 10, gam_fine=gam).z)
+        z_flat.append(psd_view(r, mdl.Ts, short, 0, L, 10).z)
+    z_model, z_flat = np.array(z_model) ** 2, np.array(z_flat) ** 2
+    view = psd_view(r, mdl.Ts, short, 0, L, 10, gam_fine=gam)
+    est = welch(r, 1.0 / mdl.Ts, nperseg=L)
+    fac = psd_band_dof_factor(sum(g[:, 0] for g in gam.values()), None, L, log_bin_groups(est.f, 10))
+    band, next_ = np.argsort(fac)[:2]
+    assert 0.9 < view.x[band] < 1.3 and fac[band] < 0.3 and abs(band - next_) == 1, (view.x[band], fac)
+    assert any("dof under the model's spectrum" in note for note in view.notes)
+    for b in (band, next_):
+        z2 = z_model[:, b]
+        se = z2.std(ddof=1) / np.sqrt(z2.size)
+        assert abs(z2.mean() - 1) < 4 * se, (view.x[b], z2.mean(), se)
+    z2 = z_flat[:, band]
+    assert z2.mean() > 1 + 4 * z2.std(ddof=1) / np.sqrt(z2.size)     # the flat dof: what it mends
+    # where the spectrum is flat across the bands (below 0.3 Hz the plant's static gain, above
+    # 10 Hz the sensor's white floor) the dof are the flat ones, to under 1 %; between, the
+    # 1/f^4 roll-off is not flat across a band either, and the dof fall by up to ~7 % there
+    far = (view.x < 0.3) | (view.x > 10.0)
+    assert np.allclose(fac[far], 1.0, atol=0.01), fac
+
+
 def test_acf_spread_does_not_depend_on_the_other_views_settings():
     """The ACF view's spread covers every pair of its segments from the variogram to the record's
     length, so it is the same whatever the other views' sizes (a live analyzer sets its own

@@ -181,6 +181,7 @@ def cache_clear() -> None:
         _CACHE.clear()
         _cache_bytes = 0
     _welch_kernel.cache_clear()
+    _hann_power_on_grid.cache_clear()
 
 
 def _cached(model, what: str, key, compute):
@@ -230,13 +231,17 @@ def _gamma_parts_uncached(model, L: int) -> dict:
     return vg
 
 
+def _record_hash(a: np.ndarray) -> str:
+    import hashlib
+    return hashlib.blake2b(np.ascontiguousarray(a, float).tobytes(), digest_size=16).hexdigest()
+
+
 def quantization_gamma(model, gam: dict, mean_y: np.ndarray, k0: int, jkey=None) -> np.ndarray:
     """The quantizer's variogram (L, p) over this record: its error is correlated when the signal
     moves by less than a step between samples (:mod:`service.model.effects.sensor_quantization`),
     so it depends on the record's own mean response (``mean_y`` from sample ``k0``), cached by it."""
-    import hashlib
     L = next(iter(gam.values())).shape[0]
-    h = hashlib.blake2b(np.ascontiguousarray(mean_y, float).tobytes(), digest_size=16).hexdigest()
+    h = _record_hash(mean_y)
 
     def compute():
         pr = predictor_of(model)
@@ -689,24 +694,104 @@ def acf_view(r, Ts, gam_parts, j, M, max_lag, model=None, gam_long=None, jkey=No
     return _finish(v, max_lag + 1, error_var=err_var)
 
 
-def psd_view(r, Ts, gam_parts, j, L, bpd, model=None, mod=None, jkey=None):
+PSD_FINE = 16          # the model's spectrum for the bands' dof, resolved to 1/16 of a Welch bin
+PSD_LEAK_BINS = 8      # the Hann segment's spectral window kept to +-8 bins (power beyond: < 1e-7)
+
+
+@lru_cache(maxsize=4)
+def _hann_power_on_grid(L: int, G: int, window: str) -> np.ndarray:
+    """|H(f)|^2 of the L-sample window at f = k / (2 G), k = 0..PSD_LEAK_BINS * 2G / L."""
+    w = get_window(window, L)
+    s = 2 * G // L
+    return np.abs(np.fft.rfft(w, 2 * G)[: PSD_LEAK_BINS * s + 1]) ** 2
+
+
+def _fine_spectrum(g: np.ndarray, G: int) -> np.ndarray:
+    """The spectrum (arbitrary units) at f = k / (2 G) cycles/sample, k = 0..G, of a process with
+    variogram ``g`` (rows >= G), smoothed by the lag window of a G-sample Hann taper (whose
+    transform is >= 0): S(f) = -sum_{|d|<G} gamma(|d|) v(d) cos(2 pi f d). The R(0) V(f) term the
+    variogram form leaves out lives below 2 / G, far under the first Welch bin (16 / G)."""
+    w = get_window("hann", G)
+    cw = np.fft.irfft(np.abs(np.fft.rfft(w, 2 * G)) ** 2, 2 * G)[:G]
+    a = g[:G] * (cw / cw[0])
+    return np.maximum(-2.0 * np.fft.rfft(a, 2 * G).real, 0.0)
+
+
+def psd_band_dof_factor(gam_total: np.ndarray, gam_lines: np.ndarray | None, L: int, groups,
+                        window: str = "hann") -> np.ndarray:
+    """Factor on each band's equivalent dof of the Welch mean under the model's spectrum S.
+
+    The flat dof nu_flat (:func:`service.stats.psd._average_groups`) holds for a spectrum flat across the
+    band's spectral window W_b (the mean over the band's bins of the segment window's |H(f - f_j)|^2).
+    A resonance narrower than a bin (zeta * f_n < 1 / (L Ts)) is not flat there: its correlation
+    time is longer than a segment, the segments and bins are not independent and the flat dof
+    overstate what the band knows. With S smooth at the record's resolution (Priestley 1981, 6.2.4),
+    E = int S W_b and Var is proportional to int S^2 W_b^2, so
+    nu = nu_flat (E / int W_b)^2 / (int (S^2 - S_l^2) W_b^2 / int W_b^2),
+    which is nu_flat for a flat S. S_l: the spectral lines (``gam_lines``, the tones), whose power in
+    a band is the same in every segment (random phase, fixed amplitude): they add to E and, through
+    their product with the noise, 2 S_n S_l to the variance, but no variance of their own.
+    S is resolved to 1 / PSD_FINE of a bin (as far as the record allows). Returns nu / nu_flat."""
+    N = gam_total.shape[0]
+    G = int(min(PSD_FINE * L, 1 << int(np.floor(np.log2(max(N, 2))))))
+    if G < 2 * L:
+        return np.ones(len(groups))
+    s = 2 * G // L                                     # grid points per Welch bin
+    S = _fine_spectrum(gam_total, G)
+    Sl = _fine_spectrum(gam_lines, G) if gam_lines is not None else np.zeros_like(S)
+    S[: s // 2] = S[s // 2]                            # below half a bin: the mean removal's job
+    Sl[: s // 2] = Sl[s // 2]
+    V = np.maximum(S**2 - np.minimum(Sl, S) ** 2, 0.0)
+    H2 = _hann_power_on_grid(L, G, window)
+    off = np.arange(-(H2.size - 1), H2.size)
+    ker = H2[np.abs(off)]
+    fac = np.ones(len(groups))
+    for b, gr in enumerate(groups):
+        idx = (gr[:, None] * s + off[None, :]).ravel()
+        idx = np.abs(idx)                              # fold at 0 and at Nyquist (S is even)
+        idx = np.where(idx > G, 2 * G - idx, idx)
+        Wb = np.bincount(idx, weights=np.tile(ker, gr.size), minlength=G + 1)
+        sel = np.flatnonzero(Wb)
+        W = Wb[sel]
+        E = np.dot(S[sel], W) / W.sum()
+        var = np.dot(V[sel], W**2) / np.dot(W, W)
+        if E > 0 and var > 0:
+            fac[b] = E**2 / var
+    return fac
+
+
+def psd_view(r, Ts, gam_parts, j, L, bpd, model=None, mod=None, jkey=None, gam_fine=None, line_ids=()):
+    """The PSD view. ``gam_fine``: {id: variogram} to a length beyond the segment (the record's), for
+    the bands' dof under the model's spectrum (:func:`psd_band_dof_factor`); ``line_ids``: the tones."""
     if r.size < L:
         raise AnalysisError(f"record too short for Welch segments of {L} samples")
     est = welch(r, 1.0 / Ts, nperseg=L)
     groups = log_bin_groups(est.f, bpd)
     from ..stats.psd import _average_groups
     binned = _average_groups(est, groups)
+    G_key = None if gam_fine is None else min(PSD_FINE * L, 1 << int(np.floor(np.log2(r.size + 1))))
 
     def predict():
         parts = {}
         for eid, g in gam_parts.items():
             e = expected_welch_detrended(g[:, j:j + 1], L, Ts)[:, 0]
             parts[eid] = np.array([e[gr].mean() for gr in groups])
-        return parts
-    parts = predict() if model is None else dict(_cached(model, "psd_view", (j, L, bpd, jkey), predict))
+        fac = np.ones(len(groups))
+        if gam_fine is not None:
+            n_f = r.size + 1
+            tot = sum(g[:n_f, j] for g in gam_fine.values())
+            lines = [g[:n_f, j] for eid, g in gam_fine.items() if eid in line_ids]
+            fac = psd_band_dof_factor(tot, sum(lines) if lines else None, L, groups)
+        return parts, fac
+    parts, fac = predict() if model is None else _cached(model, "psd_view", (j, L, bpd, jkey, G_key), predict)
+    parts = dict(parts)
+    nu = binned.dof * fac
     pred = sum(parts.values())
-    nu = binned.dof
     notes = [f"Welch, Hann, {L}-sample segments, 50 % overlap, {bpd} bands per decade"]
+    if np.any(fac < 0.9):
+        b = int(np.argmin(fac))
+        notes.append(f"dof under the model's spectrum: down to {fac[b]:.2g} of the flat "
+                     f"value at {binned.f[b]:.3g} Hz (a spectrum that is not flat across the band)")
     if mod is not None and "sensor.jitter" in parts:
         kappa = modulation_kappa(mod, [max(int(round(0.514 * L / len(gr))), 1) for gr in groups],
                                  parts["sensor.jitter"] / np.maximum(pred, 1e-300))
@@ -861,7 +946,11 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
         jkey = tuple(int(x) for x in steps)
     if "sensor.quantization" in model.effects:
         gam = dict(gam)
-        gam["sensor.quantization"] = quantization_gamma(model, gam, mean.y[burn:], burn, jkey)
+        gq = gam["sensor.quantization"] = quantization_gamma(model, gam, mean.y[burn:], burn, jkey)
+        if gq.shape[0] > 2 and not np.all(gq[2:] == gq[1:2]):
+            # correlated: every view's prediction depends on this record's mean response, so its
+            # cache key must too (a white error is the same for every record, and stays shared)
+            jkey = (jkey, _record_hash(mean.y[burn:]), burn)
     corr = 5 * _cached(model, "transient", 0, lambda: transient_samples(model)) + 10
     # predicted variance of y_k: stationary part + the walk's growth (R_b,k = R_b,0 + k Q_b)
     st = pr.steady_state()
@@ -870,6 +959,7 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
     var_stat = st.var_y if st.var_y is not None else np.full(model.p, np.nan)
     level = level and bool(np.all(np.isfinite(var_stat)))
     gam_short = {eid: g[:L_need] for eid, g in gam.items()}
+    lines = pr.tone_ids()
     jobs = []
     for j in range(model.p):
         rj = r[:, j]
@@ -880,7 +970,7 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
                  lambda rj=rj, j=j, gl=g_long, mj=mj: acf_view(rj, model.Ts, gam_short, j, s["acf_segment"],
                                                                 s["max_lag"], model, gam_long=gl, jkey=jkey, mod=mj),
                  lambda rj=rj, j=j, mj=mj: psd_view(rj, model.Ts, gam_short, j, s["nperseg"], s["bins_per_decade"],
-                                                    model, mod=mj, jkey=jkey),
+                                                    model, mod=mj, jkey=jkey, gam_fine=gam, line_ids=lines),
                  lambda rj=rj, j=j, mj=mj: allan_view(rj, model.Ts, gam, j, corr, model, mod=mj, jkey=jkey)]
         if level:
             jobs.append(lambda rj=rj, j=j: level_view(rj, ta, gam, j, s["window"], burn, float(var_stat[j]),

@@ -549,12 +549,16 @@ class Predictor:
                 out = out + np.asarray(prm[0], float) * np.sin(2 * np.pi * t[:, None] * np.asarray(prm[1], float))
         return out
 
+    def tone_ids(self) -> set:
+        """Ids of the effects that are spectral lines (deterministic in a record: random phase only)."""
+        return {eid for eid, kind, *_ in self._primitives() if kind == "tone"}
+
     def before_quantizer(self, gam: dict) -> np.ndarray:
         """The variogram (L, p) of the random part of the signal before the quantizer: the sum of
         the effects' variograms ``gam`` ({id: (L, p)}) but the quantizer's own and the tones' (the
         tones are deterministic: in :meth:`motion`)."""
         q = "sensor.quantization"
-        tones = {eid for eid, kind, *_ in self._primitives() if kind == "tone"}
+        tones = self.tone_ids()
         L = next(iter(gam.values())).shape[0]
         return sum((v for eid, v in gam.items() if eid != q and eid not in tones and v is not None),
                    np.zeros((L, self.model.p)))
