@@ -653,6 +653,53 @@ std = 0.001
     assert np.allclose(fac[far], 1.0, atol=0.01), fac
 
 
+def test_psd_view_a_tones_band_varies_only_through_the_noise_under_it():
+    """A tone's power in a band is the same in every Welch segment (a fixed amplitude, a random
+    phase): its band's estimate varies through the noise under the tone and the tone x noise
+    product only. Over 40 right-model records the band's z^2 must average 1 within 4 standard
+    errors (the flat dof, which treated the tone as Gaussian noise, gave 0.004: a model amplitude
+    10 % off read z = -3 there); and a model amplitude 10 % too high must stand out (|z| > 10)."""
+    from service.diagnose.compare import default_settings, predictor_of, psd_view
+
+    def model(amplitude):
+        return parse_model(f"""name = "tone"
+[sampling]
+Ts = 0.01
+[plant]
+m = 1.0
+c = 4.0
+k = 10.0
+[command]
+kind = "none"
+[process.white]
+std = 1.0
+[sensor.white]
+std = 0.01
+[sensor.tone]
+amplitude = {amplitude}
+frequency_hz = 3.3
+""", "tone")
+    n, burn = 32_768, 500
+    L = default_settings(n)["nperseg"]
+    right, high = model(0.05), model(0.055)
+    views = {}
+    for name, mdl in (("right", right), ("high", high)):
+        gam = predictor_of(mdl).variogram(n + 1, quantization=False)
+        views[name] = (gam, {k: g[:L] for k, g in gam.items()})
+    z_right, z_high = [], []
+    for seed in range(40):
+        r = right.simulate(n + burn, seed=2000 + seed).y[burn:, 0]
+        v = psd_view(r, right.Ts, views["right"][1], 0, L, 10, gam_fine=views["right"][0], line_ids={"sensor.tone"})
+        band = int(np.argmin(np.abs(v.x - 3.3)))
+        z_right.append(v.z[band])
+        if seed < 5:
+            vh = psd_view(r, right.Ts, views["high"][1], 0, L, 10, gam_fine=views["high"][0], line_ids={"sensor.tone"})
+            z_high.append(vh.z[band])
+    z2 = np.array(z_right) ** 2
+    assert abs(z2.mean() - 1) < 4 * z2.std(ddof=1) / np.sqrt(z2.size), z2.mean()
+    assert np.all(np.array(z_high) < -10), z_high
+
+
 def test_acf_spread_does_not_depend_on_the_other_views_settings():
     """The ACF view's spread covers every pair of its segments from the variogram to the record's
     length, so it is the same whatever the other views' sizes (a live analyzer sets its own

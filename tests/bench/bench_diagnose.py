@@ -25,6 +25,9 @@ Run on demand, not by pytest (``pyproject.toml`` ignores ``tests/bench``)::
    generator only ever leaves out put in the nominal at a wrong value
    (``hidden_set.with_wrong_value``), and the planted quantizers made coarse: a step of 10x the
    sensor noise, whose error is correlated (``hidden_set.with_coarse_quantizer``).
+6. Other plants (``--other``): the same seeds' effects on plants the generator does not draw
+   (``hidden_set.make_case(seed, plants="other")``: general A, B, C, D plants from 1 to 3 modes
+   with damping down to 0.01, one or two outputs; lightly damped mass-spring-dampers).
 """
 
 from __future__ import annotations
@@ -85,10 +88,11 @@ def big(log) -> dict:
     return out
 
 
-def cases(seeds, log, variant=None) -> list[dict]:
+def cases(seeds, log, variant=None, plants="generator") -> list[dict]:
     rows = []
     for seed in seeds:
-        case = make_case(seed) if variant is None else variant(make_case(seed))
+        case = make_case(seed, plants=plants)
+        case = case if variant is None else variant(case)
         truth, nominal = parse_model(case.truth, "truth"), parse_model(case.nominal, "nominal")
         rec = truth.simulate(int(round(case.duration / truth.Ts)), seed=case.seed)
         t0 = time.perf_counter()
@@ -131,7 +135,7 @@ def _criteria(rows) -> str:
 
 
 def render(meta, bigr, rows, nrows, scan=(), planted=None, n_scan=0, steps=(), n_step=0, wrong=(), n_wrong=0,
-           coarse=(), n_coarse=0) -> str:
+           coarse=(), n_coarse=0, other=()) -> str:
     L = [BEGIN, "", f"Run: {meta['date']} (local time), wall {meta['wall']:.0f} s. Machine: nproc {os.cpu_count()}, "
          f"{platform.platform()}; Python {platform.python_version()}, numpy {np.__version__}. Load average at "
          f"start {meta['load0']}, at end {meta['load1']}.", ""]
@@ -187,6 +191,13 @@ def render(meta, bigr, rows, nrows, scan=(), planted=None, n_scan=0, steps=(), n
               "3x the sensor noise left out: an undithered encoder, whose error is correlated; "
               f"`hidden_set.with_coarse_quantizer`): {_criteria(coarse)}.", ""]
         L += _failed(coarse) + [""]
+    if other:
+        L += [f"Other plants (`hidden_set.make_case(seed, plants=\"other\")`, seeds 0..{len(other) - 1}: general "
+              "A, B, C, D plants of order 1 to 5 from 1 to 3 modes with damping ratios down to 0.01, turned by a random "
+              "similarity transform, one or two outputs, and mass-spring-dampers of zeta 0.01 to 0.05; the same "
+              f"effects hidden as in the generator's case of that seed): {_criteria([r for r in other if not r['null']])}; "
+              f"null cases clean {sum(r['ok'] for r in other if r['null'])}/{sum(r['null'] for r in other)}.", ""]
+        L += ["<details><summary>Failed cases</summary>", ""] + _failed(other) + ["", "</details>", ""]
     if nrows:
         L += ["Null scenarios (3 min each): false positives (anything reported):", "",
               "| scenario | seeds | false positives |", "|---|---|---|"]
@@ -221,6 +232,8 @@ def main(argv=None):
                     help="also run every case of seeds 0..WRONG-1 with a hidden effect present in the nominal at a wrong value")
     ap.add_argument("--coarse", type=int, default=200,
                     help="also run every case of seeds 0..COARSE-1 with a planted quantizer, the quantizer made coarse")
+    ap.add_argument("--other", type=int, default=40,
+                    help="also run seeds 0..OTHER-1 on plants the generator does not draw (hidden_set._plant_other)")
     ap.add_argument("--no-big", action="store_true")
     ap.add_argument("--write", action="store_true")
     ap.add_argument("--json")
@@ -251,14 +264,16 @@ def main(argv=None):
         seeds = [s for s in range(a.coarse) if with_coarse_quantizer(make_case(s)) is not None]
         log(f"coarse quantizers: seeds {seeds} of 0..{a.coarse - 1}")
         coarse = cases(seeds, log, variant=with_coarse_quantizer)
+    other = cases(range(a.other), log, plants="other") if a.other else []
     nrows = nulls(a.nulls, log) if a.nulls else []
     meta["wall"] = time.perf_counter() - t0
     meta["load1"] = " ".join(f"{x:.2f}" for x in os.getloadavg())
-    block = render(meta, bigr, rows, nrows, scan, a.planted, a.scan, steps, a.step, wrong, a.wrong, coarse, a.coarse)
+    block = render(meta, bigr, rows, nrows, scan, a.planted, a.scan, steps, a.step, wrong, a.wrong, coarse, a.coarse,
+                   other)
     print(block)
     if a.json:
         Path(a.json).write_text(json.dumps({"big": bigr, "cases": rows, "nulls": nrows, "scan": scan, "steps": steps, "wrong": wrong,
-                                            "coarse": coarse}, default=str,
+                                            "coarse": coarse, "other": other}, default=str,
                                            indent=1))
     if a.write:
         write_results(block)

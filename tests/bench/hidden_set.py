@@ -70,6 +70,59 @@ def _plant(rng, Ts):
         wn / (2 * np.pi), len(C)
 
 
+def _plant_other(rng, Ts, T):
+    """Plants the generator above does not draw (``make_case(..., plants="other")``): general A, B, C,
+    D plants of order 2 to 5 built from 1 to 3 modes (complex pairs with damping ratios down to 0.01,
+    log-uniform, and real poles), turned by a random similarity transform so that A is full, with a
+    feedthrough D in a third of them and one or two outputs; and lightly damped mass-spring-dampers
+    (zeta 0.01 to 0.05). Modes sit between 10 / T and 1/12 of the sample rate."""
+    fmax = min(3.0, 0.08 / Ts)
+    fmin = min(max(0.1, 10.0 / T), fmax / 2)
+    logf = lambda: float(np.exp(rng.uniform(np.log(fmin), np.log(fmax))))  # noqa: E731
+    if rng.random() < 0.25:
+        fn = logf()
+        zeta = float(np.exp(rng.uniform(np.log(0.01), np.log(0.05))))
+        m = float(np.exp(rng.uniform(np.log(0.3), np.log(5.0))))
+        k = m * (2 * np.pi * fn) ** 2
+        return {"m": round(m, 4), "c": float(f"{2 * zeta * math.sqrt(k * m):.4g}"), "k": round(k, 4)}, fn, 1
+    blocks, freqs = [], []
+    for _ in range(int(rng.integers(1, 4))):
+        f = logf()
+        freqs.append(f)
+        w = 2 * np.pi * f
+        if rng.random() < 0.7 and sum(b.shape[0] for b in blocks) <= 3:
+            zeta = float(np.exp(rng.uniform(np.log(0.01), np.log(0.7))))
+            blocks.append(np.array([[-zeta * w, w * math.sqrt(1 - zeta**2)], [-w * math.sqrt(1 - zeta**2), -zeta * w]]))
+        else:
+            blocks.append(np.array([[-w]]))
+    n = sum(b.shape[0] for b in blocks)
+    A = np.zeros((n, n))
+    i = 0
+    for b in blocks:
+        A[i:i + b.shape[0], i:i + b.shape[0]] = b
+        i += b.shape[0]
+    Tm = np.eye(n) + 0.4 * rng.standard_normal((n, n))
+    while np.linalg.cond(Tm) > 20:
+        Tm = np.eye(n) + 0.4 * rng.standard_normal((n, n))
+    Ti = np.linalg.inv(Tm)
+    w0 = 2 * np.pi * float(np.median(freqs))
+    B = Tm @ (w0 * rng.uniform(0.5, 2.0, (n, 1)) * rng.choice([-1, 1], (n, 1)))
+    Lp = Tm @ (w0 * rng.uniform(0.1, 1.0, (n, 1)))
+    p = 2 if rng.random() < 0.3 else 1
+    C = rng.uniform(-1, 1, (p, n)) @ Ti
+    plant = {"A": _sig(Tm @ A @ Ti), "B": _sig(B), "C": _sig(C), "L": _sig(Lp)}
+    if rng.random() < 1 / 3:
+        # a direct term: of the order of the plant's own gain at its mode
+        gain = np.abs(C @ np.linalg.solve(-(Tm @ A @ Ti), B))
+        plant["D"] = _sig(rng.uniform(0.05, 0.3, (p, 1)) * np.maximum(gain, 1e-3))
+    return plant, float(np.min(freqs)), p
+
+
+def _sig(X) -> list:
+    """A matrix as nested lists of floats to 5 significant digits (what a model file holds)."""
+    return [[float(f"{v:.5g}") for v in row] for row in np.atleast_2d(X)]
+
+
 def _command(rng, fn, Ts, T, with_command):
     if not with_command:
         return {"kind": "none"}
@@ -98,11 +151,17 @@ def _contribution(text, eid):
     return None if c is None else float(np.max(c))
 
 
-def make_case(seed: int, n_hidden: int | None = None, null: bool | None = None) -> Case:
+def make_case(seed: int, n_hidden: int | None = None, null: bool | None = None, plants: str = "generator") -> Case:
+    """Case ``seed``. ``plants="other"``: the plant drawn by :func:`_plant_other` (its own random
+    stream), everything else drawn as for the generator's plant (so the same effects are hidden)."""
     rng = np.random.default_rng(seed)
     Ts = float(rng.choice(PERIODS))
     T = float(np.round(rng.uniform(60, 600) / 10) * 10)
     plant, fn, p = _plant(rng, Ts)
+    if plants == "other":
+        plant, fn, p = _plant_other(np.random.default_rng([seed, 17]), Ts, T)
+    elif plants != "generator":
+        raise ValueError(f"plants: expected 'generator' or 'other', got {plants!r}")
     null = bool(rng.random() < 0.2) if null is None else null
     n_hidden = (1 if rng.random() < 0.6 else 2) if n_hidden is None else n_hidden
     with_command = bool(rng.random() < 0.85)
@@ -160,7 +219,7 @@ def make_case(seed: int, n_hidden: int | None = None, null: bool | None = None) 
             nominal.pop(eid)
             hidden[eid] = {k: v for k, v in hidden[eid].items() if k != "_absent"}
             truth[eid] = hidden[eid]
-    name = f"case{seed}"
+    name = f"case{seed}" + ("-other" if plants == "other" else "")
     return Case(name, _doc("case", Ts, plant, command, truth), _doc("case", Ts, plant, command, nominal),
                 {k: {kk: vv for kk, vv in v.items() if not kk.startswith("_")} for k, v in hidden.items()},
                 T, seed + 1000)
