@@ -28,6 +28,8 @@ Run on demand, not by pytest (``pyproject.toml`` ignores ``tests/bench``)::
 6. Other plants (``--other``): the same seeds' effects on plants the generator does not draw
    (``hidden_set.make_case(seed, plants="other")``: general A, B, C, D plants from 1 to 3 modes
    with damping down to 0.01, one or two outputs; lightly damped mass-spring-dampers).
+7. Bias pairs (``--pairs``): a bias walk and a Gauss-Markov bias hidden together
+   (``hidden_set.with_bias_pair``).
 """
 
 from __future__ import annotations
@@ -50,8 +52,8 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests" / "bench"))
 
-from hidden_set import (MEAN_EFFECTS, WRONG, make_case, score_case, with_coarse_quantizer, with_step,  # noqa: E402
-                        with_wrong_value)
+from hidden_set import (MEAN_EFFECTS, WRONG, make_case, score_case, with_bias_pair,  # noqa: E402
+                        with_coarse_quantizer, with_step, with_wrong_value)
 
 from service.diagnose.diagnose import diagnose  # noqa: E402
 from service.model import load_model, parse_model  # noqa: E402
@@ -135,7 +137,7 @@ def _criteria(rows) -> str:
 
 
 def render(meta, bigr, rows, nrows, scan=(), planted=None, n_scan=0, steps=(), n_step=0, wrong=(), n_wrong=0,
-           coarse=(), n_coarse=0, other=()) -> str:
+           coarse=(), n_coarse=0, other=(), pairs=()) -> str:
     L = [BEGIN, "", f"Run: {meta['date']} (local time), wall {meta['wall']:.0f} s. Machine: nproc {os.cpu_count()}, "
          f"{platform.platform()}; Python {platform.python_version()}, numpy {np.__version__}. Load average at "
          f"start {meta['load0']}, at end {meta['load1']}.", ""]
@@ -198,6 +200,10 @@ def render(meta, bigr, rows, nrows, scan=(), planted=None, n_scan=0, steps=(), n
               f"effects hidden as in the generator's case of that seed): {_criteria([r for r in other if not r['null']])}; "
               f"null cases clean {sum(r['ok'] for r in other if r['null'])}/{sum(r['null'] for r in other)}.", ""]
         L += ["<details><summary>Failed cases</summary>", ""] + _failed(other) + ["", "</details>", ""]
+    if pairs:
+        L += [f"A bias random walk and a Gauss-Markov bias hidden together (`hidden_set.with_bias_pair`, the nominals "
+              f"of seeds 0..{len(pairs) - 1}; the generator never pairs them): {_criteria(pairs)}.", ""]
+        L += ["<details><summary>Failed cases</summary>", ""] + _failed(pairs) + ["", "</details>", ""]
     if nrows:
         L += ["Null scenarios (3 min each): false positives (anything reported):", "",
               "| scenario | seeds | false positives |", "|---|---|---|"]
@@ -234,6 +240,8 @@ def main(argv=None):
                     help="also run every case of seeds 0..COARSE-1 with a planted quantizer, the quantizer made coarse")
     ap.add_argument("--other", type=int, default=40,
                     help="also run seeds 0..OTHER-1 on plants the generator does not draw (hidden_set._plant_other)")
+    ap.add_argument("--pairs", type=int, default=16,
+                    help="also run seeds 0..PAIRS-1 with a bias walk and a Gauss-Markov bias hidden together")
     ap.add_argument("--no-big", action="store_true")
     ap.add_argument("--write", action="store_true")
     ap.add_argument("--json")
@@ -265,15 +273,16 @@ def main(argv=None):
         log(f"coarse quantizers: seeds {seeds} of 0..{a.coarse - 1}")
         coarse = cases(seeds, log, variant=with_coarse_quantizer)
     other = cases(range(a.other), log, plants="other") if a.other else []
+    pairs = cases(range(a.pairs), log, variant=with_bias_pair) if a.pairs else []
     nrows = nulls(a.nulls, log) if a.nulls else []
     meta["wall"] = time.perf_counter() - t0
     meta["load1"] = " ".join(f"{x:.2f}" for x in os.getloadavg())
     block = render(meta, bigr, rows, nrows, scan, a.planted, a.scan, steps, a.step, wrong, a.wrong, coarse, a.coarse,
-                   other)
+                   other, pairs)
     print(block)
     if a.json:
         Path(a.json).write_text(json.dumps({"big": bigr, "cases": rows, "nulls": nrows, "scan": scan, "steps": steps, "wrong": wrong,
-                                            "coarse": coarse, "other": other}, default=str,
+                                            "coarse": coarse, "other": other, "pairs": pairs}, default=str,
                                            indent=1))
     if a.write:
         write_results(block)

@@ -392,3 +392,24 @@ def with_coarse_quantizer(case: Case) -> Case | None:
     hidden = {k: dict(v) for k, v in case.hidden.items()}
     hidden["sensor.quantization"]["step"] = step
     return Case(case.name + "-coarse", dumps_toml(truth), case.nominal, hidden, case.duration, case.seed)
+
+
+def with_bias_pair(case: Case) -> Case:
+    """The case's nominal with a bias random walk and a Gauss-Markov bias hidden together, in place
+    of its own hidden effects (the generator never pairs them): a gyro's rate random walk and bias
+    instability, the pair an Allan deviation plot is read for. Magnitudes drawn by the generator's
+    laws (a walk whose growth over the record and a Gauss-Markov variance of 0.3 to 3x the nominal's
+    var_y, tau from T/60 to T/6), from the case's own seed."""
+    nominal = tomllib.loads(case.nominal)
+    m = parse_model(case.nominal)
+    var0 = float(np.max(m.predictor().steady_state().var_y))
+    rng = np.random.default_rng([case.seed, 99])
+    T = case.duration
+    fw, fm = np.exp(rng.uniform(np.log(0.3), np.log(3.0), 2))
+    walk = {"std": float(f"{math.sqrt(fw * var0 / T) * 2:.4g}")}
+    tau = float(np.exp(rng.uniform(np.log(T / 60), np.log(T / 6))))
+    markov = {"std": float(f"{math.sqrt(fm * var0):.4g}"), "tau_s": float(f"{tau:.4g}")}
+    truth = {k: (dict(v) if isinstance(v, dict) else v) for k, v in nominal.items()}
+    truth["sensor"] = dict(truth.get("sensor", {}), bias_walk=walk, bias_markov=markov)
+    return Case(case.name + "-biaspair", dumps_toml(truth), case.nominal,
+                {"sensor.bias_walk": walk, "sensor.bias_markov": markov}, T, case.seed)
