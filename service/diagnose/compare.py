@@ -65,6 +65,7 @@ from scipy.special import digamma, polygamma
 from ..model import ModelError
 from ..model.predict import allan_from_variogram
 from ..stats import oadev, welch
+from ..stats.psd import window_autocorrelation
 from ..stats.psd import log_bin_groups
 from .results import VIEW_NAMES, Comparison, Region, View
 
@@ -236,12 +237,12 @@ def _record_hash(a: np.ndarray) -> str:
     return hashlib.blake2b(np.ascontiguousarray(a, float).tobytes(), digest_size=16).hexdigest()
 
 
-def quantization_gamma(model, gam: dict, mean_y: np.ndarray, k0: int, jkey=None) -> np.ndarray:
+def quantization_gamma(model, gam: dict, mean_y: np.ndarray, k0: int, jkey=None, h: str | None = None) -> np.ndarray:
     """The quantizer's variogram (L, p) over this record: its error is correlated when the signal
     moves by less than a step between samples (:mod:`service.model.effects.sensor_quantization`),
     so it depends on the record's own mean response (``mean_y`` from sample ``k0``), cached by it."""
     L = next(iter(gam.values())).shape[0]
-    h = _record_hash(mean_y)
+    h = _record_hash(mean_y) if h is None else h          # the caller's, when it has hashed mean_y
 
     def compute():
         pr = predictor_of(model)
@@ -275,7 +276,7 @@ def _welch_kernel(L: int, window: str) -> np.ndarray:
     w = get_window(window, L)
     n = np.arange(L)
     d = n
-    cw = np.correlate(w, w, mode="full")[L - 1:]
+    cw = window_autocorrelation(w)
     J = L // 2 + 1
     out = np.empty((J, L))
     # a_j = W_j / L vanishes (to rounding) for most bins of a smooth window (Hann: all but j = 0, 1);
@@ -696,6 +697,16 @@ def acf_view(r, Ts, gam_parts, j, M, max_lag, model=None, gam_long=None, jkey=No
 
 PSD_FINE = 16          # the model's spectrum for the bands' dof, resolved to 1/16 of a Welch bin
 PSD_LEAK_BINS = 8      # the Hann segment's spectral window kept to +-8 bins (power beyond: < 1e-7)
+PSD_DOF_MAX = 1e6      # the factor's cap: a tone over (numerically) no noise is a band known exactly
+
+
+def psd_fine_length(L: int, n: int) -> int:
+    """G, the lags (and half the grid) of the model's fine spectrum for segments of L samples and a
+    record of n samples: L times a power of two (so that every bin sits on the grid), at most
+    PSD_FINE L and at most n; 0 when that leaves less than 4 L (then the flat dof are kept: the
+    R(0) V(f) term the variogram form leaves out reaches the first bin)."""
+    k = int(np.floor(np.log2(max(min(PSD_FINE, n / L), 1.0))))
+    return L << k if k >= 2 else 0
 
 
 @lru_cache(maxsize=4)
@@ -703,60 +714,66 @@ def _hann_power_on_grid(L: int, G: int, window: str) -> np.ndarray:
     """|H(f)|^2 of the L-sample window at f = k / (2 G), k = 0..PSD_LEAK_BINS * 2G / L."""
     w = get_window(window, L)
     s = 2 * G // L
-    return np.abs(np.fft.rfft(w, 2 * G)[: PSD_LEAK_BINS * s + 1]) ** 2
+    out = np.abs(np.fft.rfft(w, 2 * G)[: PSD_LEAK_BINS * s + 1]) ** 2
+    out.setflags(write=False)                          # shared by every caller (threads included)
+    return out
 
 
 def _fine_spectrum(g: np.ndarray, G: int) -> np.ndarray:
     """The spectrum (arbitrary units) at f = k / (2 G) cycles/sample, k = 0..G, of a process with
     variogram ``g`` (rows >= G), smoothed by the lag window of a G-sample Hann taper (whose
     transform is >= 0): S(f) = -sum_{|d|<G} gamma(|d|) v(d) cos(2 pi f d). The R(0) V(f) term the
-    variogram form leaves out lives below 2 / G, far under the first Welch bin (16 / G)."""
-    w = get_window("hann", G)
-    cw = np.fft.irfft(np.abs(np.fft.rfft(w, 2 * G)) ** 2, 2 * G)[:G]
+    variogram form leaves out lives below 2 / G, under the first Welch bin (at least 4 / G)."""
+    cw = window_autocorrelation(get_window("hann", G))
     a = g[:G] * (cw / cw[0])
     return np.maximum(-2.0 * np.fft.rfft(a, 2 * G).real, 0.0)
 
 
-def psd_band_dof_factor(gam_total: np.ndarray, gam_lines: np.ndarray | None, L: int, groups,
+def psd_band_dof_factor(gam_total: np.ndarray, gam_lines: np.ndarray | None, L: int, groups, G: int,
                         window: str = "hann") -> np.ndarray:
     """Factor on each band's equivalent dof of the Welch mean under the model's spectrum S.
 
-    The flat dof nu_flat (:func:`service.stats.psd._average_groups`) holds for a spectrum flat across the
-    band's spectral window W_b (the mean over the band's bins of the segment window's |H(f - f_j)|^2).
-    A resonance narrower than a bin (zeta * f_n < 1 / (L Ts)) is not flat there: its correlation
-    time is longer than a segment, the segments and bins are not independent and the flat dof
-    overstate what the band knows. With S smooth at the record's resolution (Priestley 1981, 6.2.4),
+    The flat dof nu_flat (:func:`service.stats.psd._average_groups`) holds for a spectrum flat
+    across the band's spectral window W_b (the mean over the band's bins of the segment window's
+    |H(f - f_j)|^2). A resonance narrower than a bin (half-power width 2 zeta f_n < 1 / (L Ts)) is
+    not flat there: its correlation time is longer than a segment, the segments and bins are not
+    independent and the flat dof overstate what the band knows. With S smooth at the record's resolution (Priestley 1981, 6.2.4),
     E = int S W_b and Var is proportional to int S^2 W_b^2, so
-    nu = nu_flat (E / int W_b)^2 / (int (S^2 - S_l^2) W_b^2 / int W_b^2),
-    which is nu_flat for a flat S. S_l: the spectral lines (``gam_lines``, the tones), whose power in
-    a band is the same in every segment (random phase, fixed amplitude): they add to E and, through
-    their product with the noise, 2 S_n S_l to the variance, but no variance of their own.
-    S is resolved to 1 / PSD_FINE of a bin (as far as the record allows). Returns nu / nu_flat."""
-    N = gam_total.shape[0]
-    G = int(min(PSD_FINE * L, 1 << int(np.floor(np.log2(max(N, 2))))))
-    if G < 2 * L:
+    nu = nu_flat (E / int W_b)^2 / (int (S_n^2 + 2 S_n S_l) W_b^2 / int W_b^2),
+    which is nu_flat for a flat S. S_l: the spectral lines (``gam_lines``, the tones; S_n the rest),
+    whose power in a band is the same in every segment (random phase, fixed amplitude): they add
+    to E and, through their product with the noise, 2 S_n S_l to the variance, but no variance of
+    their own; except in a band whose window reaches DC or Nyquist, where a line's power depends
+    on its phase (its mirror image), and it counts as noise. The factor is capped at PSD_DOF_MAX.
+    S is resolved to 1 / PSD_FINE of a bin (as far as the record allows: G from
+    :func:`psd_fine_length`; G = 0 keeps the flat dof). Returns nu / nu_flat."""
+    if G < 4 * L or gam_total.shape[0] < G:
         return np.ones(len(groups))
-    s = 2 * G // L                                     # grid points per Welch bin
-    S = _fine_spectrum(gam_total, G)
-    Sl = _fine_spectrum(gam_lines, G) if gam_lines is not None else np.zeros_like(S)
-    S[: s // 2] = S[s // 2]                            # below half a bin: the mean removal's job
+    s = 2 * G // L                                     # grid points per Welch bin (exact: G = L 2^k)
+    lines = gam_lines is not None
+    Sn = _fine_spectrum(gam_total - gam_lines[:gam_total.shape[0]] if lines else gam_total, G)
+    Sl = _fine_spectrum(gam_lines, G) if lines else np.zeros_like(Sn)
+    Sn[: s // 2] = Sn[s // 2]                          # below half a bin: the mean removal's job
     Sl[: s // 2] = Sl[s // 2]
-    V = np.maximum(S**2 - np.minimum(Sl, S) ** 2, 0.0)
+    S = Sn + Sl
+    V = Sn**2 + 2.0 * Sn * Sl                          # the lines' own variance left out ...
+    V_edge = S**2                                      # ... but where their mirror image reaches
     H2 = _hann_power_on_grid(L, G, window)
     off = np.arange(-(H2.size - 1), H2.size)
     ker = H2[np.abs(off)]
     fac = np.ones(len(groups))
     for b, gr in enumerate(groups):
         idx = (gr[:, None] * s + off[None, :]).ravel()
+        edge = bool(idx.min() < 0 or idx.max() > G)
         idx = np.abs(idx)                              # fold at 0 and at Nyquist (S is even)
         idx = np.where(idx > G, 2 * G - idx, idx)
         Wb = np.bincount(idx, weights=np.tile(ker, gr.size), minlength=G + 1)
         sel = np.flatnonzero(Wb)
         W = Wb[sel]
         E = np.dot(S[sel], W) / W.sum()
-        var = np.dot(V[sel], W**2) / np.dot(W, W)
-        if E > 0 and var > 0:
-            fac[b] = E**2 / var
+        var = np.dot((V_edge if edge else V)[sel], W**2) / np.dot(W, W)
+        if E > 0:
+            fac[b] = min(E**2 / var, PSD_DOF_MAX) if var > 0 else PSD_DOF_MAX
     return fac
 
 
@@ -769,7 +786,7 @@ def psd_view(r, Ts, gam_parts, j, L, bpd, model=None, mod=None, jkey=None, gam_f
     groups = log_bin_groups(est.f, bpd)
     from ..stats.psd import _average_groups
     binned = _average_groups(est, groups)
-    G_key = None if gam_fine is None else min(PSD_FINE * L, 1 << int(np.floor(np.log2(r.size + 1))))
+    G = 0 if gam_fine is None else psd_fine_length(L, r.size)
 
     def predict():
         parts = {}
@@ -778,12 +795,11 @@ def psd_view(r, Ts, gam_parts, j, L, bpd, model=None, mod=None, jkey=None, gam_f
             parts[eid] = np.array([e[gr].mean() for gr in groups])
         fac = np.ones(len(groups))
         if gam_fine is not None:
-            n_f = r.size + 1
-            tot = sum(g[:n_f, j] for g in gam_fine.values())
-            lines = [g[:n_f, j] for eid, g in gam_fine.items() if eid in line_ids]
-            fac = psd_band_dof_factor(tot, sum(lines) if lines else None, L, groups)
+            tot = sum(g[:G, j] for g in gam_fine.values())
+            lines = [g[:G, j] for eid, g in gam_fine.items() if eid in line_ids]
+            fac = psd_band_dof_factor(tot, sum(lines) if lines else None, L, groups, G)
         return parts, fac
-    parts, fac = predict() if model is None else _cached(model, "psd_view", (j, L, bpd, jkey, G_key), predict)
+    parts, fac = predict() if model is None else _cached(model, "psd_view", (j, L, bpd, jkey, G), predict)
     parts = dict(parts)
     nu = binned.dof * fac
     pred = sum(parts.values())
@@ -946,11 +962,12 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
         jkey = tuple(int(x) for x in steps)
     if "sensor.quantization" in model.effects:
         gam = dict(gam)
-        gq = gam["sensor.quantization"] = quantization_gamma(model, gam, mean.y[burn:], burn, jkey)
+        h = _record_hash(mean.y[burn:])
+        gq = gam["sensor.quantization"] = quantization_gamma(model, gam, mean.y[burn:], burn, jkey, h)
         if gq.shape[0] > 2 and not np.all(gq[2:] == gq[1:2]):
             # correlated: every view's prediction depends on this record's mean response, so its
             # cache key must too (a white error is the same for every record, and stays shared)
-            jkey = (jkey, _record_hash(mean.y[burn:]), burn)
+            jkey = (jkey, h, burn)
     corr = 5 * _cached(model, "transient", 0, lambda: transient_samples(model)) + 10
     # predicted variance of y_k: stationary part + the walk's growth (R_b,k = R_b,0 + k Q_b)
     st = pr.steady_state()

@@ -584,9 +584,11 @@ class Predictor:
         """
         from scipy.signal import get_window
 
+        from ..stats.psd import window_autocorrelation
+
         L = int(nperseg)
         w = get_window(window, L)
-        c = np.correlate(w, w, mode="full")[L - 1:]          # c_w(d), d = 0..L-1
+        c = window_autocorrelation(w)                        # c_w(d), d = 0..L-1
         out = {}
         for eid, R in self.acf(L).items():
             if R is None:

@@ -46,7 +46,7 @@ from scipy import stats as _sps
 
 from .errors import StatsError, as_series, choice, positive_float, positive_int, probability
 
-__all__ = ["PsdEstimate", "welch", "psd_log_bins", "psd_band", "log_bin_groups"]
+__all__ = ["PsdEstimate", "welch", "psd_log_bins", "psd_band", "log_bin_groups", "window_autocorrelation"]
 
 _DETRENDS = ("constant", "linear", "none")
 
@@ -216,6 +216,13 @@ def psd_band(est: PsdEstimate, f_lo: float, f_hi: float) -> tuple[float, float]:
 
 
 # --------------------------------------------------------------------------------------------
+
+
+def window_autocorrelation(w: np.ndarray) -> np.ndarray:
+    """c_w(d) = sum_n w_{n+d} w_n, d = 0..len(w)-1 (by FFT: O(L log L), for tapers of any length)."""
+    w = np.asarray(w, dtype=np.float64)
+    n = w.size
+    return np.fft.irfft(np.abs(np.fft.rfft(w, 2 * n)) ** 2, 2 * n)[:n]
 
 
 def _require_raw(est, name: str) -> None:
