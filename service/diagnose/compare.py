@@ -751,7 +751,7 @@ def psd_band_dof_factor(gam_total: np.ndarray, gam_lines: np.ndarray | None, L: 
         return np.ones(len(groups))
     s = 2 * G // L                                     # grid points per Welch bin (exact: G = L 2^k)
     lines = gam_lines is not None
-    Sn = _fine_spectrum(gam_total - gam_lines[:gam_total.shape[0]] if lines else gam_total, G)
+    Sn = _fine_spectrum(gam_total - gam_lines if lines else gam_total, G)
     Sl = _fine_spectrum(gam_lines, G) if lines else np.zeros_like(Sn)
     Sn[: s // 2] = Sn[s // 2]                          # below half a bin: the mean removal's job
     Sl[: s // 2] = Sl[s // 2]

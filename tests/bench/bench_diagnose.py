@@ -129,6 +129,11 @@ def _failed(rows) -> list:
             f"{r['error_after']:.3g}" for r in rows if not r["ok"]]
 
 
+def _details(rows) -> list:
+    """The failed cases as a collapsed list (Markdown <details>)."""
+    return ["<details><summary>Failed cases</summary>", ""] + _failed(rows) + ["", "</details>", ""]
+
+
 def _criteria(rows) -> str:
     n = len(rows)
     return (f"{sum(r['ok'] for r in rows)}/{n} meet all criteria; planted on top {sum(r['ranked'] for r in rows)}/{n}, "
@@ -172,7 +177,7 @@ def render(meta, bigr, rows, nrows, scan=(), planted=None, n_scan=0, steps=(), n
         for e in sorted(per):
             n_ok = sum(r["ok"] for r in hid if e in r["planted"])
             L.append(f"| {e} | {per[e]} | {n_ok} |")
-        L += ["", "<details><summary>Failed cases</summary>", ""] + _failed(rows) + ["", "</details>", ""]
+        L += [""] + _details(rows)
     if scan:
         L += [f"Every generated case with a planted `{planted}` among seeds 0..{n_scan - 1} (the generator plants it "
               f"rarely): {_criteria(scan)}. Seeds: {', '.join(str(r['seed']) for r in scan)}.", ""]
@@ -186,7 +191,7 @@ def render(meta, bigr, rows, nrows, scan=(), planted=None, n_scan=0, steps=(), n
         L += [f"Every generated case among seeds 0..{n_wrong - 1} with a hidden effect that `hidden_set.WRONG` lists, that "
               "effect put in the nominal at a wrong value (one parameter times a factor of 0.3 to 4, or a scale factor "
               f"of the wrong sign; `hidden_set.with_wrong_value`): {_criteria(wrong)}.", ""]
-        L += ["<details><summary>Failed cases</summary>", ""] + _failed(wrong) + ["", "</details>", ""]
+        L += _details(wrong)
     if coarse:
         L += [f"Every generated case among seeds 0..{n_coarse - 1} with a planted quantizer, the quantizer made coarse "
               "(step 10x the sensor noise, at most 0.7x the signal's std, cases where that is under "
@@ -199,11 +204,11 @@ def render(meta, bigr, rows, nrows, scan=(), planted=None, n_scan=0, steps=(), n
               "similarity transform, one or two outputs, and mass-spring-dampers of zeta 0.01 to 0.05; the same "
               f"effects hidden as in the generator's case of that seed): {_criteria([r for r in other if not r['null']])}; "
               f"null cases clean {sum(r['ok'] for r in other if r['null'])}/{sum(r['null'] for r in other)}.", ""]
-        L += ["<details><summary>Failed cases</summary>", ""] + _failed(other) + ["", "</details>", ""]
+        L += _details(other)
     if pairs:
         L += [f"A bias random walk and a Gauss-Markov bias hidden together (`hidden_set.with_bias_pair`, the nominals "
               f"of seeds 0..{len(pairs) - 1}; the generator never pairs them): {_criteria(pairs)}.", ""]
-        L += ["<details><summary>Failed cases</summary>", ""] + _failed(pairs) + ["", "</details>", ""]
+        L += _details(pairs)
     if nrows:
         L += ["Null scenarios (3 min each): false positives (anything reported):", "",
               "| scenario | seeds | false positives |", "|---|---|---|"]

@@ -405,10 +405,9 @@ def with_bias_pair(case: Case) -> Case:
     var0 = float(np.max(m.predictor().steady_state().var_y))
     rng = np.random.default_rng([case.seed, 99])
     T = case.duration
-    fw, fm = np.exp(rng.uniform(np.log(0.3), np.log(3.0), 2))
-    walk = {"std": float(f"{math.sqrt(fw * var0 / T) * 2:.4g}")}
-    tau = float(np.exp(rng.uniform(np.log(T / 60), np.log(T / 6))))
-    markov = {"std": float(f"{math.sqrt(fm * var0):.4g}"), "tau_s": float(f"{tau:.4g}")}
+    # the generator's own draws (the two biases need only rng, T and var0 of its arguments)
+    walk, markov = (_hidden_params(rng, eid, m.Ts, T, None, {}, None, var0, None, None)
+                    for eid in ("sensor.bias_walk", "sensor.bias_markov"))
     truth = {k: (dict(v) if isinstance(v, dict) else v) for k, v in nominal.items()}
     truth["sensor"] = dict(truth.get("sensor", {}), bias_walk=walk, bias_markov=markov)
     return Case(case.name + "-biaspair", dumps_toml(truth), case.nominal,
