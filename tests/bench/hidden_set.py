@@ -282,6 +282,16 @@ def _hidden_params(rng, eid, Ts, T, plant, command, nominal, var0, sd0, fn):
     return None
 
 
+def within_30_chance(iv) -> float:
+    """P(0.7 <= estimate / truth <= 1.3) for an unbiased estimator, normal in log, whose 95 %
+    interval is ``iv`` (its log-width / (2 x 1.96) the standard deviation): what the data allow."""
+    from scipy.stats import norm
+    sd = (np.log(iv[1]) - np.log(iv[0])) / (2 * 1.959964)
+    if sd <= 0:
+        return 1.0
+    return float(norm.cdf(np.log(1.3) / sd) - norm.cdf(np.log(0.7) / sd))
+
+
 def score_case(case: Case, rep: dict) -> dict:
     """The issue's criteria for one case."""
     planted = set(case.hidden)
@@ -293,7 +303,7 @@ def score_case(case: Case, rep: dict) -> dict:
         out["ok"] = not missing
         return out
     out["ranked"] = set(top) == planted and len(missing) >= len(planted)
-    within = []
+    within, covered, chance = [], [], []
     for m in missing:
         if m["effect"] not in planted:
             continue
@@ -306,7 +316,15 @@ def score_case(case: Case, rep: dict) -> dict:
                 continue
             got = float(np.max(got)) if isinstance(got, list) else float(got)
             within.append(abs(got / v - 1) <= 0.3)
+            iv = m.get("interval", {}).get(k)
+            if iv is not None and v > 0 and iv[0] > 0:
+                covered.append(bool(iv[0] <= v <= iv[1]))
+                chance.append(within_30_chance(iv))
     out["params_ok"] = bool(within) and all(within)
+    # the issue's "recovered within its interval": the planted value inside the reported 95 % interval;
+    # and the chance that an unbiased estimator of the interval's precision lands within 30 %
+    out["covered"] = covered
+    out["chance30"] = float(np.prod(chance)) if chance else None
     out["error_ok"] = rep["error_after"] <= 1.5 and rep["error_after"] < rep["error_before"]
     out["ok"] = out["ranked"] and out["params_ok"] and out["error_ok"]
     # planted effects not reported but named as an exact-tie alternative of a reported one (the same
