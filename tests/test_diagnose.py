@@ -616,6 +616,21 @@ def test_a_coarse_quantizer_on_a_slow_signal_is_found_alone():
     assert rep["error_after"] < 1.5 < rep["error_before"]
 
 
+def test_an_encoder_like_quantizer_is_found_alone_and_explains_the_record():
+    """A step of 0.5 over a sensor noise of 0.08 step on a sine across ~11 steps: most of the
+    quantizer's error is its conditional mean E[Q(x)] - mu, a function of the mean response. With it
+    in the mean response (and the variance about it following the mean's place between the levels)
+    the quantizer alone is reported and the model error falls to about 1; with it left in the
+    residual as noise the error after was 10.5 on this record."""
+    from test_analysis import _ENCODER_DOC
+
+    truth = parse_model(_ENCODER_DOC, "encoder")
+    rep, _ = _diagnose_hidden(truth, ("sensor.quantization",), 24_000, 1)
+    assert [m["effect"] for m in rep["missing"]] == ["sensor.quantization"]
+    assert rep["missing"][0]["params"]["step"] == pytest.approx(0.5, rel=1e-6)
+    assert rep["error_after"] < 1.5 < rep["error_before"]
+
+
 def test_command_lines_and_their_harmonics_are_no_tone():
     """A sine command has one line (its frequency, to a bin); a chirp and PRBS none, also when they
     repeat within the record (a comb of thousands of weak lines up to the Nyquist frequency, whose

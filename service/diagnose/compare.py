@@ -237,18 +237,30 @@ def _record_hash(a: np.ndarray) -> str:
     return hashlib.blake2b(np.ascontiguousarray(a, float).tobytes(), digest_size=16).hexdigest()
 
 
-def quantization_gamma(model, gam: dict, mean_y: np.ndarray, k0: int, jkey=None, h: str | None = None) -> np.ndarray:
-    """The quantizer's variogram (L, p) over this record: its error is correlated when the signal
+def quantization_gamma(model, gam: dict, mean_y: np.ndarray, k0: int, jkey=None, h: str | None = None):
+    """The quantizer's variogram (L, p) over this record, and its part's lag 0 (p,): its error is correlated when the signal
     moves by less than a step between samples (:mod:`service.model.effects.sensor_quantization`),
-    so it depends on the record's own mean response (``mean_y`` from sample ``k0``), cached by it."""
+    and its conditional mean (in the mean response: :func:`quantizer_moments`) and variance depend
+    on where the signal sits between the steps, so it depends on the record's own mean response
+    (``mean_y`` from sample ``k0``), cached by it."""
     L = next(iter(gam.values())).shape[0]
     h = _record_hash(mean_y) if h is None else h          # the caller's, when it has hashed mean_y
 
     def compute():
         pr = predictor_of(model)
-        R = pr.quantization_acf(gam, pr.motion(mean_y.shape[0], mean_y, k0))
-        return R[0] - R
+        mo = quantizer_moments(model, mean_y, k0, h)
+        R = pr.quantization_acf(gam, pr.motion(mean_y.shape[0], mean_y, k0), moments=mo)
+        return R[0] - R, R[0].copy()
     return _cached(model, "quantization", (L, k0, h, jkey), compute)
+
+
+def quantizer_moments(model, mean_y: np.ndarray, k0: int = 0, h: str | None = None):
+    """The quantizer's conditional moments over this record (:meth:`Predictor.quantizer_moments`:
+    E[Q(x_k)] - mu_k, the part of the mean measurement the quantizer adds when the noise before it
+    is under about 0.84 step), cached by the record's mean response; None when there are none."""
+    h = _record_hash(mean_y) if h is None else h
+    return _cached(model, "quantizer_moments", (k0, h, mean_y.shape),
+                   lambda: predictor_of(model).quantizer_moments(mean_y, k0))
 
 
 def expected_window_stats(gam: np.ndarray, M: int, max_lag: int) -> np.ndarray:
@@ -417,7 +429,15 @@ def modulation_kappa(m: np.ndarray, ell, phi) -> np.ndarray:
 
 
 # -- the four views ------------------------------------------------------------------------------------
-def variance_view(r, t, gam_parts, j, W, model=None, gam_long=None, mod=None, jkey=None):
+def variance_view(r, t, gam_parts, j, W, model=None, gam_long=None, mod=None, jkey=None, qmod=None, qk4=None):
+    """Variances over windows of W samples against their expectation. ``mod``: the jitter's
+    modulation (its part follows the slope); ``qmod`` (n,): a quantizer's, Var(y_k) over its mean
+    (the measurement's variance follows where the mean sits between the levels, ~0 on a level and
+    Delta^2 / 4 on a threshold half-way between two: each window's
+    expectation scaled by its mean of ``qmod``, its spread by its mean of qmod^2 as well);
+    ``qk4`` (n,): the measurement's
+    excess fourth moment at each sample (a few levels are not Gaussian), sum / W^2 added to each
+    window's variance of the estimate."""
     n_win = r.size // W
     if n_win < 2:
         raise AnalysisError(f"record too short for the variance window of {W} samples")
@@ -442,12 +462,26 @@ def variance_view(r, t, gam_parts, j, W, model=None, gam_long=None, mod=None, jk
         # the jitter's power follows the slope: each window's expectation (and spread) with it
         contrib["sensor.jitter"] = contrib["sensor.jitter"] * mod[: n_win * W].reshape(n_win, W).mean(axis=1)
         scale = sum(contrib.values()) / E
+    spread = np.ones(n_win)
+    if qmod is not None:
+        qw = qmod[: n_win * W].reshape(n_win, W)
+        scale = scale * qw.mean(axis=1)
+        # sum_k Var(r_k^2) = sum_k 2 v_k^2 (+ k4_k): v_k unequal within a window weigh more than
+        # their mean squared (a variance ~0 while the mean sits on a level, Delta^2 / 4 while it
+        # sits on a decision threshold half-way between two)
+        spread = np.mean(qw**2, axis=1) / np.mean(qw, axis=1) ** 2
     pred = E * scale
+    est_var = var * scale**2 * spread
+    if qk4 is not None:
+        # + sum_k k4_k / W^2, kept to at least a tenth of the Gaussian part (k4 >= -2 Var^2)
+        est_var = np.maximum(est_var + qk4[: n_win * W].reshape(n_win, W).sum(axis=1) / W**2, 0.1 * est_var)
+    if qmod is not None or qk4 is not None:
+        nu = 2 * pred**2 / est_var
     alpha = FAMILY_ALPHA / n_win
     lo, hi = _chi2_band(pred, nu, alpha)
     v = View("variance", j, centres, "time [s]", "variance of y in the window [units^2]", emp, pred, lo, hi,
              contributions=contrib,
-             z=(emp - pred) / (np.sqrt(var) * scale), notes=[f"windows of {W} samples, mean removed"])
+             z=(emp - pred) / np.sqrt(est_var), notes=[f"windows of {W} samples, mean removed"])
     # Var(z^2) = E z^4 - 1 = 2 + 12 sum lambda^4 / (sum lambda^2)^2 (:func:`window_kurtosis`; the
     # chi-squared's 2 + 12 / nu when that is not finite)
     z2_var = 2.0 + 12.0 * kurt if np.isfinite(kurt) else _z2_var_linear(nu[0])
@@ -630,7 +664,7 @@ def window_kurtosis(gam: np.ndarray, W: int) -> float:
     return float((np.sum(lam**4) + tail) / s2**2)
 
 
-def acf_view(r, Ts, gam_parts, j, M, max_lag, model=None, gam_long=None, jkey=None, mod=None):
+def acf_view(r, Ts, gam_parts, j, M, max_lag, model=None, gam_long=None, jkey=None, mod=None, qmod=None):
     K = r.size // M
     if K < 1:
         raise AnalysisError(f"record too short for the autocorrelation segment of {M} samples")
@@ -684,6 +718,16 @@ def acf_view(r, Ts, gam_parts, j, M, max_lag, model=None, gam_long=None, jkey=No
         J = float(parts["sensor.jitter"][0])
         extra = (float(np.mean(mod**2)) / float(np.mean(mod)) ** 2 - 1.0) * J**2 / (M * K)
         var = var + extra * np.where(np.arange(var.size) == 0, 2.0, 1.0)
+    if qmod is not None:
+        # a quantizer's local variance (all of it) follows the mean's place between the levels
+        # (``qmod``: Var(y_k) over its mean; see :func:`variance_view`), and can change from one
+        # sample to the next (large only while the mean crosses a level): Bartlett's V^2 / n at lag
+        # h takes mean(q_k q_{k+h}) / mean(q)^2, at lag 0 twice that of mean(q_k^2)
+        V = float(R[0])
+        q = qmod / np.mean(qmod)
+        H = var.size
+        qq = np.array([np.mean(q[: q.size - h] * q[h:]) for h in range(H)])
+        var = var + (qq - 1.0) * V**2 / (M * K) * np.where(np.arange(H) == 0, 2.0, 1.0)
     se = np.sqrt(var)
     pred = R[: max_lag + 1]
     z = (emp - pred) / se
@@ -777,7 +821,7 @@ def psd_band_dof_factor(gam_total: np.ndarray, gam_lines: np.ndarray | None, L: 
     return fac
 
 
-def psd_view(r, Ts, gam_parts, j, L, bpd, model=None, mod=None, jkey=None, gam_fine=None, line_ids=()):
+def psd_view(r, Ts, gam_parts, j, L, bpd, model=None, mod=None, jkey=None, gam_fine=None, line_ids=(), qmod=None):
     """The PSD view. ``gam_fine``: {id: variogram} to a length beyond the segment (the record's), for
     the bands' dof under the model's spectrum (:func:`psd_band_dof_factor`); ``line_ids``: the tones."""
     if r.size < L:
@@ -813,6 +857,11 @@ def psd_view(r, Ts, gam_parts, j, L, bpd, model=None, mod=None, jkey=None, gam_f
                                  parts["sensor.jitter"] / np.maximum(pred, 1e-300))
         nu = nu / kappa
         notes.append(f"dof divided by up to {kappa.max():.3g} for the jitter's modulation")
+    if qmod is not None:
+        kappa = modulation_kappa(qmod, [max(int(round(0.514 * L / len(gr))), 1) for gr in groups], np.ones(len(groups)))
+        nu = nu / kappa
+        notes.append(f"dof divided by up to {kappa.max():.3g}: the quantizer's variance follows the mean's "
+                     "place between the levels")
     alpha = FAMILY_ALPHA / pred.size
     lo, hi = _chi2_band(pred, nu, alpha)
     v = View("psd", j, binned.f, "frequency [Hz]", "PSD [units^2/Hz]", binned.psd, pred, lo, hi,
@@ -853,7 +902,7 @@ def allan_z(avar_emp, avar_pred, nu):
     return (avar_emp - avar_pred) / (avar_pred * np.sqrt(2.0 / nu))
 
 
-def allan_view(r, Ts, gam_parts_full, j, corr, model=None, mod=None, jkey=None):
+def allan_view(r, Ts, gam_parts_full, j, corr, model=None, mod=None, jkey=None, qmod=None):
     res = oadev(r, 1.0 / Ts, taus="octave")
     m = res.m.astype(np.int64)
     parts = {eid: allan_from_variogram(g[:, j:j + 1], m)[:, 0] for eid, g in gam_parts_full.items()}
@@ -863,6 +912,8 @@ def allan_view(r, Ts, gam_parts_full, j, corr, model=None, mod=None, jkey=None):
         _cached(model, "allan_edf", (j, tuple(m), r.size, corr, jkey), lambda: allan_edf_model(total_gam, m, r.size, corr))
     if mod is not None and "sensor.jitter" in parts:
         nu = nu / modulation_kappa(mod, 2 * m, parts["sensor.jitter"] / np.maximum(avar, 1e-300))
+    if qmod is not None:
+        nu = nu / modulation_kappa(qmod, 2 * m, np.ones(m.size))
     alpha = FAMILY_ALPHA / m.size
     lo2, hi2 = _chi2_band(avar, nu, alpha)
     v = View("allan", j, res.taus, "tau [s]", "Allan deviation [units]", res.dev, np.sqrt(avar),
@@ -943,7 +994,11 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
     n = len(y)
     if burn is None:
         burn = min(_cached(model, "transient", 0, lambda: transient_samples(model)), n // 2)
-    r_all = y - mean.y
+    y_mean = mean.y
+    qmo = quantizer_moments(model, mean.y) if "sensor.quantization" in model.effects else None
+    if qmo is not None:
+        y_mean = mean.y + qmo.g                         # E[Q(x)]: a coarse step biases the mean
+    r_all = y - y_mean
     r = r_all[burn:]
     ta = t[burn:]
     s = default_settings(r.shape[0])
@@ -960,11 +1015,14 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
         gam = dict(gam)
         gam["sensor.jitter"] = gam["sensor.jitter"] * np.exp(steps * JITTER_LEVEL_STEP)
         jkey = tuple(int(x) for x in steps)
+    qmo_r = None                                       # the quantizer's moments over the analysed samples
     if "sensor.quantization" in model.effects:
         gam = dict(gam)
         h = _record_hash(mean.y[burn:])
-        gq = gam["sensor.quantization"] = quantization_gamma(model, gam, mean.y[burn:], burn, jkey, h)
-        if gq.shape[0] > 2 and not np.all(gq[2:] == gq[1:2]):
+        gq, q0 = quantization_gamma(model, gam, mean.y[burn:], burn, jkey, h)
+        qmo_r = quantizer_moments(model, mean.y[burn:], burn, h)
+        gam["sensor.quantization"] = gq
+        if qmo is not None or (gq.shape[0] > 2 and not np.all(gq[2:] == gq[1:2])):
             # correlated: every view's prediction depends on this record's mean response, so its
             # cache key must too (a white error is the same for every record, and stays shared)
             jkey = (jkey, h, burn)
@@ -974,6 +1032,9 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
     walk_rate = np.broadcast_to(st.bias_var_rate * model.Ts, (model.p,))
     walk0 = sum((e.init_std**2 for e in model.effects.values() if e.id == "sensor.bias_walk"), np.zeros(model.p))
     var_stat = st.var_y if st.var_y is not None else np.full(model.p, np.nan)
+    if "sensor.quantization" in model.effects and st.var_y is not None:
+        # the quantizer's part over this record (its steady state has the uniform step^2 / 12)
+        var_stat = var_stat - st.contributions["sensor.quantization"] + q0
     level = level and bool(np.all(np.isfinite(var_stat)))
     gam_short = {eid: g[:L_need] for eid, g in gam.items()}
     lines = pr.tone_ids()
@@ -981,14 +1042,21 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
     for j in range(model.p):
         rj = r[:, j]
         mj = None if mod is None else mod[:, j]
+        qj = qk = None
+        if qmo_r is not None and qmo_r.active[j] and np.mean(qmo_r.var_y[:, j]) > 0:
+            vm = np.mean(qmo_r.var_y[:, j])
+            qj = np.maximum(qmo_r.var_y[:, j], 1e-9 * vm) / vm       # a window all on a level: not 0 / 0
+            qk = qmo_r.k4[:, j]
         g_long = sum(g[:, j] for g in gam.values())       # to the record's length: both views' spreads
-        jobs += [lambda rj=rj, j=j, gl=g_long, mj=mj: variance_view(rj, ta, gam_short, j, s["window"], model,
-                                                                   gam_long=gl, mod=mj, jkey=jkey),
-                 lambda rj=rj, j=j, gl=g_long, mj=mj: acf_view(rj, model.Ts, gam_short, j, s["acf_segment"],
-                                                                s["max_lag"], model, gam_long=gl, jkey=jkey, mod=mj),
-                 lambda rj=rj, j=j, mj=mj: psd_view(rj, model.Ts, gam_short, j, s["nperseg"], s["bins_per_decade"],
-                                                    model, mod=mj, jkey=jkey, gam_fine=gam, line_ids=lines),
-                 lambda rj=rj, j=j, mj=mj: allan_view(rj, model.Ts, gam, j, corr, model, mod=mj, jkey=jkey)]
+        jobs += [lambda rj=rj, j=j, gl=g_long, mj=mj, qj=qj, qk=qk: variance_view(rj, ta, gam_short, j, s["window"], model,
+                                                                   gam_long=gl, mod=mj, jkey=jkey, qmod=qj, qk4=qk),
+                 lambda rj=rj, j=j, gl=g_long, mj=mj, qj=qj: acf_view(rj, model.Ts, gam_short, j, s["acf_segment"],
+                                                                s["max_lag"], model, gam_long=gl, jkey=jkey, mod=mj,
+                                                                qmod=qj),
+                 lambda rj=rj, j=j, mj=mj, qj=qj: psd_view(rj, model.Ts, gam_short, j, s["nperseg"], s["bins_per_decade"],
+                                                    model, mod=mj, jkey=jkey, gam_fine=gam, line_ids=lines, qmod=qj),
+                 lambda rj=rj, j=j, mj=mj, qj=qj: allan_view(rj, model.Ts, gam, j, corr, model, mod=mj, jkey=jkey,
+                                                             qmod=qj)]
         if level:
             jobs.append(lambda rj=rj, j=j: level_view(rj, ta, gam, j, s["window"], burn, float(var_stat[j]),
                                                       float(walk0[j]), float(walk_rate[j]), model, jkey=jkey))
@@ -1007,9 +1075,12 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
     regions = [rg for v in views for rg in regions_of(v)]
     k = np.arange(n)[:, None]
     y_sd = np.sqrt(var_stat + walk0 + k * walk_rate)
+    if qmo is not None:
+        # a quantizer's variance follows the mean's place between its levels (the walk included)
+        y_sd[:, qmo.active] = np.sqrt(qmo.var_y[:, qmo.active])
     nts = list(notes or [])
     if burn:
         nts.append(f"analysis starts at t = {t[burn]:.3g} s, after the model's transient from rest ({burn} samples)")
     return Comparison(model_name=model.name, model_source=model.source, revision=revision, Ts=model.Ts,
-                      t=t, y=y, y_mean=mean.y, y_sd=y_sd, truth=truth, views=views, error=error,
+                      t=t, y=y, y_mean=y_mean, y_sd=y_sd, truth=truth, views=views, error=error,
                       error_per_view=per_view, regions=regions, notes=nts)

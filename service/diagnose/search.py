@@ -314,7 +314,34 @@ class Evaluator:
         self._slope: dict = {}
         self._ramp: dict = {}
         self._quant: dict = {}
+        self._qmo: dict = {}
         self.evals = 0
+
+    def quant_moments(self, model):
+        """The quantizer's conditional moments over this record under ``model``
+        (:meth:`Predictor.quantizer_moments`: they depend on its noise, not only on the mean
+        effects) and a key for them; (None, None) when the error does not depend on the mean."""
+        if "sensor.quantization" not in model.effects:
+            return None, None
+        key = repr(model.to_dict())
+        got = self._qmo.get(key)
+        if got is None:
+            if len(self._qmo) > 16:
+                self._qmo.clear()
+            k0 = self.data.k0
+            try:
+                # over the analysed samples (its averages are the analysis'); g is 0 before them
+                mo = model.predictor().quantizer_moments(self.mean(model)[0][k0:], k0)
+            except (ValueError, np.linalg.LinAlgError):
+                mo = None
+            if mo is not None and k0:
+                mo.g = np.concatenate([np.zeros((k0, mo.g.shape[1])), mo.g])
+            got = self._qmo[key] = (mo, None if mo is None else key)
+        return got
+
+    def residual_key(self, model, free_tone: bool) -> tuple:
+        """:func:`_residual_key`, and the quantizer's moments when its mean depends on the noise."""
+        return _residual_key(model, free_tone), self.quant_moments(model)[1]
 
     def mean(self, model):
         """E[y] and E[ydot]: cached without the sensor gain (a scale factor's trials share one
@@ -349,7 +376,8 @@ class Evaluator:
         white = sum((np.broadcast_to(prm[0], (d.p,)) for eid, kind, *prm in pr._primitives()
                      if kind == "white" and eid != "sensor.quantization"), np.zeros(d.p))
         step = model.effects["sensor.quantization"].params["step"]
-        if white_enough(step, white):
+        mo = self.quant_moments(model)[0]
+        if mo is None and white_enough(step, white):
             return None
 
         def variogram(K):
@@ -358,7 +386,7 @@ class Evaluator:
 
         K = int(min(d.M, QUANT_LAGS))
         gam = variogram(K)
-        if gam is None or K < 2 or white_enough(step, np.min(pr.before_quantizer(gam)[1:], axis=0)):
+        if gam is None or K < 2 or (mo is None and white_enough(step, np.min(pr.before_quantizer(gam)[1:], axis=0))):
             return None
         # the motion's factors cost transforms of the record's length: shared between mean responses
         # whose increments' rms agree to 3 significant digits at lags 1, 8, 64 and 512 (the searches
@@ -376,13 +404,13 @@ class Evaluator:
                 self._quant.clear()
             got = self._quant[key] = (pr.motion(ym.shape[0], ym, d.k0), {})
         motion, cache = got
-        R = pr.quantization_acf(gam, motion, cache)
-        if K < d.M and np.any(np.max(np.abs(R[3 * K // 4:]), axis=0) > QUANT_TAIL * R[0]):
+        R = pr.quantization_acf(gam, motion, cache, mo)
+        if K < d.M and np.any(np.max(np.abs(R[3 * K // 4:]), axis=0) > QUANT_TAIL * np.max(np.abs(R), axis=0)):
             # still correlated at the last lags (a periodic command and a random part under a step:
             # the error holds the command's harmonics): every lag of the record, so that the
             # expected periodogram stays a spectrum (a cut one goes negative)
-            R = pr.quantization_acf(variogram(d.M), motion, cache)
-        return W.acf_part(R, d.M, d.groups, cross=d.p > 1)
+            R = pr.quantization_acf(variogram(d.M), motion, cache, mo)
+        return W.acf_part(R, d.M, d.groups, cross=d.p > 1, floor=mo is None)
 
     def slope_power(self, model, ydot: np.ndarray) -> np.ndarray:
         """:func:`.whittle.slope_power` of the model's mean slope ``ydot``, cached by its mean response
@@ -397,8 +425,9 @@ class Evaluator:
 
     def grouped_periodogram(self, model, free_tone: bool):
         """:meth:`residual` and the group means of its periodogram, cached: only the mean effects
-        and the tone change them, not the noise parameters most evaluations vary."""
-        key = _residual_key(model, free_tone)
+        and the tone change them, not the noise parameters most evaluations vary (except through a
+        quantizer's conditional mean, :meth:`quant_moments`, when the noise is under a step)."""
+        key = self.residual_key(model, free_tone)
         got = self._pgram.get(key)
         if got is None:
             if len(self._pgram) > 8:
@@ -415,7 +444,7 @@ class Evaluator:
         ramps = self.data.ramps
         if not ramps:
             return 0.0
-        key = _residual_key(model, free_tone)
+        key = self.residual_key(model, free_tone)
         got = self._ramp.get(key)
         if got is None:
             if len(self._ramp) > 64:
@@ -425,10 +454,13 @@ class Evaluator:
         return got
 
     def residual(self, model, free_tone: bool):
-        """r (N, p) with the tones removed, and the tone parameters fitted (amplitude per output)."""
+        """r (N, p) with the tones removed, and the tone parameters fitted (amplitude per output).
+        A quantizer whose error depends on the mean (noise under about 0.84 step) adds its
+        conditional mean E[Q(x)] - mu to the mean response (:meth:`quant_moments`)."""
         d = self.data
         ym, yd = self.mean(model)
-        r = d.y - ym
+        mo = self.quant_moments(model)[0]
+        r = d.y - ym if mo is None else d.y - ym - mo.g
         tone = model.effects.get("sensor.tone")
         fitted = None
         if tone is not None:
@@ -447,6 +479,15 @@ class Evaluator:
                 w = 2 * np.pi * freq[j] * d.Ts * np.arange(d.N)
                 r[:, j] -= scale * (a * np.sin(w) + b * np.cos(w))
         return r, yd, fitted
+
+
+def _g_moved(a, b, rtol: float = 1e-3) -> bool:
+    """Whether two quantizer moments' conditional means differ by more than ``rtol`` of the
+    measurement's rms variance (None: no mean)."""
+    if a is None or b is None:
+        return (a is None) != (b is None)
+    scale = np.sqrt(np.mean(b.var_y, axis=0))
+    return bool(np.any(np.max(np.abs(a.g - b.g), axis=0) > rtol * scale))
 
 
 def _residual_key(model, free_tone: bool) -> tuple:
@@ -906,6 +947,7 @@ class Hypotheses:
             parts = dict(parts)
             parts[qid] = qpart
         inner = Inner(Ig, d.weights / W.taper(d.M)[2], E0, U, mod, mod_index)
+        res_model = model                              # the model the residual (Ig) is of
         v0 = np.array([(c / ref) ** pw for c, ref, (_, _, pw) in zip(cur, refs, scales)]) if scales else None
         v, l = inner.optimize(v0)
         for _ in range(QUANT_ROUNDS if qid in model.effects and scales else 0):
@@ -914,11 +956,17 @@ class Hypotheses:
                 trial = _set(trial, e, {sname: float(ref * vi ** (1.0 / pw))})
             new_q = self.ev.quant_part(trial)
             new_q = white_q if new_q is None else new_q          # white at the fitted values
-            if np.allclose(new_q, parts[qid], rtol=1e-3, atol=0):
+            # the quantizer's conditional mean, in the residual, follows the noise too
+            moved = self.ev.quant_moments(trial)[1] != self.ev.quant_moments(res_model)[1]
+            if np.allclose(new_q, parts[qid], rtol=1e-3, atol=0) and not (moved and _g_moved(
+                    self.ev.quant_moments(trial)[0], self.ev.quant_moments(res_model)[0])):
                 break
             E0 = E0 - parts[qid] + new_q
             parts = dict(parts)
             parts[qid] = new_q
+            if moved:
+                res_model = trial
+                Ig = self.ev.grouped_periodogram(res_model, "sensor.tone" in free)[3]
             inner = Inner(Ig, d.weights / W.taper(d.M)[2], E0, U, mod, mod_index)
             v, l = inner.optimize(v)
         if "sensor.jitter" in model.effects and "sensor.jitter" not in scale_ids:
@@ -928,7 +976,7 @@ class Hypotheses:
             l += Modulation(dd, ydot, d.k0, 1.0)(std_s**2)[0]
         if d.grid is not None:
             l += self.grid_loglik(model)
-        l += self.ev.ramp_term(model, "sensor.tone" in free)
+        l += self.ev.ramp_term(res_model, "sensor.tone" in free)
         fitted = model
         for (e, sname, pw), vi, ref in zip(scales, v, refs):
             fitted = _set(fitted, e, {sname: float(ref * vi ** (1.0 / pw))})
@@ -1101,7 +1149,8 @@ class Hypotheses:
         tone = fit.model.effects["sensor.tone"]
         freq = np.broadcast_to(tone.params["frequency_hz"], (d.p,)).astype(float).copy()
         ym, _ = self.ev.mean(fit.model)
-        r = d.y - ym
+        mo = self.ev.quant_moments(fit.model)[0]
+        r = d.y - ym if mo is None else d.y - ym - mo.g
         for j in range(d.p):
             freq[j] = refine_frequency(r[:, j], freq[j], d.Ts, d.k0, 1.0 / (d.M * d.Ts))
         m = _set(fit.model, "sensor.tone", {"frequency_hz": _vec(freq)})

@@ -293,12 +293,15 @@ def white_part(var: np.ndarray, M: int, groups: Groups | None = None) -> np.ndar
 _WHITE: dict = {}
 
 
-def acf_part(R: np.ndarray, M: int, groups: Groups | None = None, cross: bool = False) -> np.ndarray:
+def acf_part(R: np.ndarray, M: int, groups: Groups | None = None, cross: bool = False,
+             floor: bool = True) -> np.ndarray:
     """E I_f of a stationary source with autocovariance R(h) (K, p), h = 0..K-1 (zero beyond),
     independent between outputs (the quantizer's error): Rd(h) = 2 R(h) - R(h-1) - R(h+1), R(-1) =
     R(1). ``groups``: their means; ``cross``: diagonal cross-periodogram matrices. R is averaged
     over a nonstationary record (the quantizer's error follows the mean response), so its transform
-    is floored at 0 where the averaging leaves it slightly negative."""
+    is floored at 0 where the averaging leaves it slightly negative; ``floor=False`` keeps a part
+    that is negative by design (a quantizer that holds the measurement cancels part of the noise's
+    own spectrum: Stein's term, :func:`service.model.effects.sensor_quantization.quantization_acf`)."""
     R = np.asarray(R, float)
     K, p = R.shape
     Rp = np.concatenate([R, np.zeros((2, p))])
@@ -306,7 +309,9 @@ def acf_part(R: np.ndarray, M: int, groups: Groups | None = None, cross: bool = 
     Rd = 2.0 * Rp[:K + 1] - prev - Rp[1:K + 2]
     K1 = min(K + 1, M)
     a = Rd[:K1] * (taper(M)[1][:K1, None] / M)
-    E = np.maximum(groups.spectrum(a) if groups is not None else _spectrum(a, M), 0.0)
+    E = groups.spectrum(a) if groups is not None else _spectrum(a, M)
+    if floor:
+        E = np.maximum(E, 0.0)
     if cross:
         out = np.zeros((E.shape[0], p, p), complex)
         out[:, np.arange(p), np.arange(p)] = E

@@ -563,12 +563,53 @@ class Predictor:
         return sum((v for eid, v in gam.items() if eid != q and eid not in tones and v is not None),
                    np.zeros((L, self.model.p)))
 
-    def quantization_acf(self, gam: dict, motion: np.ndarray | None, cache: dict | None = None) -> np.ndarray:
+    def quantization_acf(self, gam: dict, motion: np.ndarray | None, cache: dict | None = None,
+                         moments=None) -> np.ndarray:
         """R_e(d) of the quantizer's error (L, p) from the other effects' variograms ``gam`` ({id:
-        (L, p)}, :meth:`before_quantizer`) and the deterministic ``motion``."""
+        (L, p)}, :meth:`before_quantizer`) and the deterministic ``motion``. ``moments``
+        (:meth:`quantizer_moments`): the error's conditional mean is in the mean response; the part
+        is then the covariance about it, the error's covariance with the noise included."""
         from .effects.sensor_quantization import quantization_acf
         step = self.model.effects["sensor.quantization"].params["step"]
-        return quantization_acf(step, self.before_quantizer(gam), motion, cache)
+        cross = None
+        if moments is not None:
+            # c(d) of the stationary random part: a walk's covariance with the error (2 h times its
+            # growing variance) is left out, and so are the tones (deterministic here, in the motion)
+            walks = {eid for eid, kind, *_ in self._primitives() if kind == "walk"}
+            st = self.steady_state()
+            stat = {eid: v for eid, v in gam.items() if eid not in walks}
+            keep = set(stat) - {"sensor.quantization"} - self.tone_ids()
+            sig2 = sum((np.asarray(st.contributions[e], float) for e in keep
+                        if st.contributions.get(e) is not None), np.zeros(self.model.p))
+            cross = sig2 - self.before_quantizer(stat)
+        return quantization_acf(step, self.before_quantizer(gam), motion, cache, moments, cross)
+
+    def quantizer_moments(self, mu: np.ndarray, k0: int = 0):
+        """The quantizer's conditional moments (:func:`.effects.sensor_quantization.conditional_moments`)
+        over a record whose mean before the quantizer is ``mu`` (n, p) from sample ``k0``: the
+        random part's variance is the stationary one of every other effect plus a bias walk's
+        growth from its start. A tone counts as noise of variance A^2 / 2 here (its phase is not
+        in the mean response: a large one spreads the signal over the steps and the mean goes),
+        while the covariance (:meth:`quantization_acf`) follows it in the motion: an approximation
+        for a tone beside a coarse quantizer. A jitter counts at the model's own command's level.
+        None without a quantizer or a stationary prediction, or when no output's error depends
+        on mu."""
+        from .effects.sensor_quantization import conditional_moments
+        q = self.model.effects.get("sensor.quantization")
+        if q is None:
+            return None
+        st = self.steady_state()
+        if any(v is None for v in st.contributions.values()):
+            return None
+        mu = np.asarray(mu, float).reshape(len(mu), -1)
+        sig2 = sum((np.asarray(v, float) for e, v in st.contributions.items() if e != q.id), np.zeros(self.model.p))
+        walk0 = sum((e.init_std**2 for e in self.model.effects.values() if e.id == "sensor.bias_walk"),
+                    np.zeros(self.model.p))
+        if np.any(st.bias_var_rate > 0) or np.any(walk0 > 0):
+            t = (k0 + np.arange(mu.shape[0]))[:, None] * self.model.Ts
+            sig2 = sig2 + walk0 + st.bias_var_rate * t
+        mo = conditional_moments(q.params["step"], mu, sig2)
+        return mo if mo.active.any() else None
 
     def expected_welch(self, nperseg: int, window: str = "hann") -> dict:
         """E[Welch estimate] of the centered measurement per stationary effect: {id: (nperseg//2+1, p)}
