@@ -404,13 +404,16 @@ class Evaluator:
                 self._quant.clear()
             got = self._quant[key] = (pr.motion(ym.shape[0], ym, d.k0), {})
         motion, cache = got
-        R = pr.quantization_acf(gam, motion, cache, mo)
+        # one output: Stein's term in the part (negative where the quantizer holds the measurement;
+        # Inner floors the total); several: carried by the noise parts instead (:func:`_stein`)
+        multi = d.p > 1
+        R = pr.quantization_acf(gam, motion, cache, mo, stein=not multi)
         if K < d.M and np.any(np.max(np.abs(R[3 * K // 4:]), axis=0) > QUANT_TAIL * np.max(np.abs(R), axis=0)):
             # still correlated at the last lags (a periodic command and a random part under a step:
             # the error holds the command's harmonics): every lag of the record, so that the
             # expected periodogram stays a spectrum (a cut one goes negative)
-            R = pr.quantization_acf(variogram(d.M), motion, cache, mo)
-        return W.acf_part(R, d.M, d.groups, cross=d.p > 1, floor=mo is None)
+            R = pr.quantization_acf(variogram(d.M), motion, cache, mo, stein=not multi)
+        return W.acf_part(R, d.M, d.groups, cross=multi, floor=multi or mo is None)
 
     def slope_power(self, model, ydot: np.ndarray) -> np.ndarray:
         """:func:`.whittle.slope_power` of the model's mean slope ``ydot``, cached by its mean response
@@ -481,9 +484,34 @@ class Evaluator:
         return r, yd, fitted
 
 
-def _g_moved(a, b, rtol: float = 1e-3) -> bool:
+def _stein(parts: dict, mo, tones=()) -> dict:
+    """The expected periodogram's parts with a quantizer's covariance with the noise (Stein's
+    lemma: Cov(n_j, e_k) = Cov(n_j, x_k) h_k, :mod:`service.model.effects.sensor_quantization`)
+    carried by the noise parts: output j's times 1 + 2 h_j, a cross term between outputs j and k
+    times sqrt((1 + 2 h_j)(1 + 2 h_k)) (1 + h_j + h_k to first order; this form keeps the
+    cross-spectral matrices positive definite). For several outputs only: with one, the term is in
+    the quantizer's part, as in the views (negative where the quantizer holds the measurement; the
+    likelihood floors the total), which a matrix's determinant cannot take. h <= -1/2 (a mean
+    parked on a level) takes the noise out. ``mo`` None: the parts as they are."""
+    if mo is None:
+        return parts
+    a = np.sqrt(np.maximum(1.0 + 2.0 * np.asarray(mo.h, float), 0.0))
+    if np.all(a == 1.0):
+        return parts
+    out = {}
+    for k, v in parts.items():
+        if k == "sensor.quantization" or k in tones:
+            out[k] = v
+        elif v.ndim == 3:
+            out[k] = v * np.outer(a, a)[None]
+        else:
+            out[k] = v * (a * a)
+    return out
+
+
+def _g_moved(a, b, rtol: float = 1e-2) -> bool:
     """Whether two quantizer moments' conditional means differ by more than ``rtol`` of the
-    measurement's rms variance (None: no mean)."""
+    measurement's rms (None: no mean; a likelihood change of about N rtol^2 / 2 at most)."""
     if a is None or b is None:
         return (a is None) != (b is None)
     scale = np.sqrt(np.mean(b.var_y, axis=0))
@@ -927,8 +955,6 @@ class Hypotheses:
             parts["sensor.jitter"] = W.expected_parts(
                 jm, d.M, d.k0, d.at_rest, ydot_sq=ydot_sq, skip=tuple(e for e in jm.effects if e != "sensor.jitter"),
                 groups=d.groups, cross=d.p > 1)["sensor.jitter"]
-        E0 = sum((v for k, v in parts.items() if k not in scale_ids), np.zeros_like(Ig))
-        U = [parts.get(e, np.zeros_like(Ig)) for e in scale_ids]
         mod = None
         mod_index = None
         if "sensor.jitter" in model.effects or "sensor.jitter" in scale_ids:
@@ -943,9 +969,16 @@ class Hypotheses:
             # the quantizer's error is correlated when the signal crosses few steps per sample; how
             # much depends on the other sources' variances: from the model's values, then again
             # from the fitted ones until they settle (the part is not linear in them)
-            E0 = E0 - parts[qid] + qpart
             parts = dict(parts)
             parts[qid] = qpart
+        tones = model.predictor().tone_ids() if qid in model.effects else set()
+
+        def assemble(parts, m):
+            """E0 and U, the noise parts times the quantizer's Stein factors (:func:`_stein`)."""
+            ps = _stein(parts, self.ev.quant_moments(m)[0] if qid in m.effects and d.p > 1 else None, tones)
+            return (sum((v for k, v in ps.items() if k not in scale_ids), np.zeros_like(Ig)),
+                    [ps.get(e, np.zeros_like(Ig)) for e in scale_ids])
+        E0, U = assemble(parts, model)
         inner = Inner(Ig, d.weights / W.taper(d.M)[2], E0, U, mod, mod_index)
         res_model = model                              # the model the residual (Ig) is of
         v0 = np.array([(c / ref) ** pw for c, ref, (_, _, pw) in zip(cur, refs, scales)]) if scales else None
@@ -957,16 +990,17 @@ class Hypotheses:
             new_q = self.ev.quant_part(trial)
             new_q = white_q if new_q is None else new_q          # white at the fitted values
             # the quantizer's conditional mean, in the residual, follows the noise too
-            moved = self.ev.quant_moments(trial)[1] != self.ev.quant_moments(res_model)[1]
-            if np.allclose(new_q, parts[qid], rtol=1e-3, atol=0) and not (moved and _g_moved(
-                    self.ev.quant_moments(trial)[0], self.ev.quant_moments(res_model)[0])):
+            mo_t, mo_r = self.ev.quant_moments(trial)[0], self.ev.quant_moments(res_model)[0]
+            moved = _g_moved(mo_t, mo_r)
+            # with the conditional mean, its Stein factors move the part too: settled to 1 %
+            if np.allclose(new_q, parts[qid], rtol=1e-3 if mo_t is None else 1e-2, atol=0) and not moved:
                 break
-            E0 = E0 - parts[qid] + new_q
             parts = dict(parts)
             parts[qid] = new_q
             if moved:
                 res_model = trial
                 Ig = self.ev.grouped_periodogram(res_model, "sensor.tone" in free)[3]
+            E0, U = assemble(parts, res_model)
             inner = Inner(Ig, d.weights / W.taper(d.M)[2], E0, U, mod, mod_index)
             v, l = inner.optimize(v)
         if "sensor.jitter" in model.effects and "sensor.jitter" not in scale_ids:

@@ -300,8 +300,8 @@ def acf_part(R: np.ndarray, M: int, groups: Groups | None = None, cross: bool = 
     R(1). ``groups``: their means; ``cross``: diagonal cross-periodogram matrices. R is averaged
     over a nonstationary record (the quantizer's error follows the mean response), so its transform
     is floored at 0 where the averaging leaves it slightly negative; ``floor=False`` keeps a part
-    that is negative by design (a quantizer that holds the measurement cancels part of the noise's
-    own spectrum: Stein's term, :func:`service.model.effects.sensor_quantization.quantization_acf`)."""
+    negative by design (a quantizer that holds the measurement cancels part of the noise's own
+    spectrum: Stein's term, :func:`service.model.effects.sensor_quantization.quantization_acf`)."""
     R = np.asarray(R, float)
     K, p = R.shape
     Rp = np.concatenate([R, np.zeros((2, p))])

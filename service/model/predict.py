@@ -564,15 +564,16 @@ class Predictor:
                    np.zeros((L, self.model.p)))
 
     def quantization_acf(self, gam: dict, motion: np.ndarray | None, cache: dict | None = None,
-                         moments=None) -> np.ndarray:
+                         moments=None, stein: bool = True) -> np.ndarray:
         """R_e(d) of the quantizer's error (L, p) from the other effects' variograms ``gam`` ({id:
         (L, p)}, :meth:`before_quantizer`) and the deterministic ``motion``. ``moments``
         (:meth:`quantizer_moments`): the error's conditional mean is in the mean response; the part
-        is then the covariance about it, the error's covariance with the noise included."""
+        is then the covariance about it, the error's covariance with the noise included unless
+        ``stein`` is False (the likelihood scales the noise's own parts instead)."""
         from .effects.sensor_quantization import quantization_acf
         step = self.model.effects["sensor.quantization"].params["step"]
         cross = None
-        if moments is not None:
+        if moments is not None and stein:
             # c(d) of the stationary random part: a walk's covariance with the error (2 h times its
             # growing variance) is left out, and so are the tones (deterministic here, in the motion)
             walks = {eid for eid, kind, *_ in self._primitives() if kind == "walk"}
