@@ -321,7 +321,13 @@ class Evaluator:
         """The quantizer's conditional moments over this record under ``model``
         (:meth:`Predictor.quantizer_moments`: they depend on its noise, not only on the mean
         effects) and a key for them; (None, None) when the error does not depend on the mean."""
-        if "sensor.quantization" not in model.effects:
+        q = model.effects.get("sensor.quantization")
+        if q is None:
+            return None, None
+        # the sensor's white noise bounds the noise before the quantizer from below: above 0.84 step
+        # no output's error depends on the mean (the common case, e.g. the seed's 10 steps)
+        w = model.effects.get("sensor.white")
+        if w is not None and not _quant_mean_possible(q.params["step"], w.params["std"]):
             return None, None
         key = repr(model.to_dict())
         got = self._qmo.get(key)
@@ -482,6 +488,14 @@ class Evaluator:
                 w = 2 * np.pi * freq[j] * d.Ts * np.arange(d.N)
                 r[:, j] -= scale * (a * np.sin(w) + b * np.cos(w))
         return r, yd, fitted
+
+
+def _quant_mean_possible(step, white_std) -> bool:
+    """Whether a white noise of ``white_std`` before a quantizer of ``step`` leaves its error's
+    conditional mean above :data:`QUANT_MEAN_MIN` on some output (other noise only lowers it)."""
+    from ..model.effects.sensor_quantization import QUANT_MEAN_MIN
+    r = np.asarray(white_std, float) / np.asarray(step, float)
+    return bool(np.any(np.exp(-2.0 * np.pi**2 * r**2) >= QUANT_MEAN_MIN))
 
 
 def _stein(parts: dict, mo, tones=()) -> dict:
