@@ -525,7 +525,9 @@ def _stein(parts: dict, mo, tones=()) -> dict:
 
 def _g_moved(a, b, rtol: float = 1e-2) -> bool:
     """Whether two quantizer moments' conditional means differ by more than ``rtol`` of the
-    measurement's rms (None: no mean; a likelihood change of about N rtol^2 / 2 at most)."""
+    measurement's rms (None: no mean). What it lets pass moves the likelihood by up to about
+    N rtol^2 / 2 (N samples), where the residual's rms is the measurement's: an approximation the
+    inner fit's rounds accept for their cost (each refresh is a new periodogram)."""
     if a is None or b is None:
         return (a is None) != (b is None)
     scale = np.sqrt(np.mean(b.var_y, axis=0))
@@ -985,11 +987,10 @@ class Hypotheses:
             # from the fitted ones until they settle (the part is not linear in them)
             parts = dict(parts)
             parts[qid] = qpart
-        tones = model.predictor().tone_ids() if qid in model.effects else set()
-
         def assemble(parts, m):
             """E0 and U, the noise parts times the quantizer's Stein factors (:func:`_stein`)."""
-            ps = _stein(parts, self.ev.quant_moments(m)[0] if qid in m.effects and d.p > 1 else None, tones)
+            mo = self.ev.quant_moments(m)[0] if qid in m.effects and d.p > 1 else None
+            ps = _stein(parts, mo, m.predictor().tone_ids() if mo is not None else ())
             return (sum((v for k, v in ps.items() if k not in scale_ids), np.zeros_like(Ig)),
                     [ps.get(e, np.zeros_like(Ig)) for e in scale_ids])
         E0, U = assemble(parts, model)
