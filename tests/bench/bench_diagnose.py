@@ -149,7 +149,7 @@ def _coverage(rows) -> str:
     ch = [r["chance30"] for r in rows if r.get("chance30") is not None]
     got = sum(r["params_ok"] for r in rows if r.get("chance30") is not None)
     return (f"planted values inside their reported 95 % intervals {sum(cov)}/{len(cov)}; of the {len(ch)} cases "
-            f"with every planted parameter reported, within 30 % {got}, expected {sum(ch):.1f} from the intervals' "
+            f"with a planted effect's parameters reported, within 30 % {got}, expected {sum(ch):.1f} from the intervals' "
             "widths")
 
 
