@@ -492,10 +492,9 @@ class Evaluator:
 
 def _quant_mean_possible(step, white_std) -> bool:
     """Whether a white noise of ``white_std`` before a quantizer of ``step`` leaves its error's
-    conditional mean above :data:`QUANT_MEAN_MIN` on some output (other noise only lowers it)."""
-    from ..model.effects.sensor_quantization import QUANT_MEAN_MIN
-    r = np.asarray(white_std, float) / np.asarray(step, float)
-    return bool(np.any(np.exp(-2.0 * np.pi**2 * r**2) >= QUANT_MEAN_MIN))
+    conditional mean on some output (:func:`.sensor_quantization.mean_matters`; other noise only lowers it)."""
+    from ..model.effects.sensor_quantization import mean_matters
+    return bool(np.any(mean_matters(step, np.asarray(white_std, float) ** 2)))
 
 
 def _stein(parts: dict, mo, tones=()) -> dict:

@@ -602,14 +602,14 @@ class Predictor:
         st = self.steady_state()
         if any(v is None for v in st.contributions.values()):
             return None
-        from .effects.sensor_quantization import QUANT_MEAN_MIN
+        from .effects.sensor_quantization import mean_matters
         mu = np.asarray(mu, float).reshape(len(mu), -1)
         sig2 = sum((np.asarray(v, float) for e, v in st.contributions.items() if e != q.id), np.zeros(self.model.p))
         walk0 = sum((e.init_std**2 for e in self.model.effects.values() if e.id == "sensor.bias_walk"),
                     np.zeros(self.model.p))
         # the smallest variance (the record's start) decides whether any sample's mean is there
         step = np.broadcast_to(np.asarray(q.params["step"], float), (self.model.p,))
-        if np.all(np.exp(-2.0 * np.pi**2 * (sig2 + walk0) / step**2) < QUANT_MEAN_MIN):
+        if not np.any(mean_matters(step, sig2 + walk0)):
             return None
         if np.any(st.bias_var_rate > 0) or np.any(walk0 > 0):
             t = (k0 + np.arange(mu.shape[0]))[:, None] * self.model.Ts

@@ -68,6 +68,13 @@ def uniform_model_error(sigma: np.ndarray, step: np.ndarray) -> np.ndarray:
 QUANT_MEAN_MIN = 1e-6      # exp(-2 pi^2 sigma^2 / Delta^2) below which the error's conditional mean is 0
 
 
+def mean_matters(step, sigma2) -> np.ndarray:
+    """Whether a Gaussian noise of variance ``sigma2`` before a quantizer of ``step`` leaves its
+    error a conditional mean (its first Fourier factor at least :data:`QUANT_MEAN_MIN`: noise
+    under about 0.84 step), elementwise."""
+    return np.exp(-2.0 * np.pi**2 * np.asarray(sigma2, float) / np.asarray(step, float) ** 2) >= QUANT_MEAN_MIN
+
+
 @dataclass
 class Moments:
     """The quantizer's conditional moments over a record (:func:`conditional_moments`): y = Q(x),
@@ -146,7 +153,7 @@ def conditional_moments(step, mu: np.ndarray, sigma2: np.ndarray) -> Moments:
     k4 = np.broadcast_to(-step**4 / 120.0, (n, p)).copy()     # a uniform's excess 4th moment, -Delta^4 / 120
     for j in range(p):
         D = float(step[j])
-        live = np.exp(-2.0 * np.pi**2 * s2[:, j] / D**2) >= QUANT_MEAN_MIN
+        live = mean_matters(D, s2[:, j])
         if not live.any():
             continue
         active[j] = True
