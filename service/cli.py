@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -654,8 +655,21 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _zenoh_log_to_stderr() -> None:
+    """Zenoh's own log (``RUST_LOG=warn``, ``debug``, ...): it writes to file descriptor 1, so fd 1
+    becomes stderr and Python's stdout keeps the real one (``--json`` output stays clean)."""
+    import zenoh
+    sys.stdout.flush()
+    out = os.dup(1)
+    os.dup2(2, 1)
+    sys.stdout = os.fdopen(out, "w", buffering=1)
+    zenoh.try_init_log_from_env()
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    if os.environ.get("RUST_LOG"):
+        _zenoh_log_to_stderr()
     try:
         return args.func(args)
     except _bad_input_types() as exc:
@@ -665,7 +679,6 @@ def main(argv: list[str] | None = None) -> int:
         print("noiselab: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:  # e.g. `noiselab predict seed --json | head`
-        import os
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
 

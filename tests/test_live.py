@@ -652,6 +652,86 @@ def test_recorder_restarted_mid_stream(fast_model_file, spawn, tmp_path):
     assert t2["noiselab/fast/end"]["count"] == 1 and "noiselab/fast/end" not in t1
 
 
+def test_join_points_of_a_live_emulator_and_a_replay(fast_model_file, separate_recording, spawn):
+    """transport.join_points: a source answers, per topic, the first seq it had not started when the
+    query came (the emulator: the same for its three data topics, its own count for health; a
+    replay: its file's), between what a subscriber here saw before the query and after it; only
+    topics under the asker's key expression; nothing, at once, when no source serves @join."""
+    port = free_port()
+    emu = spawn("emulate", "emulate", fast_model_file, "--listen", ep(port), "--duration", "60", "--seed", "4", "--json")
+    emu.wait_line(EMULATE_MARK)
+    got = Collector()
+    truth = "noiselab/fast/truth"
+    with zenoh.open(session_config(connect=[ep(port)])) as session:
+        sub = session.declare_subscriber("noiselab/fast/*", got)
+        got.wait_for(lambda: got.last_seq(truth) >= 1200, "truth seq 1200")     # health (1 Hz) has reported
+        before = got.last_seq(truth)
+        joins = transport.join_points(session, "noiselab/**")
+        after = got.last_seq(truth)
+        got.wait_for(lambda: got.last_seq(truth) >= joins[truth], f"truth seq {joins[truth]}")
+        assert transport.join_points(session, "noiselab/other/**") == {}
+        sub.undeclare()
+    assert emu.interrupt() == 0, emu.stderr_text()
+    assert set(joins) == {f"noiselab/fast/{k}" for k in (*DATA_KINDS, "health")}, joins
+    assert joins[truth] == joins["noiselab/fast/command"] == joins["noiselab/fast/measurement"]
+    assert before + 1 <= joins[truth], (before, joins)             # it had started what we saw
+    assert 1 <= joins["noiselab/fast/health"] <= joins[truth] // 1000 + 1
+    assert after < joins[truth] + 1000, (after, joins)             # and not much more (a loose upper bound)
+    with zenoh.open(session_config()) as alone:                   # no source at all
+        t0 = time.monotonic()
+        assert transport.join_points(alone, "noiselab/**") == {}
+        assert time.monotonic() - t0 < 1.0
+
+    path, _, _ = separate_recording                              # a replay, paced: 5 s of samples
+    port = free_port()
+    rp = spawn("replay", "replay", path, "--listen", ep(port), "--json")
+    got = Collector()
+    with zenoh.open(session_config(connect=[ep(port)])) as session:
+        sub = session.declare_subscriber("noiselab/**", got)
+        got.wait_for(lambda: got.last_seq(truth) >= 500, "replayed truth seq 500")
+        before = got.last_seq(truth)
+        joins = transport.join_points(session, "noiselab/**")
+        sub.undeclare()
+    assert rp.interrupt() == 0, rp.stderr_text()
+    assert joins[truth] >= before + 1 and set(joins) <= {f"noiselab/fast/{k}" for k in (*DATA_KINDS, "health")}
+
+
+def test_recorder_leaves_out_what_came_before_its_join_point(tmp_path):
+    """Ingest with join points: a topic's samples before its point are left out and counted (the
+    source sent them before it knew the subscriber: a gap may follow them), the recording starts at
+    the point with no gap, later samples are not checked again, other topics are untouched."""
+    enc = {kind: wire.encode_batch(kind, 0, np.arange(40) * 0.01, np.ones((40, 1))) for kind in ("truth", "command")}
+    items = [("noiselab/d/truth", enc["truth"][k]) for k in (10, 11, 15, 16, 17)]     # 12..14 never came
+    items += [("noiselab/d/command", enc["command"][k]) for k in (10, 11, 12)]
+    items += [("noiselab/d/truth", enc["truth"][k]) for k in (18, 3)]                # 3: a restart, kept
+    path = tmp_path / "join.mcap"
+    log = tmp_path / "log.txt"
+    with mcapio.RecordingWriter(path) as w, open(log, "w") as f:
+        ing = Ingest(w, str(path), log=f)
+        ing.join = {"noiselab/d/truth": 15}
+        ing.add(items[:2], 1_000)
+        ing.add(items[2:], 2_000)
+    books = {k: b.as_dict() for k, b in ing.books.items()}
+    assert ing.dropped_at_join == {"noiselab/d/truth": 2} and ing.join == {}
+    t = books["noiselab/d/truth"]
+    assert (t["first_seq"], t["missing_at_start"], t["gaps"], t["count"]) == (15, 15, [], 5)
+    assert t["restarts"] == [[18, 3]]
+    assert books["noiselab/d/command"]["first_seq"] == 10 and books["noiselab/d/command"]["count"] == 3
+    assert [m.sequence for _, _, m in file_messages(path)["noiselab/d/truth"]] == [15, 16, 17, 18, 3]
+    assert "noiselab/d/truth: joined the stream at seq 15; 2 sample(s)" in log.read_text()
+
+
+def test_rust_log_goes_to_stderr_and_json_stays_clean():
+    """RUST_LOG turns on Zenoh's own log: on stderr; stdout keeps only the --json summary."""
+    port = free_port()
+    r = subprocess.run([sys.executable, "-m", "service.cli", "emulate", "seed", "--duration", "0.1", "--listen",
+                        ep(port), "--json"], capture_output=True, text=True, timeout=60,
+                       env=dict(os.environ, RUST_LOG="info"))
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["samples"] == 10
+    assert "zenoh::" in r.stderr and "zenoh::" not in r.stdout
+
+
 def test_topicbook_counts_gaps_and_restarts():
     b = TopicBook()
     for s in [3, 4, 5, 8, 9, 9, 2, 3, 10]:

@@ -114,6 +114,13 @@ def run_emulator(model, session: "zenoh.Session", *, duration: float | None, see
     keys = {kind: wire.key(name, kind) for kind in (*wire.KINDS, wire.HEALTH, wire.CONTROL, wire.END)}
     pubs = {kind: session.declare_publisher(keys[kind], **transport.DATA_QOS) for kind in (*wire.KINDS, wire.END)}
     health_pub = session.declare_publisher(keys[wire.HEALTH], congestion_control=zenoh.CongestionControl.DROP)
+    started = [-1, -1]            # the last sample / health report whose puts have begun
+    data_keys = [keys[kind] for kind in wire.KINDS]
+
+    def first_seqs() -> dict:
+        return {**{key: started[0] + 1 for key in data_keys}, keys[wire.HEALTH]: started[1] + 1}
+
+    join = transport.serve_join(session, name, first_seqs)
     external = model.command.kind == "external"
     control = _Control(model.m) if external else None
     sub = session.declare_subscriber(keys[wire.CONTROL], control.on_sample) if external else None
@@ -165,6 +172,7 @@ def run_emulator(model, session: "zenoh.Session", *, duration: float | None, see
                 u = np.zeros(model.m) if (is_stale or rx is None) else u_last
             t, x, u_applied, y = stepper.step(u)
             tk = wire.sample_time(k, Ts)
+            started[0] = k
             pubs["truth"].put(wire.encode(k, tk, x, kind="truth"))
             pubs["command"].put(wire.encode(k, tk, u_applied, kind="command"))
             pubs["measurement"].put(wire.encode(k, tk, y, kind="measurement"))
@@ -176,11 +184,13 @@ def run_emulator(model, session: "zenoh.Session", *, duration: float | None, see
                 lat_period = []
                 stats = {"k": k, "lateness_p50_us": p50, "lateness_p99_us": p99, "lateness_max_us": mx,
                          "overruns": overruns, "late_control": int(stale)}
+                started[1] = health_seq
                 health_pub.put(wire.encode_health(health_seq, tk, stats))
                 health_seq += 1
     finally:
         if sub is not None:
             sub.undeclare()
+        join.undeclare()
     wall_s = (mono() - start_ns) / 1e9
     counts = {kind: k for kind in wire.KINDS}
     counts[wire.HEALTH] = health_seq

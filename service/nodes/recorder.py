@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import zenoh
 
-from . import mcapio, wire
+from . import mcapio, transport, wire
 
 CAPACITY = 16384     # samples the zenoh channel holds before zenoh stops reading the link
 BATCH = 4096         # samples taken from the channel per batch, at most
@@ -178,6 +178,8 @@ class Ingest:
         self.messages = 0
         self.ends: dict[str, dict] = {}          # prefix -> its last end payload (stream ended)
         self.live: set[str] = set()              # prefixes with data whose end has not come
+        self.join: dict[str, int] = {}           # topic -> first seq routed for sure (transport.join_points)
+        self.dropped_at_join: dict[str, int] = {}
 
     def _skip(self, exc: Exception, n: int = 1) -> None:
         self.malformed += n
@@ -186,6 +188,8 @@ class Ingest:
 
     def add(self, items: list[tuple[str, bytes]], rx_ns: int) -> None:
         """``items``: (key, payload) in arrival order, all taken from the channel at ``rx_ns``."""
+        if self.join:
+            items = self._from_join(items)
         groups: dict[str, list[bytes]] = {}
         for key, payload in items:
             g = groups.get(key)
@@ -202,6 +206,31 @@ class Ingest:
                 continue
             for payload in payloads:
                 self._add_one(key, kind, payload, rx_ns)
+
+    def _from_join(self, items: list[tuple[str, bytes]]) -> list[tuple[str, bytes]]:
+        """Leave out a topic's samples before its join point (the samples a source may have sent
+        before it knew this recorder's subscriber, with a gap after them): the recording starts
+        where the stream is complete, and the seqs before it are missing at the start. A topic
+        leaves :attr:`join` at its first sample at or after the point."""
+        kept = []
+        for key, payload in items:
+            first = self.join.get(key)
+            if first is not None:
+                kind = _kind_of_key(key)
+                try:
+                    seq = _seq_t(payload, kind, key)[0] if kind is not None else first
+                except wire.WireError:
+                    seq = first                  # Ingest skips and counts it
+                if seq < first:
+                    self.dropped_at_join[key] = self.dropped_at_join.get(key, 0) + 1
+                    continue
+                del self.join[key]
+                if self.dropped_at_join.get(key):
+                    print(f"noiselab record: {key}: joined the stream at seq {first}; "
+                          f"{self.dropped_at_join[key]} sample(s) received before it left out (the source "
+                          "sent them before it knew this recorder's subscriber)", file=self.log, flush=True)
+            kept.append((key, payload))
+        return kept
 
     def _add_run(self, key: str, kind: str, payloads: list[bytes], rx_ns: int) -> bool:
         """Many payloads of one vector topic at once; False (nothing written) when any of them
@@ -307,6 +336,7 @@ def run_recorder(session: "zenoh.Session", key_expr: str, out: str, *, duration:
         # the queryable first: a source that sees the subscriber has seen it too
         queries = session.declare_queryable(key_expr, zenoh.handlers.FifoChannel(256))
         sub = session.declare_subscriber(key_expr, zenoh.handlers.FifoChannel(CAPACITY))
+        ing.join = transport.join_points(session, key_expr)
         if ready is not None:
             ready.set()
         recv, recv_query = sub.try_recv, queries.try_recv

@@ -11,6 +11,7 @@ live stream it describes instead of one topic after another."""
 
 from __future__ import annotations
 
+import json
 import sys
 import threading
 import time
@@ -18,7 +19,7 @@ from dataclasses import dataclass
 
 import zenoh
 
-from . import mcapio, transport
+from . import mcapio, transport, wire
 
 
 @dataclass
@@ -44,6 +45,23 @@ def replay_topics(path: str) -> list[str]:
     return sorted({td.topic for dev in rec.devices.values() for td in dev.streams.values()})
 
 
+def _device_of(key: str) -> str | None:
+    """The device name of a noiselab topic key, None for any other key."""
+    try:
+        return wire.parse_key(key)[0]
+    except wire.WireError:
+        return None
+
+
+def _seq_matches(message) -> bool:
+    """The message's MCAP sequence is its payload's seq (as noiselab's recorder writes it)."""
+    try:
+        obj = json.loads(message.data)
+        return isinstance(obj, dict) and obj.get("seq") == message.sequence
+    except ValueError:
+        return False
+
+
 def run_replay(session: "zenoh.Session", path: str, *, speed: float | None = 1.0, prefix: str | None = None,
                stop: threading.Event | None = None, wait_subscribers: float = 0.0,
                log=sys.stderr) -> ReplaySummary:
@@ -66,6 +84,16 @@ def run_replay(session: "zenoh.Session", path: str, *, speed: float | None = 1.0
     # declare every publisher first, so a subscriber can match them all before the first put
     for topic in replay_topics(path):
         publisher(topic)
+    started: dict[str, int] = {}         # key -> the MCAP sequence (= payload seq) of its last put begun
+    foreign: set[str] = set()
+    grow = threading.Lock()               # a key added while the join queryable reads them
+
+    def first_seqs() -> dict:
+        with grow:
+            return {k: s + 1 for k, s in started.items()}
+
+    joins = [transport.serve_join(session, name, first_seqs)
+             for name in sorted({_device_of(str(p.key_expr)) for p in pubs.values()} - {None})]
     if wait_subscribers > 0 and not transport.wait_matching(pubs.values(), wait_subscribers, stop, every=False):
         if not stop.is_set():
             print(f"noiselab replay: no subscriber matched within "
@@ -84,9 +112,20 @@ def run_replay(session: "zenoh.Session", path: str, *, speed: float | None = 1.0
             delay = due - time.monotonic_ns()
             if delay > 0:
                 time.sleep(delay / 1e9)
-        publisher(channel.topic).put(message.data)
+        pub = publisher(channel.topic)
+        key = str(pub.key_expr)
+        if key in started:
+            started[key] = message.sequence
+        elif key not in foreign and _seq_matches(message):
+            with grow:
+                started[key] = message.sequence
+        else:
+            foreign.add(key)                 # its MCAP sequence is not its payload's seq: no join point
+        pub.put(message.data)
         counts[channel.topic] = counts.get(channel.topic, 0) + 1
         n += 1
+    for q in joins:
+        q.undeclare()
     if not report.complete:
         print(f"noiselab replay: {path}: {report.note}", file=log, flush=True)
     return ReplaySummary(path=str(path), messages=n, topics=counts, wall_s=time.monotonic() - start,

@@ -21,6 +21,8 @@ from pathlib import Path
 
 import zenoh
 
+from . import wire
+
 DEFAULT_PORT = 7447
 DEFAULT_ENDPOINT = f"tcp/127.0.0.1:{DEFAULT_PORT}"
 ROLES = ("source", "sink", "router")
@@ -177,6 +179,67 @@ def end_stream(session, publisher, payload: bytes, timeout: float) -> dict:
                 errors.append("an acknowledgement that is not JSON")
     return {"acks": acks, "errors": errors, "timed_out": "Timeout" in errors,
             "wait_s": time.monotonic() - t0}
+
+
+JOIN = "@join"
+"""Last chunk of a source's join queryable, ``noiselab/<name>/@join`` (a verbatim chunk: no
+wildcard matches it, so recorders' ``noiselab/**`` queryables and subscribers never see it)."""
+JOIN_TIMEOUT_S = 2.0
+
+
+def serve_join(session, name: str, first_seqs) -> "zenoh.Queryable":
+    """Declare source ``name``'s join queryable. ``first_seqs()`` returns {topic key: the first
+    seq not yet started}; every query gets it as a JSON reply. See :func:`join_points`."""
+    key = f"{wire.PREFIX}/{wire.check_name(name)}/{JOIN}"
+
+    def on_query(query) -> None:
+        try:
+            query.reply(key, json.dumps(first_seqs()).encode())
+        except zenoh.ZError:                   # the querier gave up or went away
+            pass
+
+    return session.declare_queryable(key, on_query)
+
+
+def join_points(session, key_expr: str, timeout: float = JOIN_TIMEOUT_S) -> dict:
+    """{topic key: first seq} a sink that has just declared its subscriber on ``key_expr`` can
+    rely on: from that seq on, every sample of the topic is routed to it.
+
+    Why: a Zenoh peer routes everything to a newly connected peer until that peer's answer to its
+    interest (its declarations so far, then a final mark) arrives, and from then on only what the
+    peer subscribed to. A sink's subscriber is declared after its session has connected, so its
+    final mark can reach the source before its subscriber: the sink may then receive a few samples
+    from the first phase, none until the subscriber arrives, then all of them: a gap right after
+    its first samples (seen as 1 to 3 samples missing 4 samples after a recorder's first, under
+    load; tests/test_live.py). A query sent after the subscriber is processed by the source after
+    it (declarations leave first: their priority is above the query's), so a source's answer,
+    the first seq it had not started when the query arrived, marks where the sink's stream is
+    complete. Sources that do not serve ``@join`` (not noiselab's) give nothing: nothing to rely
+    on and nothing dropped. A sink whose subscriber existed before a source connected needs none
+    (its declarations come before its final mark)."""
+    base = zenoh.KeyExpr(key_expr)
+    out: dict[str, int] = {}
+    replies = session.get(f"{wire.PREFIX}/*/{JOIN}", target=zenoh.QueryTarget.ALL,
+                          consolidation=zenoh.ConsolidationMode.NONE, timeout=timeout,
+                          priority=zenoh.Priority.DATA, **DATA_QOS)
+    for reply in replies:
+        ok = reply.ok
+        if ok is None:
+            continue
+        try:
+            got = json.loads(ok.payload.to_bytes())
+        except ValueError:
+            continue
+        if not isinstance(got, dict):
+            continue
+        for topic, seq in got.items():
+            if isinstance(topic, str) and type(seq) is int and seq > 0:
+                try:
+                    if base.intersects(zenoh.KeyExpr(topic)):
+                        out[topic] = max(seq, out.get(topic, 0))
+                except zenoh.ZError:
+                    continue
+    return out
 
 
 def check_key_expr(text: str) -> str:
