@@ -655,14 +655,24 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+_ZENOH_LOG = False
+
+
 def _zenoh_log_to_stderr() -> None:
     """Zenoh's own log (``RUST_LOG=warn``, ``debug``, ...): it writes to file descriptor 1, so fd 1
-    becomes stderr and Python's stdout keeps the real one (``--json`` output stays clean)."""
+    becomes stderr and Python's stdout keeps the real one (``--json`` output stays clean). Once per
+    process, and only when stdout is the process's own (not replaced, e.g. by a test's capture)."""
+    global _ZENOH_LOG
+    if _ZENOH_LOG:
+        return
+    _ZENOH_LOG = True
     import zenoh
-    sys.stdout.flush()
-    out = os.dup(1)
-    os.dup2(2, 1)
-    sys.stdout = os.fdopen(out, "w", buffering=1)
+    if sys.stdout is sys.__stdout__ and sys.stdout is not None:
+        sys.stdout.flush()
+        enc, errors = sys.stdout.encoding, sys.stdout.errors
+        out = os.dup(1)
+        os.dup2(2, 1)
+        sys.stdout = sys.__stdout__ = os.fdopen(out, "w", buffering=1, encoding=enc, errors=errors)
     zenoh.try_init_log_from_env()
 
 

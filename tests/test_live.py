@@ -684,7 +684,7 @@ def test_join_points_of_a_live_emulator_and_a_replay(fast_model_file, separate_r
 
     path, _, _ = separate_recording                              # a replay, paced: 5 s of samples
     port = free_port()
-    rp = spawn("replay", "replay", path, "--listen", ep(port), "--json")
+    rp = spawn("replay", "replay", path, "--listen", ep(port), "--wait-subscribers", "20", "--json")
     got = Collector()
     with zenoh.open(session_config(connect=[ep(port)])) as session:
         sub = session.declare_subscriber("noiselab/**", got)
@@ -696,29 +696,49 @@ def test_join_points_of_a_live_emulator_and_a_replay(fast_model_file, separate_r
     assert joins[truth] >= before + 1 and set(joins) <= {f"noiselab/fast/{k}" for k in (*DATA_KINDS, "health")}
 
 
-def test_recorder_leaves_out_what_came_before_its_join_point(tmp_path):
-    """Ingest with join points: a topic's samples before its point are left out and counted (the
-    source sent them before it knew the subscriber: a gap may follow them), the recording starts at
-    the point with no gap, later samples are not checked again, other topics are untouched."""
-    enc = {kind: wire.encode_batch(kind, 0, np.arange(40) * 0.01, np.ones((40, 1))) for kind in ("truth", "command")}
-    items = [("noiselab/d/truth", enc["truth"][k]) for k in (10, 11, 15, 16, 17)]     # 12..14 never came
-    items += [("noiselab/d/command", enc["command"][k]) for k in (10, 11, 12)]
-    items += [("noiselab/d/truth", enc["truth"][k]) for k in (18, 3)]                # 3: a restart, kept
+def test_recorder_starts_each_topic_where_its_stream_has_no_hole(tmp_path):
+    """Ingest with join points: a topic's samples before its point wait for it; those that run
+    without a hole up to it are kept, those before a hole are left out and counted (the source sent
+    them before it knew the subscriber), so no topic's recording has a gap; an end of stream ends
+    its source's joins (a point never reached: the held run up to the last one is kept; the
+    source's restart from 0 is recorded); a malformed sample does not end a join; what still
+    waits when the recorder stops is written; other sources' topics are untouched."""
+    def enc(kind, seqs, dev="d"):
+        return [(f"noiselab/{dev}/{kind}", wire.encode(k, k * 0.01, [1.0], kind=kind)) for k in seqs]
+
+    end = wire.encode_end(0, 0.2, 21, {"truth": 21, "command": 21, "measurement": 21, "health": 0}, "stopped")
+    items = enc("truth", (10, 11)) + enc("command", (10, 11)) + enc("measurement", (5, 6))
+    items += [("noiselab/d/truth", b'{"seq": 12, "t": 0.12, "x": [true]}')]              # malformed
+    items += enc("truth", (14, 15, 16)) + enc("command", (12, 13)) + enc("measurement", (8,))
+    items += enc("truth", (40, 41), dev="e")                                              # waits for 50
+    items += enc("truth", (17, 18, 19, 20)) + [("noiselab/d/end", end)]
+    items += enc("truth", (0, 1)) + enc("measurement", (0, 1))                            # restarted source
     path = tmp_path / "join.mcap"
     log = tmp_path / "log.txt"
     with mcapio.RecordingWriter(path) as w, open(log, "w") as f:
         ing = Ingest(w, str(path), log=f)
-        ing.join = {"noiselab/d/truth": 15}
-        ing.add(items[:2], 1_000)
-        ing.add(items[2:], 2_000)
+        ing.join = {"noiselab/d/truth": 15, "noiselab/d/command": 12, "noiselab/d/measurement": 30,
+                    "noiselab/d/health": 3, "noiselab/e/truth": 50}
+        ing.add(items[:5], 1_000)
+        ing.add(items[5:], 2_000)
+        assert ing.join == {"noiselab/e/truth": 50}
+        ing.flush_join()
+    assert ing.join == {} and ing.malformed == 1
+    assert ing.dropped_at_join == {"noiselab/d/truth": (2, 10, 11), "noiselab/d/measurement": (2, 5, 6)}
+    seqs = {topic: [m.sequence for _, _, m in v] for topic, v in file_messages(path).items()}
+    assert seqs["noiselab/d/truth"] == [14, 15, 16, 17, 18, 19, 20, 0, 1]
+    assert seqs["noiselab/d/command"] == [10, 11, 12, 13]
+    assert seqs["noiselab/d/measurement"] == [8, 0, 1]
+    assert seqs["noiselab/e/truth"] == [40, 41]
     books = {k: b.as_dict() for k, b in ing.books.items()}
-    assert ing.dropped_at_join == {"noiselab/d/truth": 2} and ing.join == {}
-    t = books["noiselab/d/truth"]
-    assert (t["first_seq"], t["missing_at_start"], t["gaps"], t["count"]) == (15, 15, [], 5)
-    assert t["restarts"] == [[18, 3]]
-    assert books["noiselab/d/command"]["first_seq"] == 10 and books["noiselab/d/command"]["count"] == 3
-    assert [m.sequence for _, _, m in file_messages(path)["noiselab/d/truth"]] == [15, 16, 17, 18, 3]
-    assert "noiselab/d/truth: joined the stream at seq 15; 2 sample(s)" in log.read_text()
+    tb = books["noiselab/d/truth"]
+    assert (tb["first_seq"], tb["missing_at_start"], tb["restarts"]) == (14, 14, [[20, 0]])
+    assert books["noiselab/d/command"]["first_seq"] == 10 and books["noiselab/d/command"]["missing_at_start"] == 10
+    text = log.read_text()
+    assert "noiselab/d/truth: joined the stream at seq 14 (join point 15); 2 sample(s) received before a hole " \
+           "left out (seqs 10..11" in text
+    assert "noiselab/d/measurement: joined the stream at seq 8 (join point 30); 2 sample(s)" in text
+    assert "noiselab/d/command:" not in text and "noiselab/e/truth:" not in text      # nothing left out there
 
 
 def test_rust_log_goes_to_stderr_and_json_stays_clean():

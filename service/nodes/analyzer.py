@@ -85,7 +85,6 @@ class LiveAnalyzer:
         self.history: list[dict] = []
         self.received = 0
         self.bad = 0
-        self.join: dict[str, int] = {}      # topic -> first seq routed for sure (transport.join_points)
 
     def warm(self) -> None:
         """Compute the predictions of a full-window update now (they are cached per model), so
@@ -130,8 +129,6 @@ class LiveAnalyzer:
             except wire.WireError:
                 self.bad += 1
                 continue
-            if obj["seq"] < self.join.get(key, 0):
-                continue                          # sent before the source knew us (transport.join_points)
             ring = self.meas if kind == "measurement" else self.cmd
             vec = obj[wire.VECTOR_FIELD[kind]]
             if len(vec) != ring.v.shape[1]:
@@ -290,7 +287,6 @@ def run_live(session, model_spec: str, *, device: str | None, window_s: float, u
     # that waits for any match start between them and lose the first commands (seq 0 incomplete:
     # the analysis no longer starts at rest). The other kinds (truth, our own analysis) are ignored.
     subs = [session.declare_subscriber(f"{wire.PREFIX}/{wire.check_name(an.device)}/*", an.on_sample)]
-    an.join = transport.join_points(session, f"{wire.PREFIX}/{wire.check_name(an.device)}/*")
     pub = session.declare_publisher(wire.key(an.device, wire.ANALYSIS))
     print(f"{READY_MARK} noiselab/{an.device}/measurement, window {window_s:g} s, "
           f"update every {update_s:g} s, model {an.model.source}", file=log, flush=True)

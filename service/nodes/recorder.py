@@ -23,6 +23,9 @@ publish_time = the sample time t in ns, log_time = receive time, wall clock ns).
   recorder first writes what is still queued, and goes on until every source it has heard has
   ended, or nothing arrived for :data:`QUIET_S` (a source gone without an end), or it has been
   caught up for :data:`LIVE_S` (a live stream: it stops there), or at most :data:`DRAIN_MAX_S`.
+* Join point (README "Live pipeline"): right after subscribing, the recorder asks the sources
+  where each topic's stream to it is complete (:class:`transport.JoinRequest`) and starts each
+  topic's recording at its last hole before that point (:meth:`Ingest._from_join`).
 * Sequence bookkeeping per topic: first and last seq, count, gaps (a forward jump: the seqs
   skipped; and the tail a source announced but that never came) and restarts (seq going back,
   e.g. a restarted emulator). A recorder started mid-stream reports the seqs before its first
@@ -179,7 +182,8 @@ class Ingest:
         self.ends: dict[str, dict] = {}          # prefix -> its last end payload (stream ended)
         self.live: set[str] = set()              # prefixes with data whose end has not come
         self.join: dict[str, int] = {}           # topic -> first seq routed for sure (transport.join_points)
-        self.dropped_at_join: dict[str, int] = {}
+        self._held: dict[str, list] = {}         # topic -> [(seq, payload)] before its join point
+        self.dropped_at_join: dict[str, tuple[int, int, int]] = {}   # topic -> (count, first, last seq)
 
     def _skip(self, exc: Exception, n: int = 1) -> None:
         self.malformed += n
@@ -208,29 +212,63 @@ class Ingest:
                 self._add_one(key, kind, payload, rx_ns)
 
     def _from_join(self, items: list[tuple[str, bytes]]) -> list[tuple[str, bytes]]:
-        """Leave out a topic's samples before its join point (the samples a source may have sent
-        before it knew this recorder's subscriber, with a gap after them): the recording starts
-        where the stream is complete, and the seqs before it are missing at the start. A topic
-        leaves :attr:`join` at its first sample at or after the point."""
+        """Samples of a topic before its join point (:func:`transport.join_points`) wait until the
+        point is reached: those that run without a hole up to it are kept (the usual case: the
+        source had them routed here already), those before a hole are left out and counted (the
+        source sent them before it knew this recorder's subscriber): the recording of the topic
+        has no gap, and the seqs before it are missing at the start. A topic leaves :attr:`join`
+        at its first sample at or after the point (or at its source's end of stream, or
+        :meth:`flush_join`)."""
         kept = []
         for key, payload in items:
             first = self.join.get(key)
-            if first is not None:
-                kind = _kind_of_key(key)
-                try:
-                    seq = _seq_t(payload, kind, key)[0] if kind is not None else first
-                except wire.WireError:
-                    seq = first                  # Ingest skips and counts it
-                if seq < first:
-                    self.dropped_at_join[key] = self.dropped_at_join.get(key, 0) + 1
-                    continue
-                del self.join[key]
-                if self.dropped_at_join.get(key):
-                    print(f"noiselab record: {key}: joined the stream at seq {first}; "
-                          f"{self.dropped_at_join[key]} sample(s) received before it left out (the source "
-                          "sent them before it knew this recorder's subscriber)", file=self.log, flush=True)
+            if first is None:
+                if key.endswith("/" + wire.END):    # a source ended: its topics' joins end (held samples kept)
+                    prefix = key.rsplit("/", 1)[0]
+                    for k in [k for k in self.join if k.rsplit("/", 1)[0] == prefix]:
+                        kept += self._release(k, None)
+                kept.append((key, payload))
+                continue
+            kind = _kind_of_key(key)
+            try:
+                seq = _seq_t(payload, kind, key)[0]
+            except (wire.WireError, TypeError, KeyError):
+                kept.append((key, payload))      # Ingest skips and counts it; the join goes on
+                continue
+            if seq < first:
+                self._held.setdefault(key, []).append((seq, payload))
+                continue
+            kept += self._release(key, first)
             kept.append((key, payload))
         return kept
+
+    def _release(self, key: str, first: int | None) -> list[tuple[str, bytes]]:
+        """End ``key``'s join: its held samples that run without a hole up to ``first`` (None: up to
+        the last held one), the rest counted in :attr:`dropped_at_join` and said on the log."""
+        point = self.join.pop(key, None)
+        held = self._held.pop(key, [])
+        keep = len(held)
+        nxt = first if first is not None else (held[-1][0] + 1 if held else None)
+        while keep > 0 and held[keep - 1][0] == nxt - 1:
+            keep -= 1
+            nxt -= 1
+        out, drop = held[keep:], held[:keep]
+        if drop:
+            seqs = [q for q, _ in drop]
+            self.dropped_at_join[key] = (len(drop), min(seqs), max(seqs))
+            print(f"noiselab record: {key}: joined the stream at seq {nxt} (join point {point}); {len(drop)} "
+                  f"sample(s) received before a hole left out (seqs {min(seqs)}..{max(seqs)}: the source sent them "
+                  "before it knew this recorder's subscriber)", file=self.log, flush=True)
+        return [(key, payload) for _, payload in out]
+
+    def flush_join(self) -> None:
+        """Write what still waits for a join point (the recorder stops)."""
+        kept = []
+        for key in list(self.join):
+            kept += self._release(key, None)
+        self.join.clear()
+        if kept:
+            self.add(kept, time.time_ns())
 
     def _add_run(self, key: str, kind: str, payloads: list[bytes], rx_ns: int) -> bool:
         """Many payloads of one vector topic at once; False (nothing written) when any of them
@@ -336,7 +374,8 @@ def run_recorder(session: "zenoh.Session", key_expr: str, out: str, *, duration:
         # the queryable first: a source that sees the subscriber has seen it too
         queries = session.declare_queryable(key_expr, zenoh.handlers.FifoChannel(256))
         sub = session.declare_subscriber(key_expr, zenoh.handlers.FifoChannel(CAPACITY))
-        ing.join = transport.join_points(session, key_expr)
+        join = transport.JoinRequest(session, key_expr)   # answered while the loop drains the channel
+        waiting: list = []                    # samples taken before the join points came
         if ready is not None:
             ready.set()
         recv, recv_query = sub.try_recv, queries.try_recv
@@ -352,10 +391,18 @@ def run_recorder(session: "zenoh.Session", key_expr: str, out: str, *, duration:
                     items.append((str(s.key_expr), s.payload.to_bytes()))
                 empty = len(items) < BATCH            # the channel ran dry: what preceded the queries is in
                 now = time.monotonic()
+                if join is not None:
+                    if join.done.is_set() or stop_at is not None:
+                        ing.join = dict(join.points) if join.done.is_set() else {}
+                        items, waiting, join = waiting + items, [], None
+                    else:
+                        waiting += items
+                        items = []
+                        last_rx = now
                 if items:
                     ing.add(items, time.time_ns())
                     last_rx = now
-                if pending:
+                if pending and join is None:
                     for p in pending:
                         p[1] -= len(items)
                     for p in [p for p in pending if empty or p[1] <= 0]:
@@ -378,6 +425,9 @@ def run_recorder(session: "zenoh.Session", key_expr: str, out: str, *, duration:
                     time.sleep(IDLE_S)
         finally:
             sub.undeclare()
+            if waiting:
+                ing.add(waiting, time.time_ns())
+            ing.flush_join()
             for p in pending:
                 _answer(p[0], ing)
             queries.undeclare()

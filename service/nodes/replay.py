@@ -53,6 +53,14 @@ def _device_of(key: str) -> str | None:
         return None
 
 
+def _joinable(key: str) -> bool:
+    """A stream whose seq counts its messages (data kinds and health: not the end of stream)."""
+    try:
+        return wire.parse_key(key)[1] in (*wire.KINDS, wire.HEALTH, wire.CONTROL)
+    except wire.WireError:
+        return False
+
+
 def _seq_matches(message) -> bool:
     """The message's MCAP sequence is its payload's seq (as noiselab's recorder writes it)."""
     try:
@@ -116,11 +124,11 @@ def run_replay(session: "zenoh.Session", path: str, *, speed: float | None = 1.0
         key = str(pub.key_expr)
         if key in started:
             started[key] = message.sequence
-        elif key not in foreign and _seq_matches(message):
+        elif key not in foreign and _joinable(key) and _seq_matches(message):
             with grow:
                 started[key] = message.sequence
         else:
-            foreign.add(key)                 # its MCAP sequence is not its payload's seq: no join point
+            foreign.add(key)                 # no join point: not a counted stream, or its MCAP sequence is not its seq
         pub.put(message.data)
         counts[channel.topic] = counts.get(channel.topic, 0) + 1
         n += 1

@@ -201,6 +201,40 @@ def serve_join(session, name: str, first_seqs) -> "zenoh.Queryable":
     return session.declare_queryable(key, on_query)
 
 
+class JoinRequest:
+    """An asynchronous :func:`join_points` query: :attr:`done` is set when every source has
+    answered (or at the timeout); :attr:`points` is then the answer."""
+
+    def __init__(self, session, key_expr: str, timeout: float = JOIN_TIMEOUT_S):
+        import threading
+        self.base = zenoh.KeyExpr(key_expr)
+        self.points: dict[str, int] = {}
+        self.done = threading.Event()
+        session.get(f"{wire.PREFIX}/*/{JOIN}", zenoh.handlers.Callback(self._on_reply, self.done.set),
+                    target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE, timeout=timeout,
+                    priority=zenoh.Priority.DATA, **DATA_QOS)
+
+    def _on_reply(self, reply) -> None:
+        ok = reply.ok
+        if ok is None:
+            return
+        try:                                   # a source answers for its own topics only
+            name = wire.check_name(str(ok.key_expr).split("/")[1])
+            got = json.loads(ok.payload.to_bytes())
+        except (ValueError, IndexError):
+            return
+        if str(ok.key_expr) != f"{wire.PREFIX}/{name}/{JOIN}" or not isinstance(got, dict):
+            return
+        for topic, seq in got.items():
+            if not (isinstance(topic, str) and type(seq) is int and seq > 0):
+                continue
+            try:
+                if wire.parse_key(topic)[0] == name and self.base.intersects(zenoh.KeyExpr(topic)):
+                    self.points[topic] = max(seq, self.points.get(topic, 0))
+            except (wire.WireError, zenoh.ZError):
+                continue
+
+
 def join_points(session, key_expr: str, timeout: float = JOIN_TIMEOUT_S) -> dict:
     """{topic key: first seq} a sink that has just declared its subscriber on ``key_expr`` can
     rely on: from that seq on, every sample of the topic is routed to it.
@@ -212,34 +246,17 @@ def join_points(session, key_expr: str, timeout: float = JOIN_TIMEOUT_S) -> dict
     from the first phase, none until the subscriber arrives, then all of them: a gap right after
     its first samples (seen as 1 to 3 samples missing 4 samples after a recorder's first, under
     load; tests/test_live.py). A query sent after the subscriber is processed by the source after
-    it (declarations leave first: their priority is above the query's), so a source's answer,
-    the first seq it had not started when the query arrived, marks where the sink's stream is
-    complete. Sources that do not serve ``@join`` (not noiselab's) give nothing: nothing to rely
-    on and nothing dropped. A sink whose subscriber existed before a source connected needs none
-    (its declarations come before its final mark)."""
-    base = zenoh.KeyExpr(key_expr)
-    out: dict[str, int] = {}
-    replies = session.get(f"{wire.PREFIX}/*/{JOIN}", target=zenoh.QueryTarget.ALL,
-                          consolidation=zenoh.ConsolidationMode.NONE, timeout=timeout,
-                          priority=zenoh.Priority.DATA, **DATA_QOS)
-    for reply in replies:
-        ok = reply.ok
-        if ok is None:
-            continue
-        try:
-            got = json.loads(ok.payload.to_bytes())
-        except ValueError:
-            continue
-        if not isinstance(got, dict):
-            continue
-        for topic, seq in got.items():
-            if isinstance(topic, str) and type(seq) is int and seq > 0:
-                try:
-                    if base.intersects(zenoh.KeyExpr(topic)):
-                        out[topic] = max(seq, out.get(topic, 0))
-                except zenoh.ZError:
-                    continue
-    return out
+    it: a link's messages are handled in order, and the sender never lets a lower priority (the
+    query's, DATA) pass a message queued before it at a higher or equal one (declarations: DATA or
+    above, by zenoh version). So a source's answer, the first seq it had not started when the
+    query came, marks where the sink's stream is complete. Only a source's own topics count (the
+    reply's key names the source). Sources that do not serve ``@join`` (not noiselab's) give
+    nothing: nothing to rely on and nothing dropped. A sink whose subscriber existed before a
+    source connected needs none (its declarations come before its final mark). Blocks until
+    every source has answered (at most ``timeout``); :class:`JoinRequest` does not block."""
+    req = JoinRequest(session, key_expr, timeout)
+    req.done.wait(timeout + 1.0)
+    return dict(req.points)
 
 
 def check_key_expr(text: str) -> str:
