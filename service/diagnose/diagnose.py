@@ -385,6 +385,23 @@ def _later(bg, fn):
     return f
 
 
+def _done(value) -> Future:
+    f = Future()
+    f.set_result(value)
+    return f
+
+
+def _same_model(a, b) -> bool:
+    """The same model for compare(): its file's content (the name and description aside)."""
+    if a is b:
+        return True
+    da, db = a.to_dict(), b.to_dict()
+    for d in (da, db):
+        d.pop("name", None)
+        d.pop("description", None)
+    return repr(da) == repr(db)
+
+
 def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0) -> dict:
     cur = S.start()
     steps, accepted, first, comps, step_models = [], [], None, [None], [model]
@@ -431,7 +448,11 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0)
     cur = _prefer_replacements(S, cur, accepted, say)
     cur = _by_error(S, cur, accepted, steps, comps, step_models, max_effects, t, y, u, burn, say)
     final = cur.model
-    after_f = _later(bg, lambda: compare(final, t, y, u, burn=burn, level=S.data.at_rest, revision=len(comps) - 1)) if accepted else None
+    after_f = None
+    if accepted and comps[-1] is not None and _same_model(final, step_models[-1]):
+        after_f = _done(comps[-1])     # the last step's comparison is of this model (same revision): not again
+    elif accepted:
+        after_f = _later(bg, lambda: compare(final, t, y, u, burn=burn, level=S.data.at_rest, revision=len(comps) - 1))
     missing = []
     # the profile-likelihood intervals of the effects found, concurrently on long records
     tasks = [(i, key, f) for i, c in enumerate(accepted) for key, f in interval_tasks(S.H, cur, c.effect)]

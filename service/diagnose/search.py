@@ -756,7 +756,8 @@ class Modulation:
             if sxx <= 0:
                 continue
             slope = float(np.dot(xc, z[:, j])) / sxx
-            mu = np.maximum(z[:, j].mean() + slope * xc, 1e-3 * max(float(np.mean(d[:, j] ** 2)), 1e-300))
+            mu = z[:, j].mean() + slope * xc + (0.0 if self.base is None else self.base[:, j])   # E[d_q^2]
+            mu = np.maximum(mu, 1e-3 * max(float(np.mean(d[:, j] ** 2)), 1e-300))
             var = 2.0 * float(np.sum(xc**2 * mu**2)) / sxx**2 * _dependence(d[:, j])
             num += slope / var                                      # outputs combined by precision
             den += 1.0 / var
@@ -958,10 +959,12 @@ class Hypotheses:
             w_q = -(step^2 / pi^2) sum_n n^-2 exp(-2 pi^2 n^2 V_d,q / step^2) cos(2 pi n dmu_q / step)
 
         (up to a constant, which the regression's intercept takes). A jitter's increments are part
-        of V_d,q and follow the slope.
+        of V_d,q and follow the slope; the inner fit recomputes this at its fitted values.
 
-        It matters when the noise changes by less than a step between samples (V_d < ~0.35 step^2),
-        whatever its own size."""
+        It matters when the noise changes by less than a step between samples (V_d < ~0.35 step^2).
+        The terms left out are damped by the noise's whole variance V: exact enough for V above
+        ~0.35 step^2 (0.6 step of noise); below, where the conditional mean is in the residual,
+        approximate (they follow where the mean sits between the levels). Tones are left out."""
         q = model.effects.get("sensor.quantization")
         if q is None:
             return None
@@ -1073,13 +1076,20 @@ class Hypotheses:
             trial = model
             for (e, sname, pw), vi, ref in zip(scales, v, refs):
                 trial = _set(trial, e, {sname: float(ref * vi ** (1.0 / pw))})
+            # the quantizer's slope modulation at the fitted noise and jitter (:meth:`_quant_slope`)
+            base_moved = False
+            if mod is not None and mod.base is not None:
+                nb = self._quant_slope(trial)
+                scale = float(np.max(np.abs(mod.base))) or 1.0
+                if nb is not None and not np.allclose(nb, mod.base, rtol=1e-2, atol=1e-2 * scale):
+                    mod, base_moved = Modulation(dd, ydot, d.k0, refs[mod_index] ** 2, nb), True
             new_q = self.ev.quant_part(trial)
             new_q = white_q if new_q is None else new_q          # white at the fitted values
             # the quantizer's conditional mean, in the residual, follows the noise too
             mo_t, mo_r = self.ev.quant_moments(trial)[0], self.ev.quant_moments(res_model)[0]
             moved = _g_moved(mo_t, mo_r)
             # with the conditional mean, its Stein factors move the part too: settled to 1 %
-            if np.allclose(new_q, parts[qid], rtol=1e-3 if mo_t is None else 1e-2, atol=0) and not moved:
+            if np.allclose(new_q, parts[qid], rtol=1e-3 if mo_t is None else 1e-2, atol=0) and not (moved or base_moved):
                 break
             parts = dict(parts)
             parts[qid] = new_q
