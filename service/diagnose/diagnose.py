@@ -385,12 +385,6 @@ def _later(bg, fn):
     return f
 
 
-def _done(value) -> Future:
-    f = Future()
-    f.set_result(value)
-    return f
-
-
 def _same_model(a, b) -> bool:
     """The same model for compare(): its file's content (the name and description aside)."""
     if a is b:
@@ -450,7 +444,7 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0)
     final = cur.model
     after_f = None
     if accepted and comps[-1] is not None and _same_model(final, step_models[-1]):
-        after_f = _done(comps[-1])     # the last step's comparison is of this model (same revision): not again
+        after_f = _later(None, lambda c=comps[-1]: c)   # the last step's comparison is of this model (same revision)
     elif accepted:
         after_f = _later(bg, lambda: compare(final, t, y, u, burn=burn, level=S.data.at_rest, revision=len(comps) - 1))
     missing = []

@@ -743,9 +743,11 @@ class Modulation:
 
     def __init__(self, d: np.ndarray, ydot: np.ndarray, k0: int, unit: float, base: np.ndarray | None = None):
         z = d**2                                                    # (M, p)
-        if base is not None and base.shape == z.shape:
+        if base is not None:
+            if base.shape != z.shape:
+                raise ValueError(f"Modulation: base {base.shape} does not match the residual's {z.shape}")
             z = z - base
-        self.base = base if base is not None and base.shape == z.shape else None
+        self.base = base
         x = self.slope_squares(ydot, k0)
         self.unit = unit                                            # v = b / unit
         num, den = 0.0, 0.0
@@ -970,7 +972,7 @@ class Hypotheses:
             return None
         d = self.data
         pr = model.predictor()
-        pr.steady_state()
+        st = pr.steady_state()
         gam = pr.variogram(2, quantization=False)
         if any(v is None for v in gam.values()):
             return None
@@ -990,7 +992,6 @@ class Hypotheses:
             dmu = np.diff(mean[d.k0:], axis=0)                       # (M, p)
             w = np.zeros_like(dmu)
             if std_s > 0:
-                st = pr.steady_state()
                 yv = np.zeros(d.p) if st.ydot_var is None else np.broadcast_to(st.ydot_var, (d.p,))
                 jv = std_s**2 * (Modulation.slope_squares(ydot, d.k0) + 2.0 * yv)          # (M, p)
             for j in np.flatnonzero(a0 <= QUANT_SLOPE_MAX):

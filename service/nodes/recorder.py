@@ -232,7 +232,7 @@ class Ingest:
             kind = _kind_of_key(key)
             try:
                 seq = _seq_t(payload, kind, key)[0]
-            except (wire.WireError, TypeError, KeyError):
+            except wire.WireError:
                 kept.append((key, payload))      # Ingest skips and counts it; the join goes on
                 continue
             if seq < first:
@@ -266,7 +266,6 @@ class Ingest:
         kept = []
         for key in list(self.join):
             kept += self._release(key, None)
-        self.join.clear()
         if kept:
             self.add(kept, time.time_ns())
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 import re
+import threading
 import time
 from pathlib import Path
 
@@ -206,7 +207,6 @@ class JoinRequest:
     answered (or at the timeout); :attr:`points` is then the answer."""
 
     def __init__(self, session, key_expr: str, timeout: float = JOIN_TIMEOUT_S):
-        import threading
         self.base = zenoh.KeyExpr(key_expr)
         self.points: dict[str, int] = {}
         self.done = threading.Event()
