@@ -125,6 +125,7 @@ def predict_report(model) -> dict:
         "var_y": _vec(st.var_y),
         "std_y": None if st.var_y is None else _vec(np.sqrt(st.var_y)),
         "bias_var_rate": _vec(st.bias_var_rate),
+        "walk_var_rate": _vec(st.walk_var_rate),
         "P": None if st.P is None else st.P.tolist(),
         "state_names": list(model.plant.state_names),
         "contributions": {k: _vec(v) for k, v in st.contributions.items()},
@@ -155,8 +156,11 @@ def cmd_predict(args) -> int:
     print(f"{'var_y (steady state)':<24} {_fmt(total):>32}")
     print(f"{'std_y':<24} {_fmt(rep['std_y']):>32}")
     print(f"{'bias_var_rate (per s)':<24} {_fmt(rep['bias_var_rate']):>32}")
+    if rep["walk_var_rate"] is not None:
+        print(f"{'walk_var_rate (per s)':<24} {_fmt(rep['walk_var_rate']):>32}   (the plant integrates)")
     if rep["P"] is None:
-        print("P: null (the plant is not stable: no steady state)")
+        print("P: null (the plant integrates: no steady state, stationary increments)" if rep["walk_var_rate"]
+              is not None else "P: null (the plant is not stable: no steady state)")
     else:
         print("P (plant state covariance, " + ", ".join(rep["state_names"]) + "):")
         for row in rep["P"]:

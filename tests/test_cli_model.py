@@ -99,3 +99,18 @@ def test_simulate_refuses_existing_and_shows_progress(tmp_path):
     assert res.returncode == 0, res.stderr
     assert "100.0 %" in res.stderr and "samples/s" in res.stderr
     assert mcapio.read_recording(out).device("seed").measurement.seq.size == 200
+
+
+def test_predict_json_integrating_plant_gives_its_walk_rate(capsys):
+    """The motor scenario (a pole at 0): no steady state where the walk reaches y, its growth of
+    Var(y) per second instead, (b / a)^2 sigma^2 Ts for a per-sample input noise sigma held over the
+    sample; the effects that do not pass through the plant keep their variances."""
+    assert main(["predict", "motor", "--json"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["P"] is None and rep["var_y"] is None and rep["stable"] is False
+    assert rep["contributions"]["process.white"] is None
+    assert rep["contributions"]["sensor.white"] == [pytest.approx(0.0005**2)]
+    assert rep["walk_var_rate"] == [pytest.approx((8.0 / 4.0) ** 2 * 0.02**2 * 0.005, rel=1e-9)]
+    assert any("integrates" in n for n in rep["notes"])
+    assert main(["predict", "seed", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["walk_var_rate"] is None

@@ -778,6 +778,39 @@ def test_cli_bad_input_one_line_exit_2(walk_recording, tmp_path, args, needle):
     assert walk_recording.stat().st_size > 0
 
 
+def test_a_plant_that_integrates_end_to_end(tmp_path):
+    """A DC motor's angle (a pole at 0: the angle is a random walk plus a stationary part) with a
+    sensor bias walk hidden: `simulate`, then `diagnose` against the model without the bias. The
+    plant's own walk dominates the lowest frequencies; the bias walk shows where the plant's walk
+    falls as 1/f^4 above the motor's pole (0.64 Hz) and the bias walk's as 1/f^2. Its interval must
+    hold the true value; the truth model reports nothing; a double integrator (no stationary
+    increments) is refused in one line, exit 2."""
+    motor = (ROOT / "service" / "scenarios" / "motor-nominal.toml").read_text()
+    nominal = tmp_path / "nominal.toml"
+    nominal.write_text(motor)
+    truth = tmp_path / "truth.toml"
+    truth.write_text(motor + "\n[sensor.bias_walk]\nstd = 0.0015\n")
+    rec = tmp_path / "motor.mcap"
+    r = cli("simulate", truth, "--duration", 120, "--seed", 4, "--out", rec)
+    assert r.returncode == 0, r.stderr
+    r = cli("diagnose", rec, "--model", nominal, "--json")
+    assert r.returncode == 0, r.stderr
+    rep = json.loads(r.stdout)
+    assert [m["effect"] for m in rep["missing"]] == ["sensor.bias_walk"], rep["missing"]
+    m = rep["missing"][0]
+    lo, hi = m["interval"]["std"]
+    assert lo <= 0.0015 <= hi and abs(m["params"]["std"] / 0.0015 - 1) < 0.3, m
+    assert rep["error_after"] <= 1.5 < rep["error_before"]
+    r = cli("diagnose", rec, "--model", truth, "--json")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["missing"] == []
+    double = tmp_path / "double.toml"
+    double.write_text(motor.replace("[0.0, -4.0]", "[0.0, 0.0]"))
+    r = cli("diagnose", rec, "--model", double)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1
+    assert "chain of integrators" in r.stderr, r.stderr
+
+
 _QJ_DOC = """name = "qj"
 [sampling]
 Ts = 0.002

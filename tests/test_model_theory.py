@@ -314,3 +314,82 @@ def test_quantizer_covariance_about_its_conditional_mean_monte_carlo():
     emp, se = est.mean(axis=0), est.std(axis=0, ddof=1) / np.sqrt(B)
     z = (emp - pred) / se
     assert np.all(np.abs(z) < 5), np.round(z, 1)
+
+
+# -- plants that integrate (A with an eigenvalue 0) -----------------------------------------------------
+MOTOR = "A = [[0.0, 1.0], [0.0, -4.0]]\nB = [[0.0], [8.0]]\nC = [[1.0, 0.0]]"
+
+
+def _increments_from_rest(model, k: int, lags) -> dict:
+    """{effect id: Var(y_{k+d} - y_k) / 2 at lags d} of the exact (not leaked) system started at rest,
+    from the covariance recursion: P_k by doubling, then H (F^d - I) P_k (F^d - I)^T H^T +
+    sum_{j<d} H F^j Gamma Gamma^T F^j^T H^T (+ the feedthrough's 2 J J^T when it has one)."""
+    ls = model.predictor().linear_system()
+    F, H = ls.F, ls.H
+    n = F.shape[0]
+    out = {}
+    for eid, cols in ls.owners.items():
+        G, J = ls.Gam[:, cols], ls.J[:, cols]
+        P, Fp, m = G @ G.T, F.copy(), 1
+        while m < k:                         # P_{2m} = P_m + F^m P_m F^m^T
+            P, Fp, m = P + Fp @ P @ Fp.T, Fp @ Fp, 2 * m
+        vals = []
+        for d in lags:
+            A = np.linalg.matrix_power(F, d) - np.eye(n)
+            S, Fj = np.zeros((n, n)), np.eye(n)
+            for _ in range(d):
+                S, Fj = S + Fj @ G @ G.T @ Fj.T, Fj @ F
+            v = H @ (A @ P @ A.T + S) @ H.T + 2 * J @ J.T \
+                - H @ np.linalg.matrix_power(F, d - 1) @ G @ J.T - J @ G.T @ np.linalg.matrix_power(F, d - 1).T @ H.T
+            vals.append(np.diag(v) / 2)
+        out[eid] = np.array(vals)
+    return out
+
+
+@pytest.mark.parametrize("body", [
+    "[process.white]\nstd = 0.005\n[sensor.white]\nstd = 0.002",
+    "[actuator.ar1]\nstd = 0.05\ntau_s = 0.3\n[actuator.lag]\ntau_s = 0.05\n[sensor.white]\nstd = 0.002",
+], ids=["process", "ar1-lag"])
+def test_an_integrators_variogram_is_the_exact_walks(body):
+    """A DC motor's position (a pole at 0): no steady state, but stationary increments. The predicted
+    variogram (the integrator leaked by 1e-11 per sample) against the exact system's increments
+    from rest at k = 2^17 (where the stable modes have settled to 1e-300): to 1e-6 relative at lags
+    1 to 4000 samples (the leak's own error is ~1e-11 d, the rounding ~1e-16 / 1e-11 of the walk's
+    per-sample increment)."""
+    m = model(body, plant=MOTOR)
+    st = m.predictor().steady_state()
+    assert not st.stable and st.P is None and st.var_y is None
+    assert st.contributions["sensor.white"] == pytest.approx([4e-6])
+    lags = [1, 2, 10, 100, 1000, 3999]
+    got = m.predictor().variogram(4000, quantization=False)
+    ref = _increments_from_rest(m, 2**17, lags)
+    for eid, r in ref.items():
+        np.testing.assert_allclose(got[eid][lags], r, rtol=1e-6, err_msg=eid)
+    # the walk's growth of Var(y) per second: (b / a)^2 sigma^2 Ts for a per-sample force held over
+    # the sample (position increments b / a sigma Ts per sample in the long run)
+    if "process.white" in m.effects:
+        assert st.walk_var_rate == pytest.approx([(8.0 / 4.0) ** 2 * 0.005**2 * 0.01], rel=1e-9)
+    # and the variogram's long-lag slope is that rate
+    g = got[next(iter(ref))][:, 0] if "process.white" in m.effects else None
+    if g is not None:
+        assert 2 * (g[3999] - g[3998]) / 0.01 == pytest.approx(st.walk_var_rate[0], rel=1e-6)
+
+
+def test_an_integrator_the_output_does_not_see_leaves_a_steady_state():
+    """The same motor measured by its velocity: the position's walk is not in y, so y has a steady
+    state, the first-order closed form: v_{k+1} = e^{-a Ts} v_k + (b / a)(1 - e^{-a Ts}) w_k with
+    w_k of std sigma held over the sample, Var(v) = g^2 sigma^2 / (1 - e^{-2 a Ts})."""
+    m = model("[process.white]\nstd = 0.005", plant=MOTOR.replace("C = [[1.0, 0.0]]", "C = [[0.0, 1.0]]"))
+    st = m.predictor().steady_state()
+    a, b, s, Ts = 4.0, 8.0, 0.005, 0.01
+    g = (b / a) * (1 - np.exp(-a * Ts))
+    assert st.var_y == pytest.approx([g**2 * s**2 / (1 - np.exp(-2 * a * Ts))], rel=1e-9)
+    assert st.walk_var_rate == pytest.approx([0.0], abs=1e-20)
+
+
+def test_a_double_integrator_has_no_stationary_increments():
+    m = model("[process.white]\nstd = 0.005\n[sensor.white]\nstd = 0.002", plant=DOUBLE_INTEGRATOR)
+    st = m.predictor().steady_state()
+    assert not st.stable and st.walk_var_rate is None
+    assert st.contributions["process.white"] is None
+    assert m.predictor().variogram(10, quantization=False)["process.white"] is None

@@ -156,7 +156,7 @@ def test_expected_periodogram_against_an_extended_precision_sum(tau):
     pr.steady_state()
     ls = pr._ls
     cols = ls.owners["actuator.ar1"]
-    F, G, H, P = W._sub_system(ls, pr._Pj["actuator.ar1"], cols, ls.n_x)
+    F, G, H, P, _ = W._sub_system(ls, pr._Pj["actuator.ar1"], cols, ls.n_x)
     J = ls.J[:, cols]
     n, N = F.shape[0], M + 1
     Fl, Gl, Hl, Jl = (x.astype(LD) for x in (F, G, H, J))
@@ -213,7 +213,7 @@ def test_cross_spectra_against_the_definition():
     ph = np.exp(-2j * np.pi * np.outer(f, q) / M)                 # (nf, M)
     for eid in ("process.white", "actuator.ar1", "sensor.bias_markov"):
         cols = ls.owners[eid]
-        F, G, H, P = W._sub_system(ls, pr._Pj[eid], cols, ls.n_x)
+        F, G, H, P, _ = W._sub_system(ls, pr._Pj[eid], cols, ls.n_x)
         J = ls.J[:, cols]
         n, p = F.shape[0], H.shape[0]
         Pk = np.zeros((N, n, n))
@@ -429,3 +429,64 @@ def test_inner_likelihood_at_the_model_values_is_the_fixed_models(free):
     at_model = fit.inner.value(np.array(v))[0] + _extra(H, fit)
     assert abs(at_model - fixed.loglik) < 1e-6, (at_model, fixed.loglik)
     assert fit.loglik >= fixed.loglik - 1e-6
+
+
+MOTOR = """name = "motor"
+[sampling]
+Ts = 0.01
+[plant]
+A = [[0.0, 1.0], [0.0, -4.0]]
+B = [[0.0], [8.0]]
+C = [[1.0, 0.0], [0.0, 0.1]]
+[process.white]
+std = 0.005
+[actuator.ar1]
+std = 0.02
+tau_s = 0.5
+[sensor.white]
+std = [0.0005, 0.0002]
+"""
+
+
+def test_an_integrators_expected_periodogram_against_the_definition():
+    """A DC motor (position and a scaled velocity): a pole at 0, so no stationary covariance; the
+    prediction leaks it by 1e-11 per sample and forms every term from (I - F) P. Against the
+    definition with the exact F from rest, E I_f = (1/M) sum_{q,r} w_q w_r Cov(d_q, d_r)
+    cos(w_f (q - r)) with P_k from P_0 = 0 (its walk grows without bound): per source and output,
+    to 1e-7 of the largest value (the leak's own error is ~1e-11 M)."""
+    M = 256
+    model = parse_model(MOTOR)
+    pr = model.predictor()
+    pr.steady_state()
+    ls = pr._ls
+    exact = pr.linear_system()                     # the same system, the integrator not leaked
+    assert not np.allclose(ls.F, exact.F, rtol=0, atol=1e-13) and np.allclose(ls.F, exact.F, atol=1e-10)
+    parts = W.expected_parts(model, M, 0, True, cross=True)
+    N = M + 1
+    for eid, cols in exact.owners.items():
+        F, G, H, J = exact.F, exact.Gam[:, cols], exact.H, exact.J[:, cols]
+        n, p = F.shape[0], H.shape[0]
+        Pk = np.zeros((N, n, n))
+        for k in range(1, N):
+            Pk[k] = F @ Pk[k - 1] @ F.T + G @ G.T
+        HF = np.zeros((N, p, n))                   # H F^j
+        HF[0] = H
+        for j in range(1, N):
+            HF[j] = HF[j - 1] @ F
+        # Cov(y_l, y_k) for l >= k: H F^(l-k) P_k H^T + H F^(l-k-1) Gamma J^T (l > k) + J J^T (l = k)
+        C = np.zeros((N, N, p, p))
+        for k in range(N):
+            for l in range(k, N):
+                c = HF[l - k] @ Pk[k] @ H.T
+                c = c + (HF[l - k - 1] @ G @ J.T if l > k else J @ J.T)
+                C[l, k], C[k, l] = c, c.T
+        Cd = C[1:, 1:] - C[1:, :-1] - C[:-1, 1:] + C[:-1, :-1]          # Cov(d_q, d_r)
+        w = W.taper(M)[0]
+        A = w[:, None, None, None] * w[None, :, None, None] * Cd
+        q = np.arange(M)
+        f = np.arange(W.n_freqs(M))
+        ph = np.exp(-2j * np.pi * np.outer(f, q) / M)                  # (nf, M)
+        E_ref = np.einsum("fq,qrij,fr->fij", ph, A, np.conj(ph)) / M
+        E = parts[eid]
+        scale = np.max(np.abs(E_ref))
+        assert np.max(np.abs(E - E_ref)) < 1e-7 * scale, (eid, np.max(np.abs(E - E_ref)) / scale)

@@ -63,7 +63,7 @@ from scipy.signal import get_window
 from scipy.special import digamma, polygamma
 
 from ..model import ModelError
-from ..model.predict import allan_from_variogram
+from ..model.predict import LEAK, allan_from_variogram
 from ..stats import oadev, welch
 from ..stats.psd import window_autocorrelation
 from ..stats.psd import log_bin_groups
@@ -94,7 +94,12 @@ def transient_samples(model) -> int:
     F = pr._ls.F
     if F.size == 0:
         return 0
-    rho = float(np.max(np.abs(np.linalg.eigvals(F))))
+    lam = np.linalg.eigvals(F)
+    if pr._Dj:
+        # a plant that integrates: its walk has stationary increments from the first sample (the
+        # comparison is on them); the transient is the other modes'
+        lam = lam[np.abs(lam - (1.0 - LEAK)) > LEAK]
+    rho = float(np.max(np.abs(lam), initial=0.0))
     if rho <= 0 or rho >= 1:
         return 0
     return int(np.ceil(np.log(0.01) / (2.0 * np.log(rho))))
@@ -227,8 +232,9 @@ def _gamma_parts_uncached(model, L: int) -> dict:
     vg = predictor_of(model).variogram(L, quantization=False)    # compare() puts in the record's own
     bad = [eid for eid, v in vg.items() if v is None]
     if bad:
-        raise AnalysisError(f"model {model.name}: the plant is not stable, so {', '.join(bad)} has no "
-                            "stationary prediction to compare with")
+        raise AnalysisError(f"model {model.name}: the plant has an unstable mode or a chain of integrators "
+                            f"(a single integrator is supported), so {', '.join(bad)} has no stationary "
+                            "increments to compare with")
     return vg
 
 

@@ -564,7 +564,10 @@ def _inv_logdet(E: np.ndarray):
     closed form (batched LAPACK calls on 2 x 2 matrices cost ~10x more)."""
     if E.shape[1] == 2:
         a, d, b = E[:, 0, 0].real, E[:, 1, 1].real, E[:, 0, 1]
-        det = a * d - (b.real**2 + b.imag**2)
+        # a model whose outputs share one noise source and nothing else (two outputs of one plant,
+        # no sensor noise) predicts a singular E: floored, the data's other direction costs a
+        # likelihood of ~1e12 times its power instead of a NaN
+        det = np.maximum(a * d - (b.real**2 + b.imag**2), 1e-12 * a * d)
         Ei = np.empty_like(E)
         Ei[:, 0, 0], Ei[:, 1, 1] = d / det, a / det
         Ei[:, 0, 1], Ei[:, 1, 0] = -b / det, -np.conj(b) / det
@@ -594,19 +597,30 @@ class Inner:
         # a source with (almost) no power in these bins: its reference capped, so its bound stays finite
         self.vref = np.minimum([tot / max(float(np.sum(self.G * tr(u))), 1e-300) for u in self.U], 1e290)
         self.hi = self.vref * 1e4
+        level = E0 + np.tensordot(self.vref, self.U, axes=1) if len(self.U) else E0
+        # each output's expected power floored at 1e-12 of its mean over the bins: a part summed
+        # from exponentials of nearly equal modes (a long-memory noise through an integrator) can
+        # round below 0 where the model has next to no power; floored, data there cost a very low
+        # likelihood instead of a NaN
+        diag = np.einsum("bii->bi", level).real if self.multi else level
+        self.floor = 1e-12 * np.mean(np.abs(diag), axis=0) + 1e-150
         if self.multi:
             p = I.shape[1]
             self.Gb = self.G[:, 0, 0]
             # a ridge of 1e-13 of the mean output power (and a floor) keeps E invertible where a
             # source's spectrum is singular (two outputs of one mode, no sensor noise)
-            level = E0 + np.tensordot(self.vref, self.U, axes=1) if len(self.U) else E0
             self.ridge = (1e-13 * np.einsum("bii->b", level).real / p + 1e-150)[:, None, None] * np.eye(p)
 
     def _E(self, v):
         E = self.E0 + np.tensordot(v, self.U, axes=1) if len(v) else self.E0
         if self.multi:
-            return E + self.ridge
-        return np.maximum(E, 1e-150)             # E**2 stays a normal float
+            E = E + self.ridge
+            d = np.einsum("bii->bi", E)              # a view of the new array's diagonals
+            low = d.real < self.floor
+            if low.any():
+                d[low] = np.broadcast_to(self.floor, d.shape)[low]
+            return E
+        return np.maximum(E, self.floor)         # E**2 stays a normal float
 
     def value(self, v):
         v = np.asarray(v, float)

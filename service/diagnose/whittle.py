@@ -442,19 +442,22 @@ def psd_sqrt(P: np.ndarray) -> np.ndarray:
     return Q[:, keep] * np.sqrt(w[keep])
 
 
-def _sub_system(ls, Pe, cols, n_x: int):
-    """The states an effect's noise reaches (plant + its own), as (F, Gamma, H, Hd, P) restricted."""
+def _sub_system(ls, Pe, cols, n_x: int, De=None):
+    """The states an effect's noise reaches (plant + its own), as (F, Gamma, H, P, (I - F) P)
+    restricted (the last None unless given: a plant that integrates)."""
     G = ls.Gam[:, cols]
     own = np.flatnonzero(np.any(G[n_x:] != 0, axis=1) | np.any(Pe[n_x:, n_x:] != 0, axis=1)) + n_x
     S = np.concatenate([np.arange(n_x), own]).astype(np.int64)
-    return ls.F[np.ix_(S, S)], G[S], ls.H[:, S], Pe[np.ix_(S, S)]
+    return ls.F[np.ix_(S, S)], G[S], ls.H[:, S], Pe[np.ix_(S, S)], None if De is None else De[np.ix_(S, S)]
 
 
 def linear_part(F, G, H, J, Pe, M: int, k0: int, at_rest: bool, groups: Groups | None = None,
-                cross: bool = False) -> np.ndarray:
+                cross: bool = False, De: np.ndarray | None = None) -> np.ndarray:
     """E I_f (nf, p) of one source of the augmented linear system (see the module docstring);
     ``groups``: their means (nb, p); ``cross``: the expected cross-periodogram matrices (nf or nb,
-    p, p), complex Hermitian (Cov(d_{q+h}, d_q) for every pair of outputs)."""
+    p, p), complex Hermitian (Cov(d_{q+h}, d_q) for every pair of outputs). ``De``: (I - F) P, given
+    for a plant that integrates (:func:`service.model.predict.lyap_leaky`): every term is then
+    formed from it, without the cancellation between lags at the walk's scale."""
     p = H.shape[0]
     n = F.shape[0]
     modes = Modes(F)
@@ -463,17 +466,29 @@ def linear_part(F, G, H, J, Pe, M: int, k0: int, at_rest: bool, groups: Groups |
     # Y0 = F P H^T + Gamma J^T, so the differenced Rd(h) = 2 R(h) - R(h-1) - R(h+1) is, for h >= 2,
     # -H F^(h-2) (I - F)^2 Y0: one series, and no cancellation between neighbouring lags of a slow mode
     # (R(h) = Cov(y_{k+h}, y_k), R(-h) = R(h)^T: Rd(0) = 2 R(0) - R(1) - R(1)^T)
-    Y0 = F @ Pe @ H.T + G @ J.T                                      # (n, p)
-    R0 = H @ Pe @ H.T + J @ J.T
-    R1 = H @ Y0
     IF = np.eye(n) - F
     Rd = np.empty((K + 1, p, p))
-    Rd[0] = 2 * R0 - R1 - R1.T
-    if K >= 1:
-        R2 = H @ F @ Y0 if K >= 2 else np.zeros((p, p))               # R(2); zero beyond a horizon of 1
-        Rd[1] = 2 * R1 - R0 - R2
+    GJ = G @ J.T
+    if De is None:
+        Y0 = F @ Pe @ H.T + GJ                                        # (n, p)
+        R0 = H @ Pe @ H.T + J @ J.T
+        R1 = H @ Y0
+        Rd[0] = 2 * R0 - R1 - R1.T
+        if K >= 1:
+            R2 = H @ F @ Y0 if K >= 2 else np.zeros((p, p))           # R(2); zero beyond a horizon of 1
+            Rd[1] = 2 * R1 - R0 - R2
+        IY = IF @ IF @ Y0
+    else:
+        # the same from D = (I - F) P: R(0) - R(1) = H D H^T + J J^T - H G J^T, so
+        # Rd(0) = H (D + D^T) H^T + 2 J J^T - H G J^T - J G^T H^T,
+        # Rd(1) = -H (I - F) D H^T + H (2 I - F) G J^T - J J^T, (I - F)^2 Y0 = F (I - F) D H^T + (I - F)^2 G J^T
+        HGJ = H @ GJ
+        Rd[0] = H @ (De + De.T) @ H.T + 2 * J @ J.T - HGJ - HGJ.T
+        if K >= 1:                    # (a walk's horizon is the record: K >= 2 whenever M >= 2)
+            Rd[1] = -H @ IF @ De @ H.T + H @ (2 * np.eye(n) - F) @ GJ - J @ J.T
+        IY = F @ IF @ De @ H.T + IF @ IF @ GJ
     if K >= 2:
-        Rd[2:] = modes.series(H, -(IF @ IF @ Y0), K - 1)
+        Rd[2:] = modes.series(H, -IY, K - 1)
     if not cross:
         idx = np.arange(p)
         Rd = Rd[:, idx, idx]
@@ -548,7 +563,7 @@ def expected_parts(model, M: int, k0: int, at_rest: bool, ydot_sq: np.ndarray | 
         ydot_cov += ls.Hd @ Pe @ ls.Hd.T + Jd @ Jd.T
         if eid in skip:
             continue
-        F, G, H, Ps = _sub_system(ls, Pe, cols, ls.n_x)
+        F, G, H, Ps, Ds = _sub_system(ls, Pe, cols, ls.n_x, pr._Dj.get(eid))
         J = ls.J[:, cols]
         key = None
         if cache is not None:
@@ -558,7 +573,7 @@ def expected_parts(model, M: int, k0: int, at_rest: bool, ydot_sq: np.ndarray | 
             if got is not None:
                 parts[eid] = got
                 continue
-        E = linear_part(F, G, H, J, Ps, M, k0, at_rest, groups, cross)
+        E = linear_part(F, G, H, J, Ps, M, k0, at_rest, groups, cross, Ds)
         if cache is not None:
             if len(cache) > 256:
                 cache.clear()

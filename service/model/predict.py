@@ -121,6 +121,7 @@ class Steady:
     stable: bool
     notes: list
     ydot_var: np.ndarray | None = None  # (p,) stationary Var(ydot) (the jitter's noise-driven slope)
+    walk_var_rate: np.ndarray | None = None   # (p,) growth of Var(y) per second where the plant integrates
 
 
 class Predictor:
@@ -385,25 +386,52 @@ class Predictor:
         ls = self.linear_system(g, dstd)
         nx, n_s = ls.n_x, ls.F.shape[0]
         plant_part = slice(0, nx + self._Fa.shape[0])
+        marginal = walk_y = walk_ydot = False
+        leaked = leak_unit_modes(ls.F[:nx, :nx])
+        if leaked is not None:
+            # integrators (A with an eigenvalue 0): the plant's unit modes leak by LEAK per sample, so
+            # that every source has a (huge) stationary covariance whose increments are those of the
+            # exact walk. Only the plant's own modes: a noise state's near-unit pole is its own model.
+            ls.F[:nx, :nx], Vu = leaked
+            marginal = True
+            # the outputs (and slopes) the walk reaches have no steady-state variance
+            scale = np.linalg.norm(Vu, axis=0)
+            walk_y = bool(np.any(np.abs(ls.H[:, :nx] @ Vu) > 1e-9 * scale * np.linalg.norm(ls.H)))
+            walk_ydot = bool(np.any(np.abs(ls.Hd[:, :nx] @ Vu) > 1e-9 * scale * np.linalg.norm(ls.Hd)))
+            notes.append("the plant integrates (an eigenvalue of A at 0): its output has no steady-state "
+                         "variance, only stationary increments (variogram, PSD of the differenced output)")
         rad = np.max(np.abs(np.linalg.eigvals(ls.F[plant_part, plant_part])), initial=0.0)
-        stable = bool(rad < 1.0)
+        stable = bool(rad < 1.0) and not marginal
+        marginal = marginal and bool(rad < 1.0)
         contributions: dict = {}
         Ptot = np.zeros((n_s, n_s))
         ydot_var = np.zeros(mdl.p)
         self._Pj = {}
+        self._Dj = {}           # marginal plants: (I - F) P per source, formed without cancellation
         for eid, cols in ls.owners.items():
             Gj = ls.Gam[:, cols]
             drives_plant = bool(np.any(Gj[plant_part] != 0))
-            if drives_plant and not stable:
+            if drives_plant and not (stable or marginal):
                 contributions[eid] = None
                 continue
-            Pk = solve_discrete_lyapunov(ls.F, Gj @ Gj.T) if stable else _sensor_lyap(ls, Gj, plant_part)
+            if marginal:
+                Pk, self._Dj[eid] = lyap_leaky(ls.F, Gj @ Gj.T)
+            else:
+                Pk = solve_discrete_lyapunov(ls.F, Gj @ Gj.T) if stable else _sensor_lyap(ls, Gj, plant_part)
             Pk = 0.5 * (Pk + Pk.T)
             self._Pj[eid] = Pk
             Ptot += Pk
             Jj = ls.J[:, cols]
-            contributions[eid] = np.einsum("ij,jk,ik->i", ls.H, Pk, ls.H) + np.sum(Jj**2, axis=1)
+            contributions[eid] = None if walk_y and drives_plant else \
+                np.einsum("ij,jk,ik->i", ls.H, Pk, ls.H) + np.sum(Jj**2, axis=1)
             ydot_var += np.einsum("ij,jk,ik->i", ls.Hd, Pk, ls.Hd) + np.sum(ls.Jd[:, cols] ** 2, axis=1)
+        walk_rate = None
+        if marginal:
+            # the walk's part of y takes H Pi Gamma w_k per sample (Pi: :func:`unit_projector`)
+            HPi = ls.H @ unit_projector(ls.F)
+            walk_rate = sum((np.sum((HPi @ ls.Gam[:, c]) ** 2, axis=1) for c in ls.owners.values()),
+                            np.zeros(mdl.p)) / mdl.Ts
+        slope_ok = stable or (marginal and not walk_ydot)
         rate = np.zeros(mdl.p)
         burn = min(mean.t.size // 2, _settle_samples(mdl))
         ydot2 = np.mean(mean.ydot[burn:] ** 2, axis=0)
@@ -415,7 +443,7 @@ class Predictor:
             elif kind == "tone":
                 contributions[eid] = prm[0] ** 2 / 2.0
             elif kind == "jitter":
-                contributions[eid] = prm[0] * (ydot2 + ydot_var) if stable or not ydot_var.any() else None
+                contributions[eid] = prm[0] * (ydot2 + ydot_var) if slope_ok or not ydot_var.any() else None
         q = mdl.effects.get("sensor.quantization")
         if q is not None:
             from .effects.sensor_quantization import uniform_model_error
@@ -436,7 +464,7 @@ class Predictor:
         self._ls = ls
         self._steady_cache = Steady(var_y=var_y, P=Pp, contributions=contributions,
                                     bias_var_rate=rate, stable=stable, notes=notes,
-                                    ydot_var=ydot_var if stable else None)
+                                    ydot_var=ydot_var if slope_ok else None, walk_var_rate=walk_rate)
         return self._steady_cache
 
     # -- spectra -------------------------------------------------------------------------------------
@@ -650,9 +678,37 @@ class Predictor:
     def variogram(self, L: int, quantization: bool = True) -> dict:
         """gamma(d) = E[(y_{k+d} - y_k)^2] / 2, d = 0..L-1, per effect {id: (L, p)}; stationary
         effects R(0) - R(d), the bias walk d Q_b / 2. ``quantization``: as in :meth:`acf`."""
-        out = {eid: None if R is None else R[0] - R for eid, R in self.acf(L, quantization).items()}
+        self.steady_state()
+        if not self._Dj:
+            out = {eid: None if R is None else R[0] - R for eid, R in self.acf(L, quantization).items()}
+            out.update(self._walk_variograms(L))
+            return out
+        # a plant that integrates: the sources through it from (I - F) P (no R(0) at the walk's scale)
+        out = {eid: None if R is None else R[0] - R for eid, R in self.acf(L, False).items()
+               if eid not in self._Dj and eid != "sensor.quantization"}
+        out.update({eid: self._increments(eid, L) for eid in self._Dj})
         out.update(self._walk_variograms(L))
+        if quantization and "sensor.quantization" in self.model.effects:
+            R = self.quantization_acf(out, self.motion(max(L, self.horizon)))
+            out["sensor.quantization"] = R[0] - R
         return out
+
+    def _increments(self, eid: str, L: int) -> np.ndarray:
+        """gamma(d), d = 0..L-1 (L, p), of a source through a plant that integrates:
+        R(0) - R(d) = H (I - F^d) P H^T + J J^T - H F^(d-1) Gamma J^T, with
+        (I - F^d) P = sum_{j<d} F^j D, D = (I - F) P formed without cancellation."""
+        ls = self._ls
+        cols = ls.owners[eid]
+        H, J, G = ls.H, ls.J[:, cols], ls.Gam[:, cols]
+        p = self.model.p
+        X = np.concatenate([self._Dj[eid] @ H.T, G @ J.T], axis=1)        # (n_s, 2p)
+        FX = _powers_apply(ls.F, X, max(L - 1, 1))                          # F^j X, j = 0..L-2
+        HX = np.einsum("ij,ljk->lik", H, FX)
+        g = np.zeros((L, p))
+        if L > 1:
+            g[1:] = np.cumsum(np.diagonal(HX[:, :, :p], axis1=1, axis2=2), axis=0)[:L - 1]
+            g[1:] += np.sum(J**2, axis=1) - np.diagonal(HX[:, :, p:], axis1=1, axis2=2)[:L - 1]
+        return g
 
     def allan(self, m: np.ndarray) -> dict:
         """Allan variance per effect at averaging factors ``m`` (tau = m Ts): {id: (len(m), p)},
@@ -689,6 +745,93 @@ def _powers_apply(F: np.ndarray, X: np.ndarray, L: int) -> np.ndarray:
     return out
 
 
+UNIT_TOL = 1e-6        # |lambda - 1| within which a discrete eigenvalue is an integrator's
+LEAK = 1e-11            # what the prediction takes from an integrator's eigenvalue per sample
+
+
+def leak_unit_modes(F: np.ndarray, tol: float = UNIT_TOL, leak: float = LEAK):
+    """(F with its unit eigenvalues set to 1 - ``leak``, their right eigenvectors (n, u)) when every
+    eigenvalue of F is inside the unit circle but some are 1 (within ``tol``: integrators, A with an
+    eigenvalue 0) and those are semisimple; else None (an unstable mode, or a chain of integrators,
+    whose increments are not stationary either).
+
+    Why a leak: an integrator's output is a random walk plus a stationary part, correlated through
+    the noise they share. With the eigenvalue at 1 - eps every source has a stationary covariance
+    (its walk part ~ q / (2 eps)), and every statistic the diagnosis uses from it, increments and
+    differences (variogram, differenced-output spectrum), is the exact walk's to a relative O(eps n)
+    over n samples (1e-4 at 10^6) while the cancellation in R(0) - R(d) costs ~1e-16 / eps
+    (~1e-6) of the walk's own scale. The mode's eigenvector and every other mode are unchanged."""
+    if F.size == 0:
+        return None
+    from scipy.linalg import schur
+    T, Z, u = schur(F, output="real", sort=lambda re, im: abs(complex(re, im) - 1.0) <= tol)
+    lam = np.linalg.eigvals(T[u:, u:]) if u < F.shape[0] else np.zeros(0)
+    if u == 0 or np.any(np.abs(lam) >= 1.0):
+        return None
+    T11 = T[:u, :u]
+    if np.max(np.abs(T11 - np.eye(u))) > 10 * tol:      # a chain of integrators (a double integrator)
+        return None
+    T = T.copy()
+    T[:u, :u] = (1.0 - leak) * np.eye(u)
+    return Z @ T @ Z.T, Z[:, :u]
+
+
+def _decouple(F: np.ndarray, leak: float = LEAK):
+    """(S, Si, T11, T22, u): F = S diag(T11, T22) S^-1 with the u leaked integrator modes
+    (:func:`leak_unit_modes`) in T11 and the others in T22: an ordered real Schur form, decoupled
+    by a Sylvester solve (T11 X - X T22 = -T12, S = Z [[I, X], [0, I]])."""
+    from scipy.linalg import schur, solve_sylvester
+    T, Z, u = schur(F, output="real", sort=lambda re, im: abs(complex(re, im) - 1.0) < 2 * leak)
+    n = F.shape[0]
+    T11, T12, T22 = T[:u, :u], T[:u, u:], T[u:, u:]
+    X = solve_sylvester(T11, -T22, -T12) if 0 < u < n else np.zeros((u, n - u))
+    Si = np.eye(n)
+    Si[:u, u:] = -X
+    Si = Si @ Z.T
+    S = Z.copy()
+    S[:, u:] += Z[:, :u] @ X
+    return S, Si, T11, T22, u
+
+
+def unit_projector(F: np.ndarray, leak: float = LEAK) -> np.ndarray:
+    """The spectral projector onto F's leaked integrator modes: Pi F = F Pi = (1 - leak) Pi, so the
+    walk's part of the state, Pi x, takes Pi Gamma w_k per sample (Pi Gamma w_k also carries a
+    colored source's whole low-frequency gain: its state's effect on the walk is in Pi)."""
+    S, Si, _, _, u = _decouple(F, leak)
+    return S[:, :u] @ Si[:u]
+
+
+def lyap_leaky(F: np.ndarray, Q: np.ndarray, leak: float = LEAK) -> tuple[np.ndarray, np.ndarray]:
+    """(P, (I - F) P), P = F P F^T + Q, for an F whose integrator modes were leaked to 1 - ``leak``
+    (:func:`leak_unit_modes`), solved with those modes apart (:func:`_decouple`): a direct solve's
+    conditioning (~1 / (2 leak)) would spread the walk's error ~1e-16 / leak of its size over the
+    stable block. The three blocks are solved each at its own conditioning: only the walk's own
+    block is ill-conditioned, and its error stays in it."""
+    S, Si, T11, T22, u = _decouple(F, leak)
+    n = F.shape[0]
+    if u == 0:
+        P = solve_discrete_lyapunov(F, Q)
+        return P, (np.eye(n) - F) @ P
+    Qb = Si @ Q @ Si.T
+    Pb = np.zeros((n, n))
+    Pb[:u, :u] = solve_discrete_lyapunov(T11, Qb[:u, :u])
+    if u < n:
+        Pb[u:, u:] = solve_discrete_lyapunov(T22, Qb[u:, u:])
+        # P12 = T11 P12 T22^T + Q12, column-major vec: (I - T22 (x) T11) vec P12 = vec Q12
+        k = np.eye(u * (n - u)) - np.kron(T22, T11)
+        P12 = np.linalg.solve(k, Qb[:u, u:].reshape(-1, order="F")).reshape((u, n - u), order="F")
+        Pb[:u, u:] = P12
+        Pb[u:, :u] = P12.T
+    P = S @ Pb @ S.T
+    # (I - F) P = S (I - Tb) Pb S^T with the walk's block (I - T11) P11 = leak P11 ~ q / 2 formed
+    # without the cancellation (I - F) P would have at the walk's scale
+    IT = np.eye(n)
+    IT[:u, :u] -= T11
+    IT[u:, u:] -= T22
+    D = S @ (IT @ Pb) @ S.T
+    return 0.5 * (P + P.T), D
+
+
 def _sensor_lyap(ls: LinearSystem, Gj: np.ndarray, plant_part: slice) -> np.ndarray:
     """Lyapunov on the sensor-state block only (used when the plant itself is not stable)."""
     n_s = ls.F.shape[0]
@@ -701,7 +844,8 @@ def _sensor_lyap(ls: LinearSystem, Gj: np.ndarray, plant_part: slice) -> np.ndar
 
 def _settle_samples(model) -> int:
     """Samples for the plant's transient to decay to ~1e-6 (ln 1e6 ~ 14 time constants)."""
-    ev = np.abs(np.linalg.eigvals(model.Ad))
+    ev = np.linalg.eigvals(model.Ad)
+    ev = np.abs(ev[np.abs(ev - 1.0) > UNIT_TOL])         # an integrator's mode never settles: the others
     r = np.max(ev, initial=0.0)
     if r >= 1.0 or r == 0.0:
         return 0

@@ -118,6 +118,52 @@ def _plant_other(rng, Ts, T):
     return plant, float(np.min(freqs)), p
 
 
+def _plant_integrator(rng, Ts, T):
+    """Plants with an integrator (``make_case(..., plants="integrator")``), which the generator above
+    never draws: a DC motor's position (a pole at 0 and one at -1/tau, the input a torque, the
+    disturbance the same torque), with its velocity as a second output in a third of them; or a
+    general A, B, C plant with an eigenvalue 0 beside one or two stable modes, turned by a random
+    similarity transform (A kept to 9 significant digits so that the zero stays within 1e-8 of
+    its modes). Modes sit between 10 / T and 1/12 of the sample rate."""
+    fmax = min(3.0, 0.08 / Ts)
+    fmin = min(max(0.1, 10.0 / T), fmax / 2)
+    logf = lambda: float(np.exp(rng.uniform(np.log(fmin), np.log(fmax))))  # noqa: E731
+    if rng.random() < 0.5:
+        f = logf()
+        a = 2 * np.pi * f
+        K = float(rng.uniform(0.5, 3.0))
+        p = 2 if rng.random() < 1 / 3 else 1
+        C = [[1.0, 0.0], [0.0, 0.1]] if p == 2 else [[1.0, 0.0]]
+        return {"A": [[0.0, 1.0], [0.0, float(f"{-a:.5g}")]], "B": [[0.0], [float(f"{K * a:.5g}")]], "C": C}, f, p
+    blocks, freqs = [np.zeros((1, 1))], []
+    for _ in range(int(rng.integers(1, 3))):
+        f = logf()
+        freqs.append(f)
+        w = 2 * np.pi * f
+        if rng.random() < 0.6:
+            zeta = float(np.exp(rng.uniform(np.log(0.05), np.log(0.7))))
+            blocks.append(np.array([[-zeta * w, w * math.sqrt(1 - zeta**2)], [-w * math.sqrt(1 - zeta**2), -zeta * w]]))
+        else:
+            blocks.append(np.array([[-w]]))
+    n = sum(b.shape[0] for b in blocks)
+    A = np.zeros((n, n))
+    i = 0
+    for b in blocks:
+        A[i:i + b.shape[0], i:i + b.shape[0]] = b
+        i += b.shape[0]
+    Tm = np.eye(n) + 0.4 * rng.standard_normal((n, n))
+    while np.linalg.cond(Tm) > 20:
+        Tm = np.eye(n) + 0.4 * rng.standard_normal((n, n))
+    Ti = np.linalg.inv(Tm)
+    w0 = 2 * np.pi * float(np.median(freqs))
+    B = Tm @ (w0 * rng.uniform(0.5, 2.0, (n, 1)) * rng.choice([-1, 1], (n, 1)))
+    Lp = Tm @ (w0 * rng.uniform(0.1, 1.0, (n, 1)))
+    C = rng.uniform(-1, 1, (1, n)) @ Ti
+    C[0] += Ti[0] * np.sign(C[0] @ Tm[:, 0]) * 0.5      # the integrator seen at the output
+    plant = {"A": [[float(f"{v:.9g}") for v in row] for row in Tm @ A @ Ti], "B": _sig(B), "C": _sig(C), "L": _sig(Lp)}
+    return plant, float(np.min(freqs)), 1
+
+
 def _sig(X) -> list:
     """A matrix as nested lists of floats to 5 significant digits (what a model file holds)."""
     return [[float(f"{v:.5g}") for v in row] for row in np.atleast_2d(X)]
@@ -145,10 +191,23 @@ def _doc(name, Ts, plant, command, effects):
 
 
 def _contribution(text, eid):
+    """The variance effect ``eid`` adds to the output: its steady-state one; for a plant that
+    integrates, the variance its part of the output accrues over one second, 2 gamma(1 s)."""
     m = parse_model(text)
     st = m.predictor().steady_state()
     c = st.contributions.get(eid)
+    if c is None and eid in st.contributions and not st.stable:
+        g = m.predictor().variogram(int(round(1.0 / m.Ts)) + 1, quantization=False).get(eid)
+        c = None if g is None else 2.0 * g[-1]
     return None if c is None else float(np.max(c))
+
+
+def _scale(text) -> float:
+    """The nominal model's output variance (steady state; for a plant that integrates, over 1 s)."""
+    st = parse_model(text).predictor().steady_state()
+    if st.var_y is not None:
+        return float(np.max(st.var_y))
+    return sum(_contribution(text, eid) for eid in st.contributions)
 
 
 def make_case(seed: int, n_hidden: int | None = None, null: bool | None = None, plants: str = "generator") -> Case:
@@ -160,8 +219,10 @@ def make_case(seed: int, n_hidden: int | None = None, null: bool | None = None, 
     plant, fn, p = _plant(rng, Ts)
     if plants == "other":
         plant, fn, p = _plant_other(np.random.default_rng([seed, 17]), Ts, T)
+    elif plants == "integrator":
+        plant, fn, p = _plant_integrator(np.random.default_rng([seed, 19]), Ts, T)
     elif plants != "generator":
-        raise ValueError(f"plants: expected 'generator' or 'other', got {plants!r}")
+        raise ValueError(f"plants: expected 'generator', 'other' or 'integrator', got {plants!r}")
     null = bool(rng.random() < 0.2) if null is None else null
     n_hidden = (1 if rng.random() < 0.6 else 2) if n_hidden is None else n_hidden
     with_command = bool(rng.random() < 0.85)
@@ -179,7 +240,7 @@ def make_case(seed: int, n_hidden: int | None = None, null: bool | None = None, 
         c_act = _contribution(_doc("case", Ts, plant, command, {"actuator.white": {"std": 1.0}}), "actuator.white")
         base["actuator.white"]["std"] = float(f"{math.sqrt(target * rng.uniform(0.3, 1.0) / c_act):.4g}")
     nominal = dict(base)
-    var0 = float(np.max(parse_model(_doc("case", Ts, plant, command, nominal)).predictor().steady_state().var_y))
+    var0 = _scale(_doc("case", Ts, plant, command, nominal))
     sd0 = math.sqrt(var0)
     truth = {k: dict(v) for k, v in nominal.items()}
     hidden: dict = {}
@@ -219,7 +280,7 @@ def make_case(seed: int, n_hidden: int | None = None, null: bool | None = None, 
             nominal.pop(eid)
             hidden[eid] = {k: v for k, v in hidden[eid].items() if k != "_absent"}
             truth[eid] = hidden[eid]
-    name = f"case{seed}" + ("-other" if plants == "other" else "")
+    name = f"case{seed}" + ("" if plants == "generator" else f"-{plants}")
     return Case(name, _doc("case", Ts, plant, command, truth), _doc("case", Ts, plant, command, nominal),
                 {k: {kk: vv for kk, vv in v.items() if not kk.startswith("_")} for k, v in hidden.items()},
                 T, seed + 1000)
