@@ -30,6 +30,9 @@ Run on demand, not by pytest (``pyproject.toml`` ignores ``tests/bench``)::
    with damping down to 0.01, one or two outputs; lightly damped mass-spring-dampers).
 7. Bias pairs (``--pairs``): a bias walk and a Gauss-Markov bias hidden together
    (``hidden_set.with_bias_pair``).
+8. Plants that integrate (``--integrator``): the same seeds' effects on plants with a pole at 0
+   (``hidden_set.make_case(seed, plants="integrator")``: DC motors' angles, with the speed as a
+   second output in a third of them, and general A, B, C plants with an eigenvalue 0).
 """
 
 from __future__ import annotations
@@ -154,7 +157,7 @@ def _coverage(rows) -> str:
 
 
 def render(meta, bigr, rows, nrows, scan=(), planted=None, n_scan=0, steps=(), n_step=0, wrong=(), n_wrong=0,
-           coarse=(), n_coarse=0, other=(), pairs=()) -> str:
+           coarse=(), n_coarse=0, other=(), pairs=(), integ=()) -> str:
     L = [BEGIN, "", f"Run: {meta['date']} (local time), wall {meta['wall']:.0f} s. Machine: nproc {os.cpu_count()}, "
          f"{platform.platform()}; Python {platform.python_version()}, numpy {np.__version__}. Load average at "
          f"start {meta['load0']}, at end {meta['load1']}.", ""]
@@ -217,6 +220,15 @@ def render(meta, bigr, rows, nrows, scan=(), planted=None, n_scan=0, steps=(), n
               f"effects hidden as in the generator's case of that seed): {_criteria([r for r in other if not r['null']])}; "
               f"null cases clean {sum(r['ok'] for r in other if r['null'])}/{sum(r['null'] for r in other)}.", ""]
         L += _details(other)
+    if integ:
+        L += [f"Plants that integrate (`hidden_set.make_case(seed, plants=\"integrator\")`, seeds 0..{len(integ) - 1}: "
+              "DC motors' angles (a pole at 0 and one between 10 / T and 1/12 of the sample rate, the speed as a "
+              "second output in a third of them) and general A, B, C plants with an eigenvalue 0 beside one or two "
+              "stable modes, turned by a random similarity transform; the same effects hidden as in the generator's "
+              "case of that seed, their magnitudes set against the nominal's variance over 1 s): "
+              f"{_criteria([r for r in integ if not r['null']])}; null cases clean "
+              f"{sum(r['ok'] for r in integ if r['null'])}/{sum(r['null'] for r in integ)}.", ""]
+        L += _details(integ)
     if pairs:
         L += [f"A bias random walk and a Gauss-Markov bias hidden together (`hidden_set.with_bias_pair`, the nominals "
               f"of seeds 0..{len(pairs) - 1}; the generator never pairs them): {_criteria(pairs)}.", ""]
@@ -259,6 +271,8 @@ def main(argv=None):
                     help="also run seeds 0..OTHER-1 on plants the generator does not draw (hidden_set._plant_other)")
     ap.add_argument("--pairs", type=int, default=16,
                     help="also run seeds 0..PAIRS-1 with a bias walk and a Gauss-Markov bias hidden together")
+    ap.add_argument("--integrator", type=int, default=40,
+                    help="also run seeds 0..INTEGRATOR-1 on plants that integrate (hidden_set._plant_integrator)")
     ap.add_argument("--no-big", action="store_true")
     ap.add_argument("--write", action="store_true")
     ap.add_argument("--json")
@@ -291,15 +305,16 @@ def main(argv=None):
         coarse = cases(seeds, log, variant=with_coarse_quantizer)
     other = cases(range(a.other), log, plants="other") if a.other else []
     pairs = cases(range(a.pairs), log, variant=with_bias_pair) if a.pairs else []
+    integ = cases(range(a.integrator), log, plants="integrator") if a.integrator else []
     nrows = nulls(a.nulls, log) if a.nulls else []
     meta["wall"] = time.perf_counter() - t0
     meta["load1"] = " ".join(f"{x:.2f}" for x in os.getloadavg())
     block = render(meta, bigr, rows, nrows, scan, a.planted, a.scan, steps, a.step, wrong, a.wrong, coarse, a.coarse,
-                   other, pairs)
+                   other, pairs, integ)
     print(block)
     if a.json:
         Path(a.json).write_text(json.dumps({"big": bigr, "cases": rows, "nulls": nrows, "scan": scan, "steps": steps, "wrong": wrong,
-                                            "coarse": coarse, "other": other, "pairs": pairs}, default=str,
+                                            "coarse": coarse, "other": other, "pairs": pairs, "integrator": integ}, default=str,
                                            indent=1))
     if a.write:
         write_results(block)

@@ -3,8 +3,9 @@
 20 ms, records of 1 to 10 minutes, one or two effects hidden from the nominal model (absent, or
 present with a wrong value), and null cases (nominal = truth).
 
-Magnitudes are set relative to the nominal model's own noise (its predicted var_y), so that a
-hidden effect is visible but not dominant: a test designer's "detectable" range, not ours to tune.
+Magnitudes are set relative to the nominal model's own noise (its predicted var_y; for a plant
+that integrates, which has none, the variance its output accrues over 1 s), so that a hidden
+effect is visible but not dominant: a test designer's "detectable" range, not ours to tune.
 Used by ``bench_diagnose.py`` (hit rates, times) and, with a few fixed seeds, by the tests.
 """
 
