@@ -346,17 +346,20 @@ def _increments_from_rest(model, k: int, lags) -> dict:
     return out
 
 
-@pytest.mark.parametrize("body", [
-    "[process.white]\nstd = 0.005\n[sensor.white]\nstd = 0.002",
-    "[actuator.ar1]\nstd = 0.05\ntau_s = 0.3\n[actuator.lag]\ntau_s = 0.05\n[sensor.white]\nstd = 0.002",
-], ids=["process", "ar1-lag"])
-def test_an_integrators_variogram_is_the_exact_walks(body):
+@pytest.mark.parametrize("body, plant", [
+    ("[process.white]\nstd = 0.005\n[sensor.white]\nstd = 0.002", MOTOR),
+    ("[actuator.ar1]\nstd = 0.05\ntau_s = 0.3\n[actuator.lag]\ntau_s = 0.05\n[sensor.white]\nstd = 0.002", MOTOR),
+    # a feedthrough D: the actuator noise reaches y directly too (J != 0: J J^T and H Gamma J^T terms)
+    ("[actuator.white]\nstd = 0.05\n[actuator.ar1]\nstd = 0.05\ntau_s = 0.3\n[sensor.white]\nstd = 0.002",
+     MOTOR + "\nD = [[0.05]]"),
+], ids=["process", "ar1-lag", "feedthrough"])
+def test_an_integrators_variogram_is_the_exact_walks(body, plant):
     """A DC motor's position (a pole at 0): no steady state, but stationary increments. The predicted
     variogram (the integrator leaked by 1e-11 per sample) against the exact system's increments
     from rest at k = 2^17 (where the stable modes have settled to 1e-300): to 1e-6 relative at lags
     1 to 4000 samples (the leak's own error is ~1e-11 d, the rounding ~1e-16 / 1e-11 of the walk's
-    per-sample increment)."""
-    m = model(body, plant=MOTOR)
+    per-sample increment; measured: 2e-8 at lag 3999, the leak's d LEAK / 2)."""
+    m = model(body, plant=plant)
     st = m.predictor().steady_state()
     assert not st.stable and st.P is None and st.var_y is None
     assert st.contributions["sensor.white"] == pytest.approx([4e-6])
@@ -387,9 +390,26 @@ def test_an_integrator_the_output_does_not_see_leaves_a_steady_state():
     assert st.walk_var_rate == pytest.approx([0.0], abs=1e-20)
 
 
-def test_a_double_integrator_has_no_stationary_increments():
-    m = model("[process.white]\nstd = 0.005\n[sensor.white]\nstd = 0.002", plant=DOUBLE_INTEGRATOR)
+@pytest.mark.parametrize("plant, Ts", [
+    (DOUBLE_INTEGRATOR, 0.01), (DOUBLE_INTEGRATOR, 1e-6),
+    (DOUBLE_INTEGRATOR.replace("[[0.0, 1.0], [0.0, 0.0]]", "[[0.0, 1e-4], [0.0, 0.0]]"), 0.01),
+], ids=["Ts-0.01", "Ts-1e-6", "weak-coupling"])
+def test_a_double_integrator_has_no_stationary_increments(plant, Ts):
+    """A chain of two integrators (a position from a force) is no walk: refused whatever Ts and the
+    coupling's size (the test is on A's nullity, not on how close F is to I)."""
+    m = model("[process.white]\nstd = 0.005\n[sensor.white]\nstd = 0.002", Ts=Ts, plant=plant)
     st = m.predictor().steady_state()
     assert not st.stable and st.walk_var_rate is None
     assert st.contributions["process.white"] is None
     assert m.predictor().variogram(10, quantization=False)["process.white"] is None
+
+
+@pytest.mark.parametrize("A, Ts", [("[[-0.005]]", 1e-4), ("[[-5e-4]]", 1e-3)])
+def test_a_slow_stable_pole_is_no_integrator(A, Ts):
+    """A pole 2000 to 20000 s slow is slow, not zero: its variance is the first-order closed form."""
+    m = model("[process.white]\nstd = 0.1", Ts=Ts, plant=f"A = {A}\nB = [[1.0]]\nC = [[1.0]]")
+    st = m.predictor().steady_state()
+    a = -float(A.strip("[]"))
+    g = (1 - np.exp(-a * Ts)) / a
+    assert st.stable and st.walk_var_rate is None
+    assert st.var_y == pytest.approx([g**2 * 0.01 / (1 - np.exp(-2 * a * Ts))], rel=1e-6)

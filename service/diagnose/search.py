@@ -598,10 +598,11 @@ class Inner:
         self.vref = np.minimum([tot / max(float(np.sum(self.G * tr(u))), 1e-300) for u in self.U], 1e290)
         self.hi = self.vref * 1e4
         level = E0 + np.tensordot(self.vref, self.U, axes=1) if len(self.U) else E0
-        # each output's expected power floored at 1e-12 of its mean over the bins: a part summed
-        # from exponentials of nearly equal modes (a long-memory noise through an integrator) can
-        # round below 0 where the model has next to no power; floored, data there cost a very low
-        # likelihood instead of a NaN
+        # an output's expected power that rounds to <= 0 is set to 1e-12 of its mean over the bins:
+        # a part summed from exponentials of nearly equal modes (a long-memory noise through an
+        # integrator) can, where the model has next to no power; data there then cost a very low
+        # likelihood instead of a NaN. Positive values, however small (the DC bin of a long
+        # record), are kept as they are.
         diag = np.einsum("bii->bi", level).real if self.multi else level
         self.floor = 1e-12 * np.mean(np.abs(diag), axis=0) + 1e-150
         if self.multi:
@@ -616,11 +617,12 @@ class Inner:
         if self.multi:
             E = E + self.ridge
             d = np.einsum("bii->bi", E)              # a view of the new array's diagonals
-            low = d.real < self.floor
+            low = d.real <= 0
             if low.any():
                 d[low] = np.broadcast_to(self.floor, d.shape)[low]
             return E
-        return np.maximum(E, self.floor)         # E**2 stays a normal float
+        # (positive values at least 1e-150: E**2 stays a normal float)
+        return np.where(E > 0, np.maximum(E, 1e-150), self.floor)
 
     def value(self, v):
         v = np.asarray(v, float)

@@ -387,7 +387,7 @@ class Predictor:
         nx, n_s = ls.n_x, ls.F.shape[0]
         plant_part = slice(0, nx + self._Fa.shape[0])
         marginal = walk_y = walk_ydot = False
-        leaked = leak_unit_modes(ls.F[:nx, :nx])
+        leaked = leak_unit_modes(ls.F[:nx, :nx], mdl.Ac, mdl.Ts)
         if leaked is not None:
             # integrators (A with an eigenvalue 0): the plant's unit modes leak by LEAK per sample, so
             # that every source has a (huge) stationary covariance whose increments are those of the
@@ -502,11 +502,14 @@ class Predictor:
                     lines.append((eid, float(prm[1][j]), float(prm[0][j] ** 2 / 2.0), j))
         return out, lines
 
-    def acf(self, lags: int | np.ndarray, quantization: bool = True) -> dict:
+    def acf(self, lags: int | np.ndarray, quantization: bool = True, skip: tuple = ()) -> dict:
         """Autocovariance R(d) per stationary effect, d = 0..lags-1 (samples): {id: (L, p)}.
         The bias walk is nonstationary and has no ACF (see :meth:`variogram`). The quantizer's
         error is correlated over the model's own command (:meth:`quantization_acf`); with
-        ``quantization=False`` it is left white (a caller that has the record's motion)."""
+        ``quantization=False`` it is left white (a caller that has the record's motion).
+        ``skip``: state sources left out (not computed, no entry). Through a plant that
+        integrates a source's R is the leaked model's, ~q / 2e-11 at every lag: use
+        :meth:`variogram` for it."""
         L = int(lags) if np.isscalar(lags) else int(np.max(lags)) + 1
         st = self.steady_state()
         mdl = self.model
@@ -514,6 +517,8 @@ class Predictor:
         d = np.arange(L)
         out: dict = {}
         for eid, cols in ls.owners.items():
+            if eid in skip:
+                continue
             if eid not in self._Pj:
                 out[eid] = None
                 continue
@@ -684,8 +689,8 @@ class Predictor:
             out.update(self._walk_variograms(L))
             return out
         # a plant that integrates: the sources through it from (I - F) P (no R(0) at the walk's scale)
-        out = {eid: None if R is None else R[0] - R for eid, R in self.acf(L, False).items()
-               if eid not in self._Dj and eid != "sensor.quantization"}
+        out = {eid: None if R is None else R[0] - R for eid, R in self.acf(L, False, skip=tuple(self._Dj)).items()
+               if eid != "sensor.quantization"}
         out.update({eid: self._increments(eid, L) for eid in self._Dj})
         out.update(self._walk_variograms(L))
         if quantization and "sensor.quantization" in self.model.effects:
@@ -745,31 +750,46 @@ def _powers_apply(F: np.ndarray, X: np.ndarray, L: int) -> np.ndarray:
     return out
 
 
-UNIT_TOL = 1e-6        # |lambda - 1| within which a discrete eigenvalue is an integrator's
+UNIT_REL = 1e-7        # |lambda| / ||A|| within which a continuous eigenvalue is an integrator's
 LEAK = 1e-11            # what the prediction takes from an integrator's eigenvalue per sample
 
 
-def leak_unit_modes(F: np.ndarray, tol: float = UNIT_TOL, leak: float = LEAK):
-    """(F with its unit eigenvalues set to 1 - ``leak``, their right eigenvectors (n, u)) when every
-    eigenvalue of F is inside the unit circle but some are 1 (within ``tol``: integrators, A with an
-    eigenvalue 0) and those are semisimple; else None (an unstable mode, or a chain of integrators,
-    whose increments are not stationary either).
+def unit_tol(A: np.ndarray, Ts: float) -> float:
+    """|lambda_d - 1| within which a discrete eigenvalue is an integrator's: its continuous
+    eigenvalue within UNIT_REL ||A|| of 0 (lambda_d = e^(lambda Ts) ~ 1 + lambda Ts), and never
+    below rounding (1e-12)."""
+    return max(2.0 * UNIT_REL * float(np.linalg.norm(A, 2)) * Ts, 1e-12)
+
+
+def leak_unit_modes(F: np.ndarray, A: np.ndarray, Ts: float, leak: float = LEAK):
+    """(F with its integrators' eigenvalues set to 1 - ``leak``, an orthonormal basis of their
+    invariant subspace (n, u)) when the continuous A has eigenvalues 0 (within UNIT_REL ||A||: a
+    pole a million times slower than the plant's fastest dynamics is an integrator to any record)
+    that are semisimple (A's nullity, by its singular values at the same tolerance, equals their
+    number) and every other eigenvalue of F is inside the unit circle; else None (no integrator,
+    an unstable mode, or a chain of integrators, whose increments are not stationary either).
+    F is A's discretization (zoh or Euler: an eigenvalue 0 of A is an eigenvalue 1 of F).
 
     Why a leak: an integrator's output is a random walk plus a stationary part, correlated through
     the noise they share. With the eigenvalue at 1 - eps every source has a stationary covariance
     (its walk part ~ q / (2 eps)), and every statistic the diagnosis uses from it, increments and
-    differences (variogram, differenced-output spectrum), is the exact walk's to a relative O(eps n)
-    over n samples (1e-4 at 10^6) while the cancellation in R(0) - R(d) costs ~1e-16 / eps
-    (~1e-6) of the walk's own scale. The mode's eigenvector and every other mode are unchanged."""
+    differences (variogram, differenced-output spectrum), is the exact walk's to a relative
+    O(eps d) at lag d (1e-5 at 10^6), provided they are formed from (I - F) P
+    (:func:`lyap_leaky`), not as differences of covariances at the walk's scale."""
     if F.size == 0:
         return None
     from scipy.linalg import schur
-    T, Z, u = schur(F, output="real", sort=lambda re, im: abs(complex(re, im) - 1.0) <= tol)
-    lam = np.linalg.eigvals(T[u:, u:]) if u < F.shape[0] else np.zeros(0)
-    if u == 0 or np.any(np.abs(lam) >= 1.0):
+    nA = float(np.linalg.norm(A, 2))
+    tolA = UNIT_REL * nA
+    uA = int(np.sum(np.abs(np.linalg.eigvals(A)) <= tolA)) if nA > 0 else A.shape[0]
+    if uA == 0:
         return None
-    T11 = T[:u, :u]
-    if np.max(np.abs(T11 - np.eye(u))) > 10 * tol:      # a chain of integrators (a double integrator)
+    null = int(np.sum(np.linalg.svd(A, compute_uv=False) <= tolA)) if nA > 0 else A.shape[0]
+    if null != uA:                      # a chain of integrators (a double integrator)
+        return None
+    T, Z, u = schur(F, output="real", sort=lambda re, im: abs(complex(re, im) - 1.0) <= unit_tol(A, Ts))
+    lam = np.linalg.eigvals(T[u:, u:]) if u < F.shape[0] else np.zeros(0)
+    if u != uA or np.any(np.abs(lam) >= 1.0):
         return None
     T = T.copy()
     T[:u, :u] = (1.0 - leak) * np.eye(u)
@@ -845,7 +865,7 @@ def _sensor_lyap(ls: LinearSystem, Gj: np.ndarray, plant_part: slice) -> np.ndar
 def _settle_samples(model) -> int:
     """Samples for the plant's transient to decay to ~1e-6 (ln 1e6 ~ 14 time constants)."""
     ev = np.linalg.eigvals(model.Ad)
-    ev = np.abs(ev[np.abs(ev - 1.0) > UNIT_TOL])         # an integrator's mode never settles: the others
+    ev = np.abs(ev[np.abs(ev - 1.0) > unit_tol(model.Ac, model.Ts)])   # an integrator's never settles: the others
     r = np.max(ev, initial=0.0)
     if r >= 1.0 or r == 0.0:
         return 0
