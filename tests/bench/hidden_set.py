@@ -71,6 +71,26 @@ def _plant(rng, Ts):
         wn / (2 * np.pi), len(C)
 
 
+def _turned(rng, blocks, freqs):
+    """(A, B, L, Tm, Tm^-1): the modal blocks on A's diagonal turned by a random similarity
+    transform Tm (condition number at most 20), and an input and a disturbance input of the size
+    of the median mode's angular frequency, in the turned coordinates."""
+    n = sum(b.shape[0] for b in blocks)
+    A = np.zeros((n, n))
+    i = 0
+    for b in blocks:
+        A[i:i + b.shape[0], i:i + b.shape[0]] = b
+        i += b.shape[0]
+    Tm = np.eye(n) + 0.4 * rng.standard_normal((n, n))
+    while np.linalg.cond(Tm) > 20:
+        Tm = np.eye(n) + 0.4 * rng.standard_normal((n, n))
+    Ti = np.linalg.inv(Tm)
+    w0 = 2 * np.pi * float(np.median(freqs))
+    B = Tm @ (w0 * rng.uniform(0.5, 2.0, (n, 1)) * rng.choice([-1, 1], (n, 1)))
+    Lp = Tm @ (w0 * rng.uniform(0.1, 1.0, (n, 1)))
+    return Tm @ A @ Ti, B, Lp, Tm, Ti
+
+
 def _plant_other(rng, Ts, T):
     """Plants the generator above does not draw (``make_case(..., plants="other")``): general A, B, C,
     D plants of order 2 to 5 built from 1 to 3 modes (complex pairs with damping ratios down to 0.01,
@@ -96,25 +116,14 @@ def _plant_other(rng, Ts, T):
             blocks.append(np.array([[-zeta * w, w * math.sqrt(1 - zeta**2)], [-w * math.sqrt(1 - zeta**2), -zeta * w]]))
         else:
             blocks.append(np.array([[-w]]))
-    n = sum(b.shape[0] for b in blocks)
-    A = np.zeros((n, n))
-    i = 0
-    for b in blocks:
-        A[i:i + b.shape[0], i:i + b.shape[0]] = b
-        i += b.shape[0]
-    Tm = np.eye(n) + 0.4 * rng.standard_normal((n, n))
-    while np.linalg.cond(Tm) > 20:
-        Tm = np.eye(n) + 0.4 * rng.standard_normal((n, n))
-    Ti = np.linalg.inv(Tm)
-    w0 = 2 * np.pi * float(np.median(freqs))
-    B = Tm @ (w0 * rng.uniform(0.5, 2.0, (n, 1)) * rng.choice([-1, 1], (n, 1)))
-    Lp = Tm @ (w0 * rng.uniform(0.1, 1.0, (n, 1)))
+    A, B, Lp, Tm, Ti = _turned(rng, blocks, freqs)
+    n = A.shape[0]
     p = 2 if rng.random() < 0.3 else 1
     C = rng.uniform(-1, 1, (p, n)) @ Ti
-    plant = {"A": _sig(Tm @ A @ Ti), "B": _sig(B), "C": _sig(C), "L": _sig(Lp)}
+    plant = {"A": _sig(A), "B": _sig(B), "C": _sig(C), "L": _sig(Lp)}
     if rng.random() < 1 / 3:
         # a direct term: of the order of the plant's own gain at its mode
-        gain = np.abs(C @ np.linalg.solve(-(Tm @ A @ Ti), B))
+        gain = np.abs(C @ np.linalg.solve(-A, B))
         plant["D"] = _sig(rng.uniform(0.05, 0.3, (p, 1)) * np.maximum(gain, 1e-3))
     return plant, float(np.min(freqs)), p
 
@@ -146,22 +155,11 @@ def _plant_integrator(rng, Ts, T):
             blocks.append(np.array([[-zeta * w, w * math.sqrt(1 - zeta**2)], [-w * math.sqrt(1 - zeta**2), -zeta * w]]))
         else:
             blocks.append(np.array([[-w]]))
-    n = sum(b.shape[0] for b in blocks)
-    A = np.zeros((n, n))
-    i = 0
-    for b in blocks:
-        A[i:i + b.shape[0], i:i + b.shape[0]] = b
-        i += b.shape[0]
-    Tm = np.eye(n) + 0.4 * rng.standard_normal((n, n))
-    while np.linalg.cond(Tm) > 20:
-        Tm = np.eye(n) + 0.4 * rng.standard_normal((n, n))
-    Ti = np.linalg.inv(Tm)
-    w0 = 2 * np.pi * float(np.median(freqs))
-    B = Tm @ (w0 * rng.uniform(0.5, 2.0, (n, 1)) * rng.choice([-1, 1], (n, 1)))
-    Lp = Tm @ (w0 * rng.uniform(0.1, 1.0, (n, 1)))
+    A, B, Lp, Tm, Ti = _turned(rng, blocks, freqs)
+    n = A.shape[0]
     C = rng.uniform(-1, 1, (1, n)) @ Ti
     C[0] += Ti[0] * np.sign(C[0] @ Tm[:, 0]) * 0.5      # the integrator seen at the output
-    plant = {"A": [[float(f"{v:.9g}") for v in row] for row in Tm @ A @ Ti], "B": _sig(B), "C": _sig(C), "L": _sig(Lp)}
+    plant = {"A": [[float(f"{v:.9g}") for v in row] for row in A], "B": _sig(B), "C": _sig(C), "L": _sig(Lp)}
     return plant, float(np.min(freqs)), 1
 
 
