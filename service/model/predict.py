@@ -395,9 +395,9 @@ class Predictor:
             ls.F[:nx, :nx], Vu = leaked
             marginal = True
             # the outputs (and slopes) the walk reaches have no steady-state variance
-            scale = np.linalg.norm(Vu, axis=0)
-            walk_y = bool(np.any(np.abs(ls.H[:, :nx] @ Vu) > 1e-9 * scale * np.linalg.norm(ls.H)))
-            walk_ydot = bool(np.any(np.abs(ls.Hd[:, :nx] @ Vu) > 1e-9 * scale * np.linalg.norm(ls.Hd)))
+            # (Vu's columns are orthonormal Schur vectors: unit length)
+            walk_y = bool(np.any(np.abs(ls.H[:, :nx] @ Vu) > 1e-9 * np.linalg.norm(ls.H)))
+            walk_ydot = bool(np.any(np.abs(ls.Hd[:, :nx] @ Vu) > 1e-9 * np.linalg.norm(ls.Hd)))
             notes.append("the plant integrates (an eigenvalue of A at 0): its output has no steady-state "
                          "variance, only stationary increments (variogram, PSD of the differenced output)")
         rad = np.max(np.abs(np.linalg.eigvals(ls.F[plant_part, plant_part])), initial=0.0)

@@ -71,6 +71,15 @@ def _plant(rng, Ts):
         wn / (2 * np.pi), len(C)
 
 
+def _mode(rng, w: float, p_pair: float, zeta_lo: float, room: bool = True) -> np.ndarray:
+    """One modal block at angular frequency w: a complex pair (damping ratio log-uniform in
+    [zeta_lo, 0.7]) with probability p_pair when there is room for two states, else a real pole."""
+    if rng.random() < p_pair and room:
+        zeta = float(np.exp(rng.uniform(np.log(zeta_lo), np.log(0.7))))
+        return np.array([[-zeta * w, w * math.sqrt(1 - zeta**2)], [-w * math.sqrt(1 - zeta**2), -zeta * w]])
+    return np.array([[-w]])
+
+
 def _turned(rng, blocks, freqs):
     """(A, B, L, Tm, Tm^-1): the modal blocks on A's diagonal turned by a random similarity
     transform Tm (condition number at most 20), and an input and a disturbance input of the size
@@ -111,11 +120,7 @@ def _plant_other(rng, Ts, T):
         f = logf()
         freqs.append(f)
         w = 2 * np.pi * f
-        if rng.random() < 0.7 and sum(b.shape[0] for b in blocks) <= 3:
-            zeta = float(np.exp(rng.uniform(np.log(0.01), np.log(0.7))))
-            blocks.append(np.array([[-zeta * w, w * math.sqrt(1 - zeta**2)], [-w * math.sqrt(1 - zeta**2), -zeta * w]]))
-        else:
-            blocks.append(np.array([[-w]]))
+        blocks.append(_mode(rng, w, 0.7, 0.01, room=sum(b.shape[0] for b in blocks) <= 3))
     A, B, Lp, Tm, Ti = _turned(rng, blocks, freqs)
     n = A.shape[0]
     p = 2 if rng.random() < 0.3 else 1
@@ -150,11 +155,7 @@ def _plant_integrator(rng, Ts, T):
         f = logf()
         freqs.append(f)
         w = 2 * np.pi * f
-        if rng.random() < 0.6:
-            zeta = float(np.exp(rng.uniform(np.log(0.05), np.log(0.7))))
-            blocks.append(np.array([[-zeta * w, w * math.sqrt(1 - zeta**2)], [-w * math.sqrt(1 - zeta**2), -zeta * w]]))
-        else:
-            blocks.append(np.array([[-w]]))
+        blocks.append(_mode(rng, w, 0.6, 0.05))
     A, B, Lp, Tm, Ti = _turned(rng, blocks, freqs)
     n = A.shape[0]
     C = rng.uniform(-1, 1, (1, n)) @ Ti
