@@ -393,6 +393,28 @@ def test_a_bias_walk_is_not_taken_for_a_tone_of_one_cycle():
     assert rep["error_after"] <= 1.5 and rep["error_after"] < rep["error_before"]
 
 
+def test_a_bias_walks_evidence_names_the_band_where_it_dominates():
+    """The walk's evidence says below which frequency it holds most of the differenced residual's
+    power: there its increments (white, s^2 Ts per sample) exceed the differenced sensor noise's
+    2 sigma_v^2 (1 - cos 2 pi f Ts), so f_c = arccos(1 - s^2 Ts / (2 sigma_v^2)) / (2 pi Ts), from
+    the reported values (the process noise is 1e-3 of the sensor noise's power there). The
+    sentence took its band from the parts at their scaling references (the walk at unit std,
+    "below 49.8 Hz", the Nyquist frequency) before their fitted factors were applied."""
+    truth = parse_model("name = \"w\"\n[sampling]\nTs = 0.01\n[plant]\nA = [[-1.0]]\nB = [[1.0]]\n"
+                        "C = [[1.0]]\n[command]\nkind = \"sine\"\namplitude = 0.5\nfrequency_hz = 0.2\n"
+                        "[process.white]\nstd = 0.001\n[sensor.white]\nstd = 0.01\n"
+                        "[sensor.bias_walk]\nstd = 0.003\n")
+    rep, _ = _diagnose_hidden(truth, ("sensor.bias_walk",), 30_000, 5)
+    walk = [m for m in rep["missing"] if m["effect"] == "sensor.bias_walk"]
+    assert walk, rep["missing"]
+    fitted = parse_model(rep["fitted_model"], "fitted")
+    s, sv, Ts = walk[0]["params"]["std"], float(np.max(fitted.effects["sensor.white"].params["std"])), 0.01
+    f_c = math.acos(1.0 - s**2 * Ts / (2.0 * sv**2)) / (2.0 * math.pi * Ts)
+    edge = float(walk[0]["evidence"].split("below ", 1)[1].split(" Hz", 1)[0])
+    # the edge is the centre of the last group the walk dominates: groups at most 1 % of f wide
+    assert abs(edge - f_c) <= 0.02 * f_c + 1.0 / (30_000 * Ts), (edge, f_c)
+
+
 def test_a_wrong_tau_that_the_views_see_is_refitted_when_the_fall_reaches_explained():
     """Generated case 48 with its Gauss-Markov bias in the model at 4x its tau (60.9 s for 15.2 s;
     Ts 2 ms, 380 s): the refit to the right tau passes the likelihood-ratio test with room

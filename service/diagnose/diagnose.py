@@ -36,9 +36,12 @@ NONLINEAR = ("actuator.saturation", "actuator.deadzone")
 def _band(fit, eid: str, data: Data):
     """Frequencies (Hz) over which ``eid`` holds most of the fitted spectrum of the differenced
     residual: where it is the physical effect's signature."""
-    parts = fit.parts
-    if not parts or eid not in parts:
+    if not fit.parts or eid not in fit.parts:
         return None
+    # the fit's parts are at its scaling references: each free variance's part times its factor
+    factor = dict(zip(fit.scale_ids, np.atleast_1d(fit.v))) if fit.v is not None else {}
+    parts = {k: E * factor.get(k, 1.0) for k, E in fit.parts.items()}
+
     def power(E):          # per group: summed over outputs (the diagonal of cross-spectral matrices)
         return np.einsum("bii->b", E).real if E.ndim == 3 else np.sum(E, axis=1)
 
