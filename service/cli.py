@@ -104,7 +104,8 @@ def _seed(text):
 
 # -- predict ------------------------------------------------------------------------------------
 def _vec(v):
-    return None if v is None else [float(x) for x in np.atleast_1d(v)]
+    """Per output, JSON-ready: NaN (no value at that output, e.g. where the plant integrates) as null."""
+    return None if v is None else [float(x) if np.isfinite(x) else None for x in np.atleast_1d(v)]
 
 
 def predict_report(model) -> dict:
@@ -136,7 +137,7 @@ def predict_report(model) -> dict:
 
 
 def _fmt(v):
-    return "null" if v is None else "  ".join(f"{x:.4e}" for x in v)
+    return "null" if v is None else "  ".join("null" if x is None else f"{x:.4e}" for x in v)
 
 
 def cmd_predict(args) -> int:
@@ -149,7 +150,8 @@ def cmd_predict(args) -> int:
     print(f"{'effect':<24} {'variance added to y (units^2)':>32}   share")
     total = rep["var_y"]
     for eid, v in rep["contributions"].items():
-        share = "" if v is None or total is None else "  ".join(f"{100 * a / b:5.1f} %" for a, b in zip(v, total))
+        share = "" if v is None or total is None else "  ".join(
+            "  -    " if a is None or b is None else f"{100 * a / b:5.1f} %" for a, b in zip(v, total))
         print(f"{eid:<24} {_fmt(v):>32}   {share}")
     for eid, v in rep["modifiers"].items():
         print(f"{eid:<24} {_fmt(v):>32}   (change of var_y it causes)")

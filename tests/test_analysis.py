@@ -844,3 +844,23 @@ def test_a_coarse_quantizer_over_little_noise_right_model_reads_about_one():
     # the model error's spreads are approximate (the PSD and Allan views' under the modulation):
     # the product's own criterion, a right model explained (ERROR_OK)
     assert max(errs) < 1.5, errs
+
+
+def test_a_motor_measured_by_angle_and_speed_holds_the_speed_to_its_levels():
+    """Two outputs, one of which (the angle) the plant's walk reaches: the level view, which needs
+    a stationary variance, runs for the speed alone (it was off for both: one flag per model), and
+    on the right model its error averages 1 within three standard errors of the view's own
+    error variance over 8 records."""
+    text = (Path(__file__).resolve().parents[1] / "service" / "scenarios" / "motor.toml").read_text()
+    m = parse_model(text.replace("C = [[1.0, 0.0]]", "C = [[1.0, 0.0], [0.0, 1.0]]"), "motor2")
+    assert m.p == 2
+    errs, evars = [], []
+    for seed in range(8):
+        rec = m.simulate(12000, seed=100 + seed)
+        c = compare(m, rec.t, rec.y, rec.u, level=True)
+        lv = [v for v in c.views if v.name == "level"]
+        assert [v.output for v in lv] == [1]
+        errs.append(lv[0].error)
+        evars.append(lv[0].error_var)
+    assert np.all(np.isfinite(evars))
+    assert abs(np.mean(errs) - 1.0) <= 3.0 * math.sqrt(np.mean(evars) / len(errs)), (errs, evars)

@@ -114,3 +114,23 @@ def test_predict_json_integrating_plant_gives_its_walk_rate(capsys):
     assert any("integrates" in n for n in rep["notes"])
     assert main(["predict", "seed", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["walk_var_rate"] is None
+
+
+def test_predict_json_angle_and_speed_of_a_motor_is_null_only_at_the_angle(capsys, tmp_path):
+    """Per output: the angle (the walk reaches it) null, the speed its steady-state variance; the
+    JSON stays JSON (no NaN token) and the text report prints null there."""
+    text = (ROOT / "service" / "scenarios" / "motor.toml").read_text()
+    f = tmp_path / "motor2.toml"
+    f.write_text(text.replace("C = [[1.0, 0.0]]", "C = [[1.0, 0.0], [0.0, 1.0]]"))
+    assert main(["predict", str(f), "--json"]) == 0
+    out = capsys.readouterr().out
+    assert "NaN" not in out
+    rep = json.loads(out)
+    assert rep["var_y"][0] is None and rep["var_y"][1] > 0 and rep["std_y"][0] is None
+    assert rep["contributions"]["process.white"][0] is None
+    assert rep["contributions"]["sensor.white"] == [pytest.approx(0.0005**2)] * 2
+    assert rep["var_y"][1] == pytest.approx(sum(v[1] for v in rep["contributions"].values()), rel=1e-12)
+    assert rep["walk_var_rate"] == [pytest.approx((8.0 / 4.0) ** 2 * 0.02**2 * 0.005, rel=1e-9), 0.0]
+    assert main(["predict", str(f)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert any(ln.startswith("var_y (steady state)") and "null" in ln and "e-05" in ln for ln in lines)

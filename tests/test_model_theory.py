@@ -389,6 +389,25 @@ def test_an_integrator_the_output_does_not_see_leaves_a_steady_state():
     assert st.walk_var_rate == pytest.approx([0.0], abs=1e-20)
 
 
+def test_an_integrator_one_output_sees_leaves_the_others_steady_state():
+    """The motor measured by its angle and its speed: the angle has no steady state (null), the
+    speed keeps the first-order closed form of the test above, per output; the sensor noise keeps
+    its variance at both; the walk's rate is the angle's alone. (Before: one flag per model, the
+    plant's sources null at both outputs.)"""
+    m = model("[process.white]\nstd = 0.005\n[sensor.white]\nstd = 0.002",
+              plant=MOTOR.replace("C = [[1.0, 0.0]]", "C = [[1.0, 0.0], [0.0, 1.0]]"))
+    st = m.predictor().steady_state()
+    a, b, s, Ts = 4.0, 8.0, 0.005, 0.01
+    g = (b / a) * (1 - np.exp(-a * Ts))
+    v_speed = g**2 * s**2 / (1 - np.exp(-2 * a * Ts))
+    assert np.isnan(st.contributions["process.white"][0])
+    assert st.contributions["process.white"][1] == pytest.approx(v_speed, rel=1e-9)
+    assert st.contributions["sensor.white"] == pytest.approx([0.002**2] * 2, rel=1e-12)
+    assert np.isnan(st.var_y[0]) and st.var_y[1] == pytest.approx(v_speed + 0.002**2, rel=1e-9)
+    assert st.walk_var_rate == pytest.approx([(b / a) ** 2 * s**2 * Ts, 0.0], rel=1e-9, abs=1e-20)
+    assert st.P is None and not st.stable
+
+
 @pytest.mark.parametrize("plant, Ts", [
     (DOUBLE_INTEGRATOR, 0.01), (DOUBLE_INTEGRATOR, 1e-6),
     (DOUBLE_INTEGRATOR.replace("[[0.0, 1.0], [0.0, 0.0]]", "[[0.0, 1e-4], [0.0, 0.0]]"), 0.01),

@@ -1041,7 +1041,8 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
     if "sensor.quantization" in model.effects and st.var_y is not None:
         # the quantizer's part over this record (its steady state has the uniform step^2 / 12)
         var_stat = var_stat - st.contributions["sensor.quantization"] + q0
-    level = level and bool(np.all(np.isfinite(var_stat)))
+    # per output: one the plant's walk reaches has no stationary variance to hold its levels to
+    level_at = np.isfinite(var_stat) if level else np.zeros(model.p, bool)
     gam_short = {eid: g[:L_need] for eid, g in gam.items()}
     lines = pr.tone_ids()
     jobs = []
@@ -1063,7 +1064,7 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
                                                     model, mod=mj, jkey=jkey, gam_fine=gam, line_ids=lines, qmod=qj),
                  lambda rj=rj, j=j, mj=mj, qj=qj: allan_view(rj, model.Ts, gam, j, corr, model, mod=mj, jkey=jkey,
                                                              qmod=qj)]
-        if level:
+        if level_at[j]:
             jobs.append(lambda rj=rj, j=j: level_view(rj, ta, gam, j, s["window"], burn, float(var_stat[j]),
                                                       float(walk0[j]), float(walk_rate[j]), model, jkey=jkey))
     if r.size >= VIEW_THREADS_MIN and VIEW_THREADS > 1:

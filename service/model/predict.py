@@ -386,7 +386,8 @@ class Predictor:
         ls = self.linear_system(g, dstd)
         nx, n_s = ls.n_x, ls.F.shape[0]
         plant_part = slice(0, nx + self._Fa.shape[0])
-        marginal = walk_y = walk_ydot = False
+        marginal = False
+        walk_y = walk_ydot = np.zeros(mdl.p, bool)     # per output: the walk reaches it (its slope)
         leaked = leak_unit_modes(ls.F[:nx, :nx], mdl.Ac, mdl.Ts)
         if leaked is not None:
             # integrators (A with an eigenvalue 0): the plant's unit modes leak by LEAK per sample, so
@@ -394,12 +395,19 @@ class Predictor:
             # exact walk. Only the plant's own modes: a noise state's near-unit pole is its own model.
             ls.F[:nx, :nx], Vu = leaked
             marginal = True
-            # the outputs (and slopes) the walk reaches have no steady-state variance
-            # (Vu's columns are orthonormal Schur vectors: unit length)
-            walk_y = bool(np.any(np.abs(ls.H[:, :nx] @ Vu) > 1e-9 * np.linalg.norm(ls.H)))
-            walk_ydot = bool(np.any(np.abs(ls.Hd[:, :nx] @ Vu) > 1e-9 * np.linalg.norm(ls.Hd)))
-            notes.append("the plant integrates (an eigenvalue of A at 0): its output has no steady-state "
-                         "variance, only stationary increments (variogram, PSD of the differenced output)")
+            # the outputs (and slopes) the walk reaches have no steady-state variance; the others
+            # (a motor's speed beside its angle) keep theirs (Vu's columns are orthonormal Schur
+            # vectors: unit length)
+            walk_y = np.any(np.abs(ls.H[:, :nx] @ Vu) > 1e-9 * np.linalg.norm(ls.H), axis=1)
+            walk_ydot = np.any(np.abs(ls.Hd[:, :nx] @ Vu) > 1e-9 * np.linalg.norm(ls.Hd), axis=1)
+            if not walk_y.any():
+                notes.append("the plant integrates (an eigenvalue of A at 0), but no output sees its walk: "
+                             "the outputs keep their steady state")
+            else:
+                reached = "its output has" if mdl.p == 1 else \
+                    "output " + ", ".join(str(j) for j in np.flatnonzero(walk_y)) + f" (of 0..{mdl.p - 1}) has"
+                notes.append(f"the plant integrates (an eigenvalue of A at 0): {reached} no steady-state "
+                             "variance, only stationary increments (variogram, PSD of the differenced output)")
         rad = np.max(np.abs(np.linalg.eigvals(ls.F[plant_part, plant_part])), initial=0.0)
         stable = bool(rad < 1.0) and not marginal
         marginal = marginal and bool(rad < 1.0)
@@ -422,8 +430,11 @@ class Predictor:
             self._Pj[eid] = Pk
             Ptot += Pk
             Jj = ls.J[:, cols]
-            contributions[eid] = None if walk_y and drives_plant else \
-                np.einsum("ij,jk,ik->i", ls.H, Pk, ls.H) + np.sum(Jj**2, axis=1)
+            c = np.einsum("ij,jk,ik->i", ls.H, Pk, ls.H) + np.sum(Jj**2, axis=1)
+            if drives_plant and walk_y.any():
+                # NaN where the walk reaches: no steady-state variance there (null in the JSON)
+                c = None if walk_y.all() else np.where(walk_y, np.nan, c)
+            contributions[eid] = c
             ydot_var += np.einsum("ij,jk,ik->i", ls.Hd, Pk, ls.Hd) + np.sum(ls.Jd[:, cols] ** 2, axis=1)
         walk_rate = None
         if marginal:
@@ -431,7 +442,7 @@ class Predictor:
             HPi = ls.H @ unit_projector(ls.F)
             walk_rate = sum((np.sum((HPi @ ls.Gam[:, c]) ** 2, axis=1) for c in ls.owners.values()),
                             np.zeros(mdl.p)) / mdl.Ts
-        slope_ok = stable or (marginal and not walk_ydot)
+        slope_ok = stable or (marginal and not walk_ydot.any())
         rate = np.zeros(mdl.p)
         burn = min(mean.t.size // 2, _settle_samples(mdl))
         ydot2 = np.mean(mean.ydot[burn:] ** 2, axis=0)
@@ -484,8 +495,10 @@ class Predictor:
             X = np.linalg.solve(M, np.broadcast_to(ls.Gam, (f.size,) + ls.Gam.shape))
             T = ls.H @ X + ls.J                                       # (nf, p, n_e)
             for eid, cols in ls.owners.items():
-                out[eid] = None if st.contributions.get(eid) is None else \
-                    2.0 * mdl.Ts * np.sum(np.abs(T[:, :, cols]) ** 2, axis=2)
+                c = st.contributions.get(eid)
+                # NaN at an output the plant's walk reaches (no stationary spectrum there)
+                out[eid] = None if c is None else \
+                    2.0 * mdl.Ts * np.sum(np.abs(T[:, :, cols]) ** 2, axis=2) + np.where(np.isnan(c), np.nan, 0.0)
         for eid, kind, *prm in self._primitives():
             if kind == "white":
                 out[eid] = np.broadcast_to(2.0 * mdl.Ts * prm[0], (f.size, mdl.p)).copy()
@@ -613,7 +626,8 @@ class Predictor:
             st = self.steady_state()
             stat = {eid: v for eid, v in gam.items() if eid not in walks}
             keep = set(stat) - {"sensor.quantization"} - self.tone_ids()
-            sig2 = sum((np.asarray(st.contributions[e], float) for e in keep
+            # (a source through a plant that integrates is left out where its walk reaches: NaN)
+            sig2 = sum((np.nan_to_num(np.asarray(st.contributions[e], float)) for e in keep
                         if st.contributions.get(e) is not None), np.zeros(self.model.p))
             cross = sig2 - self.before_quantizer(stat)
         return quantization_acf(step, self.before_quantizer(gam), motion, cache, moments, cross)
@@ -633,7 +647,7 @@ class Predictor:
         if q is None:
             return None
         st = self.steady_state()
-        if any(v is None for v in st.contributions.values()):
+        if any(v is None or np.any(np.isnan(v)) for v in st.contributions.values()):
             return None
         from .effects.sensor_quantization import mean_matters
         mu = np.asarray(mu, float).reshape(len(mu), -1)
