@@ -864,3 +864,28 @@ def test_a_motor_measured_by_angle_and_speed_holds_the_speed_to_its_levels():
         evars.append(lv[0].error_var)
     assert np.all(np.isfinite(evars))
     assert abs(np.mean(errs) - 1.0) <= 3.0 * math.sqrt(np.mean(evars) / len(errs)), (errs, evars)
+
+
+def test_a_region_is_one_side_of_the_model():
+    """A run of flagged points whose z changes sign is two regions, each with its own direction and
+    largest |z| (an ACF above the model at short lags and below it after was one region "below",
+    with its largest |z| on the side above)."""
+    from service.diagnose.compare import regions_of
+    from service.diagnose.results import View
+    z = np.array([0.0, 5.0, 6.0, -7.0, -4.0, 0.5, 3.0])
+    x = np.arange(z.size, dtype=float)
+    v = View("acf", 0, x, "lag [s]", "acf", z, z, z, z, z=z, flagged=np.abs(z) > 2)
+    got = [(r.x_lo, r.x_hi, r.points, r.max_abs_z, r.direction) for r in regions_of(v)]
+    assert got == [(1.0, 2.0, 2, 6.0, "above"), (3.0, 4.0, 2, 7.0, "below"), (6.0, 6.0, 1, 3.0, "above")]
+
+
+def test_a_psd_region_spans_its_bands_edges():
+    """A 50 Hz tone missing from the model flags the PSD band that holds it; the region spans that
+    band's edges, so it contains 50 Hz (it gave the band's mean frequency, 44.98..44.98 Hz)."""
+    truth, nominal = load_model("hidden/sensor.tone"), load_model("hidden/sensor.tone-nominal")
+    rec = truth.simulate(30_000, seed=1)
+    c = compare(nominal, rec.t, rec.y, rec.u)
+    psd = [r for r in c.regions if r.view == "psd"]
+    assert psd and any(r.x_lo <= 50.0 <= r.x_hi and r.direction == "above" for r in psd), psd
+    v = c.view("psd")
+    assert np.all(v.x_lo <= v.x) and np.all(v.x <= v.x_hi) and np.all(v.x_hi[:-1] <= v.x_lo[1:] + 1e-9)

@@ -442,6 +442,11 @@ def test_a_wrong_tau_that_the_views_see_is_refitted_when_the_fall_reaches_explai
     e0, e1 = rep["error_before"], rep["error_after"]
     # the new clause is what admits it: a fall short of ERROR_FALL, to an explained model
     assert e0 > ERROR_OK >= e1 > ERROR_FALL * e0
+    # the sentence says what changed (a refit is no excess over nothing: the bias's low-frequency
+    # level 2 std^2 tau falls here) and what the data say
+    assert bias["evidence"].startswith("the model's value does not fit the data (") and \
+        "tau_s 60.9 -> " in bias["evidence"], bias["evidence"]
+    assert "excess" not in bias["evidence"] and "refitted: a Gauss-Markov bias" in bias["evidence"]
 
 
 def test_a_gauss_markov_bias_beats_a_walk_when_its_likelihood_ratio_test_passes():
@@ -881,3 +886,16 @@ def test_a_quantizers_slope_modulation_is_not_a_jitter():
     assert abs(m.slope - 0.0015**2) < 3 * math.sqrt(m.se2) and m.slope > 3 * math.sqrt(m.se2)
     rec = nominal.simulate(30_000, seed=1)
     assert diagnose(nominal, rec.t, rec.y, rec.u)["missing"] == []
+
+
+def test_the_text_report_gives_intervals_and_scores_the_digits_they_need():
+    """A tone's frequency interval is parts in 10^6 wide: printed to 4 digits it read
+    "50 [50, 50]"; it gets the digits that tell its ends apart. A sensor noise 100x over the
+    model's scores Delta BIC ~5e13: 14 digits of it said nothing; small scores keep one decimal,
+    as the evidence sentences print them."""
+    from service.diagnose.report import _with_interval
+    from service.diagnose.results import fmt_score
+    assert _with_interval("frequency_hz", 50.00001, (49.99992, 50.00004)) == \
+        "frequency_hz = 50.00001 [49.99992, 50.00004]"
+    assert _with_interval("std", 0.0123456, (0.011, 0.0135)) == "std = 0.01235 [0.011, 0.0135]"
+    assert fmt_score(52354402782748.0) == "5.24e+13" and fmt_score(4.83) == "4.8" and fmt_score(-1.46) == "-1.5"

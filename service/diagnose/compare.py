@@ -870,9 +870,11 @@ def psd_view(r, Ts, gam_parts, j, L, bpd, model=None, mod=None, jkey=None, gam_f
                      "place between the levels")
     alpha = FAMILY_ALPHA / pred.size
     lo, hi = _chi2_band(pred, nu, alpha)
+    df = float(est.f[1] - est.f[0])
     v = View("psd", j, binned.f, "frequency [Hz]", "PSD [units^2/Hz]", binned.psd, pred, lo, hi,
              contributions=parts, z=_log_chi2_z(binned.psd, pred, nu), log_x=True, log_y=True,
-             notes=notes)
+             notes=notes, x_lo=np.array([max(est.f[g[0]] - df / 2, 0.0) for g in groups]),
+             x_hi=np.array([min(est.f[g[-1]] + df / 2, est.f[-1]) for g in groups]))
     return _finish(v, pred.size, z2_var=_z2_var_log(nu))
 
 
@@ -951,19 +953,25 @@ def model_error(views: list) -> float:
 
 # -- regions -------------------------------------------------------------------------------------------
 def regions_of(view: View) -> list[Region]:
+    """Runs of consecutive flagged points on one side of the model: a run whose z changes sign (an
+    ACF above the model at short lags, below it at longer ones) is two regions, each with its own
+    direction."""
     out = []
     f = view.flagged
+    up = np.asarray(view.z) > 0
     i = 0
     while i < f.size:
         if not f[i]:
             i += 1
             continue
         k = i
-        while k + 1 < f.size and f[k + 1]:
+        while k + 1 < f.size and f[k + 1] and up[k + 1] == up[i]:
             k += 1
         zz = view.z[i:k + 1]
-        out.append(Region(view.name, view.output, float(view.x[i]), float(view.x[k]), k - i + 1,
-                          float(np.max(np.abs(zz))), "above" if np.mean(zz) > 0 else "below"))
+        x0 = view.x[i] if view.x_lo is None else view.x_lo[i]
+        x1 = view.x[k] if view.x_hi is None else view.x_hi[k]
+        out.append(Region(view.name, view.output, float(x0), float(x1), k - i + 1,
+                          float(np.max(np.abs(zz))), "above" if up[i] else "below"))
         i = k + 1
     return out
 

@@ -24,7 +24,9 @@ from concurrent.futures import Future, ThreadPoolExecutor
 import numpy as np
 
 from ..model.effects import CATALOGUE
+from ..model.effects.base import _g
 from .compare import check_samples, compare, transient_samples
+from .results import fmt_score
 from .search import THRESHOLD, Data, Search, interval_tasks, merge_intervals
 
 MAX_EFFECTS = 3
@@ -324,6 +326,13 @@ def _replay(S, start, final, accepted):
     return out
 
 
+def _changes(old: dict, new: dict) -> str:
+    """``k old -> new`` for the parameters a refit changed (as the model file spells them)."""
+    out = [f"{k} {_g(old[k])} -> {_g(v)}" for k, v in new.items()
+           if k in old and not np.allclose(np.asarray(old[k], float), np.asarray(v, float), rtol=1e-6, atol=0)]
+    return ", ".join(out) or "the same values"
+
+
 def _report_intervals(eid: str, iv: dict, Ts: float) -> dict:
     """The intervals, and the same for the equivalent spellings (monotone maps of the ends)."""
     out = dict(iv)
@@ -464,14 +473,19 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0)
                  "params": _report_params(a.effect, a.fit.model.effects[a.effect].param_dict(), model.Ts)}
                 for a in c.alternatives if a.effect in a.fit.model.effects]
         evidence = CATALOGUE[c.effect].explain(params, model.Ts, {"band": band} if band else None)
+        if c.mode == "refit" and c.effect in model.effects:
+            # a changed value: what the user's model said, and what the data say (the effect's own
+            # sentence describes it as an excess over nothing, which a changed value is not)
+            evidence = (f"the model's value does not fit the data ({_changes(model.effects[c.effect].param_dict(), params)}); "
+                        f"refitted: {evidence.rsplit(': ', 1)[-1]}")
         if c.by_error:
             e0, e1 = c.by_error
-            evidence += (f"; added on the views' word: Delta BIC {c.score:.1f} is under the threshold "
+            evidence += (f"; added on the views' word: Delta BIC {fmt_score(c.score)} is under the threshold "
                          f"{THRESHOLD:g}, but it takes the model error from {e0:.3g} to {e1:.3g}")
         if alts:
-            evidence += ("; the data support " + " and ".join(
-                f"{a['effect']} ({', '.join(f'{k} = {v:.3g}' for k, v in a['params'].items() if isinstance(v, float))})"
-                for a in alts[:2]) + " as well")
+            evidence += "; the data support " + " and ".join(
+                f"{a.effect} ({', '.join(f'{k} = {_g(v)}' for k, v in a.fit.model.effects[a.effect].param_dict().items())})"
+                for a in [a for a in c.alternatives if a.effect in a.fit.model.effects][:2]) + " as well"
         missing.append({
             "effect": c.effect,
             "params": _report_params(c.effect, params, model.Ts),

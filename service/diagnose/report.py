@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from .results import VIEW_UNITS as UNITS
+from .results import fmt_score
 
 
 def _clean(v):
@@ -61,16 +62,16 @@ def diagnosis_lines(rep: dict, series=None, extra: dict | None = None) -> list[s
         if rep["candidates"]:
             c = rep["candidates"][0]
             ps = ", ".join(f"{k} = {_fmt(v)}" for k, v in c["params"].items() if k in _file_keys(rep, c))
-            lines.append(f"  (best candidate: {c['mode']} {c['effect']}, Delta BIC {c['score']:.1f}"
+            lines.append(f"  (best candidate: {c['mode']} {c['effect']}, Delta BIC {fmt_score(c['score'])}"
                          + (f": {ps}" if ps else "") + ")")
     else:
         lines.append("missing, most likely first (Delta BIC; model error after adding it):")
         for i, (m, st) in enumerate(zip(rep["missing"], rep["steps"]), 1):
-            ps = ", ".join(f"{k} = {_fmt(v)} [{_fmt(m['interval'][k][0])}, {_fmt(m['interval'][k][1])}]"
-                           if k in m["interval"] else f"{k} = {_fmt(v)}" for k, v in m["params"].items()
-                           if k in _file_keys(rep, m))
+            ps = ", ".join(_with_interval(k, v, m["interval"][k]) if k in m["interval"] else f"{k} = {_fmt(v)}"
+                           for k, v in m["params"].items() if k in _file_keys(rep, m))
             what = m["mode"].replace("replace:", "in place of ")
-            lines.append(f"  {i}. [{m['effect']}] {what}: {ps}   (Delta BIC {m['score']:.0f}; error {st['error']:.3g})")
+            lines.append(f"  {i}. [{m['effect']}] {what}: {ps}   (Delta BIC {fmt_score(m['score'])}; "
+                         f"error {st['error']:.3g})")
             lines.append(f"     {m['evidence']}")
         lines.append(f"model error: {rep['error_before']:.3g} -> " + " -> ".join(f"{s['error']:.3g}" for s in rep["steps"])
                      + (f" (final joint fit {a.error:.3g})" if abs(a.error - rep['steps'][-1]['error']) > 1e-9 else ""))
@@ -88,7 +89,16 @@ def _file_keys(rep: dict, m: dict) -> set:
     return set(eff.param_dict()) if eff is not None else set(m["params"])
 
 
-def _fmt(v) -> str:
+def _fmt(v, digits: int = 4) -> str:
     if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_fmt(x) for x in v) + "]"
-    return f"{float(v):.4g}"
+        return "[" + ", ".join(_fmt(x, digits) for x in v) + "]"
+    return f"{float(v):.{digits}g}"
+
+
+def _with_interval(k: str, v, iv) -> str:
+    """``k = v [lo, hi]`` with as many digits (4 to 10) as it takes to tell lo, v and hi apart (a
+    tone's frequency interval is a few parts in 10^6 wide); where v sits on an end, lo and hi."""
+    lo, hi = iv
+    texts = [(_fmt(lo, d), _fmt(v, d), _fmt(hi, d)) for d in range(4, 11)]
+    a, b, c = next((t for t in texts if len(set(t)) == 3), next((t for t in texts if t[0] != t[2]), texts[0]))
+    return f"{k} = {b} [{a}, {c}]"

@@ -45,6 +45,8 @@ class View:
     log_y: bool = False
     conf: float = 0.95
     notes: list = field(default_factory=list)
+    x_lo: np.ndarray = None        # the points' extents where they stand for a band (the PSD's bands'
+    x_hi: np.ndarray = None        # edges); the regions span these, else the points' x
 
 
 @dataclass
@@ -88,3 +90,9 @@ class Comparison:
             if v.name == name and v.output == output:
                 return v
         raise KeyError((name, output))
+
+
+def fmt_score(s: float) -> str:
+    """A Delta BIC for a sentence: one decimal (as the threshold is read), 3 significant digits
+    once it is so large that more say nothing."""
+    return f"{s:.1f}" if abs(s) < 1e5 else f"{s:.3g}"

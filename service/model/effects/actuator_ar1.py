@@ -11,7 +11,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from ..schema import nonnegative
-from .base import Effect, FitSpec, _g, parse_rho_tau, rho_tau_equivalents
+from .base import Effect, FitSpec, _g, parse_rho_tau, rho_tau_equivalents, tau_of
 
 
 class ActuatorAR1(Effect):
@@ -24,10 +24,14 @@ class ActuatorAR1(Effect):
 
     @classmethod
     def explain(cls, params, Ts, ctx=None):
-        tau = params["tau_s"] if "tau_s" in params else _tau(params, Ts)
+        tau = tau_of(params, Ts)
+        if not np.all(np.isfinite(tau)):
+            return (f"excess power that alternates from sample to sample: colored (AR(1)) actuator noise of "
+                    f"std {_g(params['std'])} with rho {_g(params['rho'])}")
         fc = 1.0 / (2 * np.pi * tau)
-        return (f"excess power below about {_g(fc)} Hz that the plant shapes like its input: colored "
-                f"(AR(1)) actuator noise of std {_g(params['std'])} with correlation time {_g(tau)} s")
+        return (f"excess power below about {_g(fc if fc.size > 1 else fc[0])} Hz that the plant shapes like its "
+                f"input: colored (AR(1)) actuator noise of std {_g(params['std'])} with correlation time "
+                f"{_g(tau if tau.size > 1 else tau[0])} s")
 
     @classmethod
     def equivalents(cls, params, Ts):
@@ -60,7 +64,3 @@ class ActuatorAR1(Effect):
     def drive_linear(self):
         return np.diag(self.rho), np.diag(self.c), np.diag(self.rho), np.diag(self.c)
 
-
-def _tau(params, Ts):
-    rho = np.atleast_1d(params["rho"]).astype(float)
-    return float(np.mean(-Ts / np.log(rho)))

@@ -25,8 +25,9 @@ class ActuatorSaturation(Effect):
 
     @classmethod
     def explain(cls, params, Ts, ctx=None):
-        return (f"the response is flattened where the command is large, with odd harmonics of the "
-                f"command in the residual: the actuator saturates at about {_g(params['limit'])}")
+        return (f"the response falls short of the predicted one where the command is large (the drive is "
+                f"clipped), with odd harmonics of the command in the residual: the actuator saturates at "
+                f"about {_g(params['limit'])}")
 
     def parse(self, t):
         self.params["limit"] = t.vector("limit", self.dims.m, check=positive, expect="limits > 0")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..schema import nonnegative
-from .base import Effect, FitSpec, _g
+from .base import Effect, FitSpec, _g, band_phrase
 
 
 class ActuatorWhite(Effect):
@@ -18,8 +18,8 @@ class ActuatorWhite(Effect):
 
     @classmethod
     def explain(cls, params, Ts, ctx=None):
-        return (f"excess power with the plant's input-to-output shape (around its resonance and "
-                f"falling above it): white actuator noise of std {_g(params['std'])}")
+        return (f"{band_phrase(ctx)}excess power with the shape of the plant's response to its command "
+                f"input: white actuator noise of std {_g(params['std'])}")
 
     def parse(self, t):
         self.params["std"] = t.vector("std", self.dims.m, check=nonnegative, expect="std >= 0")

@@ -148,6 +148,23 @@ def _g(v) -> str:
     return f"{float(v):.3g}"
 
 
+def band_phrase(ctx: dict | None) -> str:
+    """"between f_lo and f_hi Hz, " where the effect holds most of the differenced residual's power
+    (``ctx["band"]``, from the fit), or ""."""
+    band = (ctx or {}).get("band")
+    return f"between {_g(band[0])} and {_g(band[1])} Hz, " if band else ""
+
+
+def tau_of(params: dict, Ts: float) -> np.ndarray:
+    """A fitted AR(1) or Gauss-Markov correlation time (s), from ``tau_s`` or ``rho`` (per channel; NaN
+    where rho is not in (0, 1))."""
+    if "tau_s" in params:
+        return np.atleast_1d(np.asarray(params["tau_s"], float))
+    rho = np.atleast_1d(np.asarray(params["rho"], float))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where((rho > 0) & (rho < 1), -Ts / np.log(np.where(rho > 0, rho, 1.0)), np.nan)
+
+
 def rho_tau_equivalents(params: dict, Ts: float) -> dict:
     """rho = exp(-Ts / tau_s) and back, for AR(1) and Gauss-Markov fits."""
     if "tau_s" in params and "rho" not in params:

@@ -13,7 +13,7 @@ import numpy as np
 from .. import discretize
 from ..errors import ModelError
 from ..schema import nonnegative
-from .base import Effect, FitSpec, _g
+from .base import Effect, FitSpec, _g, band_phrase
 
 
 class ProcessWhite(Effect):
@@ -27,8 +27,8 @@ class ProcessWhite(Effect):
     @classmethod
     def explain(cls, params, Ts, ctx=None):
         what = f"std {_g(params['std'])} per sample" if "std" in params else f"intensity {_g(params['psd'])}"
-        return (f"excess power with the shape of the plant's response to a force (peaked at its "
-                f"resonance): white process noise of {what}")
+        return (f"{band_phrase(ctx)}excess power with the shape of the plant's response to a force "
+                f"at its noise input: white process noise of {what}")
 
     @classmethod
     def equivalents(cls, params, Ts):

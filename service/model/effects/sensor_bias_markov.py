@@ -10,7 +10,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from ..schema import nonnegative
-from .base import Effect, FitSpec, _g, parse_rho_tau, rho_tau_equivalents
+from .base import Effect, FitSpec, _g, parse_rho_tau, rho_tau_equivalents, tau_of
 
 
 class SensorBiasMarkov(Effect):
@@ -23,14 +23,12 @@ class SensorBiasMarkov(Effect):
 
     @classmethod
     def explain(cls, params, Ts, ctx=None):
-        tau = params.get("tau_s")
-        if tau is None:
-            rho = np.atleast_1d(params["rho"]).astype(float)
-            tau = float(np.mean(-Ts / np.log(rho)))
-        fc = 1.0 / (2 * np.pi * np.mean(tau))
-        return (f"a flat excess below about {_g(fc)} Hz that the plant does not shape, and an Allan "
-                f"deviation bump near tau = {_g(1.9 * np.mean(tau))} s: a Gauss-Markov bias (bias instability) of std "
-                f"{_g(params['std'])} with correlation time {_g(tau)} s")
+        tau = tau_of(params, Ts)
+        one = (lambda v: v if v.size > 1 else v[0])      # noqa: E731  (per output when they differ)
+        # the Allan deviation of a first-order Gauss-Markov process peaks at 1.89 tau
+        return (f"a flat excess below about {_g(one(1.0 / (2 * np.pi * tau)))} Hz that the plant does not "
+                f"shape, and an Allan deviation bump near tau = {_g(one(1.89 * tau))} s: a Gauss-Markov bias "
+                f"(bias instability) of std {_g(params['std'])} with correlation time {_g(one(tau))} s")
 
     @classmethod
     def equivalents(cls, params, Ts):

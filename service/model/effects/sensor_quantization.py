@@ -44,8 +44,10 @@ class SensorQuantization(Effect):
 
     @classmethod
     def explain(cls, params, Ts, ctx=None):
+        step = np.asarray(params["step"], float)
         return (f"every measured value lies on a grid of step {_g(params['step'])} (the chance of that "
-                f"for a continuous signal is nil): the sensor is quantized, adding step^2/12 of white noise")
+                f"for a continuous signal is nil): the sensor is quantized, adding a variance of about "
+                f"step^2/12 = {_g(step**2 / 12)} (white when the noise moves the signal by more than about half a step between samples)")
 
     def parse(self, t):
         self.params["step"] = t.vector("step", self.dims.p, check=positive, expect="steps > 0")

@@ -16,7 +16,9 @@ class SensorWhite(Effect):
 
     @classmethod
     def explain(cls, params, Ts, ctx=None):
-        return (f"a flat floor above the model's at high frequency, the same in every time window: "
+        band = (ctx or {}).get("band")
+        where = f"above {_g(band[0])} Hz" if band else "at high frequency"
+        return (f"a flat floor {where} that the plant does not shape, the same in every time window: "
                 f"white sensor noise of std {_g(params['std'])}")
 
     def parse(self, t):
