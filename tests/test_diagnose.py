@@ -899,3 +899,24 @@ def test_the_text_report_gives_intervals_and_scores_the_digits_they_need():
         "frequency_hz = 50.00001 [49.99992, 50.00004]"
     assert _with_interval("std", 0.0123456, (0.011, 0.0135)) == "std = 0.01235 [0.011, 0.0135]"
     assert fmt_score(52354402782748.0) == "5.24e+13" and fmt_score(4.83) == "4.8" and fmt_score(-1.46) == "-1.5"
+
+
+def test_a_refit_keeps_the_users_proportions_between_outputs():
+    """A position and a velocity sensor whose noise the model has at a quarter of its value, in the
+    right proportion (1 : 10). The refit scales both by one factor: [0.004, 0.04] recovered, the
+    model error about 1. The scale was set as one value for both outputs (the largest), so the
+    refit made them equal, fitted badly and lost to an actuator noise and a jitter that the data
+    do not have (model error 98 after)."""
+    doc = ("name = \"pv\"\n[sampling]\nTs = 0.01\n[plant]\nA = [[0.0, 1.0], [-4.0, -0.6]]\nB = [[0.0], [1.0]]\n"
+           "C = [[1.0, 0.0], [0.0, 1.0]]\n[command]\nkind = \"sine\"\namplitude = 1.0\nfrequency_hz = 0.3\n"
+           "[process.white]\nstd = 0.5\n[sensor.white]\nstd = SW\n")
+    truth = parse_model(doc.replace("SW", "[0.004, 0.04]"), "truth")
+    nominal = parse_model(doc.replace("SW", "[0.001, 0.01]"), "nominal")
+    rec = truth.simulate(12_000, seed=2)
+    rep = diagnose(nominal, rec.t, rec.y, rec.u)
+    assert [(m["effect"], m["mode"]) for m in rep["missing"]] == [("sensor.white", "refit")]
+    std = rep["missing"][0]["params"]["std"]
+    assert std[1] / std[0] == pytest.approx(10.0, rel=1e-9)
+    lo, hi = rep["missing"][0]["interval"]["std"]          # the largest channel's
+    assert lo <= 0.04 <= hi and hi / lo < 1.1
+    assert rep["error_after"] <= 1.5

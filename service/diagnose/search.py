@@ -1043,7 +1043,7 @@ class Hypotheses:
             ref = val if (nonlin and val > 0) else unit
             cur.append(val)
             refs.append(ref)
-            canon = _set(canon, e, {sname: ref})
+            canon = _set_scale(canon, e, sname, ref, model)
         r, ydot, tone_amp, Ig = self.ev.grouped_periodogram(model, "sensor.tone" in free)
         if tone_amp is not None and "sensor.tone" in free:
             model = _set(model, "sensor.tone", {"amplitude": _vec(tone_amp)})
@@ -1092,7 +1092,7 @@ class Hypotheses:
         for _ in range(QUANT_ROUNDS if qid in model.effects and scales else 0):
             trial = model
             for (e, sname, pw), vi, ref in zip(scales, v, refs):
-                trial = _set(trial, e, {sname: float(ref * vi ** (1.0 / pw))})
+                trial = _set_scale(trial, e, sname, float(ref * vi ** (1.0 / pw)), model)
             # the quantizer's slope modulation at the fitted noise and jitter (:meth:`_quant_slope`)
             base_moved = False
             if mod is not None and mod.base is not None:
@@ -1126,7 +1126,7 @@ class Hypotheses:
         l += self.ev.ramp_term(res_model, "sensor.tone" in free)
         fitted = model
         for (e, sname, pw), vi, ref in zip(scales, v, refs):
-            fitted = _set(fitted, e, {sname: float(ref * vi ** (1.0 / pw))})
+            fitted = _set_scale(fitted, e, sname, float(ref * vi ** (1.0 / pw)), model)
         return Fit(fitted, free, l, parts, inner, v, scale_ids)
 
     def grid_loglik(self, model) -> float:
@@ -1336,6 +1336,18 @@ def _set(model, eid: str, values: dict):
     if "tau_s" in values:
         params.pop("rho", None)
     return model.with_params(eid, params)
+
+
+def _set_scale(model, eid: str, name: str, value: float, like):
+    """``model`` with effect ``eid``'s scale ``name`` at ``value`` on its largest channel, the others
+    in the proportions they have in ``like`` (the user's per-output or per-input values, e.g. a
+    position and a velocity sensor's noise, are scaled by one factor, not made equal; a scale that
+    is one value, or all zero, is set as one value)."""
+    eff = like.effects.get(eid)
+    cur = None if eff is None or name not in eff.params else np.atleast_1d(np.asarray(eff.params[name], float))
+    if cur is None or cur.size < 2 or not np.max(cur) > 0 or np.all(cur == cur[0]):
+        return _set(model, eid, {name: value})
+    return _set(model, eid, {name: [float(value * c) for c in cur / np.max(cur)]})
 
 
 # -- candidates ---------------------------------------------------------------------------------------------
@@ -1842,7 +1854,7 @@ def _profile_scale_shaped(H: Hypotheses, fit: Fit, eid: str, name: str, val: flo
 
     def l_at(v):
         try:
-            return H.fit(_set(fit.model, eid, {name: v}), free, rounds=1).loglik
+            return H.fit(_set_scale(fit.model, eid, name, v, fit.model), free, rounds=1).loglik
         except (ModelError, ValueError, np.linalg.LinAlgError):
             return -1e300
 
