@@ -901,12 +901,13 @@ def test_the_text_report_gives_intervals_and_scores_the_digits_they_need():
     assert fmt_score(52354402782748.0) == "5.24e+13" and fmt_score(4.83) == "4.8" and fmt_score(-1.46) == "-1.5"
 
 
-def test_a_refit_keeps_the_users_proportions_between_outputs():
-    """A position and a velocity sensor whose noise the model has at a quarter of its value, in the
-    right proportion (1 : 10). The refit scales both by one factor: [0.004, 0.04] recovered, the
-    model error about 1. The scale was set as one value for both outputs (the largest), so the
-    refit made them equal, fitted badly and lost to an actuator noise and a jitter that the data
-    do not have (model error 98 after)."""
+def test_a_sensor_noise_of_two_outputs_is_fitted_per_output():
+    """A position and a velocity sensor (noise 1 : 10). (a) The model has their white noise at a
+    quarter of its value: the refit finds each output's, [0.004, 0.04] within 3 %. The scale was
+    one value set on every output (the largest), so the refit made them equal, fitted badly and
+    lost to an actuator noise and a jitter that the data do not have (model error 98 after).
+    (b) A bias walk of [0.002, 0.02] / sqrt(s) missing: found per output (one std for both read
+    0.0067, model error 8.9 after); one variance per output counts as one parameter each."""
     doc = ("name = \"pv\"\n[sampling]\nTs = 0.01\n[plant]\nA = [[0.0, 1.0], [-4.0, -0.6]]\nB = [[0.0], [1.0]]\n"
            "C = [[1.0, 0.0], [0.0, 1.0]]\n[command]\nkind = \"sine\"\namplitude = 1.0\nfrequency_hz = 0.3\n"
            "[process.white]\nstd = 0.5\n[sensor.white]\nstd = SW\n")
@@ -916,7 +917,18 @@ def test_a_refit_keeps_the_users_proportions_between_outputs():
     rep = diagnose(nominal, rec.t, rec.y, rec.u)
     assert [(m["effect"], m["mode"]) for m in rep["missing"]] == [("sensor.white", "refit")]
     std = rep["missing"][0]["params"]["std"]
-    assert std[1] / std[0] == pytest.approx(10.0, rel=1e-9)
-    lo, hi = rep["missing"][0]["interval"]["std"]          # the largest channel's
+    assert std == [pytest.approx(0.004, rel=0.03), pytest.approx(0.04, rel=0.03)]
+    lo, hi = rep["missing"][0]["interval"]["std"]          # the largest output's
     assert lo <= 0.04 <= hi and hi / lo < 1.1
+    assert rep["error_after"] <= 1.5
+
+    walk = parse_model(doc.replace("SW", "[0.004, 0.04]") + "[sensor.bias_walk]\nstd = [0.002, 0.02]\n", "walk")
+    rep, _ = _diagnose_hidden(walk, ("sensor.bias_walk",), 18_000, 4)
+    assert [(m["effect"], m["mode"]) for m in rep["missing"]] == [("sensor.bias_walk", "add")]
+    got = rep["missing"][0]["params"]["std"]
+    lo, hi = rep["missing"][0]["interval"]["std"]
+    assert lo <= 0.02 <= hi and lo <= got[1] <= hi
+    # the smaller output's std, its walk in the same ratio to its sensor noise: within the larger's
+    # relative precision, the interval's full width (about 4 standard errors)
+    assert got[0] == pytest.approx(0.002, rel=(hi - lo) / got[1])
     assert rep["error_after"] <= 1.5

@@ -40,9 +40,7 @@ def _band(fit, eid: str, data: Data):
     residual: where it is the physical effect's signature."""
     if not fit.parts or eid not in fit.parts:
         return None
-    # the fit's parts are at its scaling references: each free variance's part times its factor
-    factor = dict(zip(fit.scale_ids, np.atleast_1d(fit.v))) if fit.v is not None else {}
-    parts = {k: E * factor.get(k, 1.0) for k, E in fit.parts.items()}
+    parts = fit.scaled_parts() if fit.v is not None else fit.parts   # at the fitted values
 
     def power(E):          # per group: summed over outputs (the diagonal of cross-spectral matrices)
         return np.einsum("bii->b", E).real if E.ndim == 3 else np.sum(E, axis=1)

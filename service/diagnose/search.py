@@ -950,7 +950,18 @@ class Fit:
     parts: dict = field(default_factory=dict)
     inner: object = None
     v: np.ndarray = None
-    scale_ids: list = field(default_factory=list)
+    scale_ids: list = field(default_factory=list)   # the effect of each of ``v``'s variances
+    scale_ch: list = field(default_factory=list)    # ... and its output (None: all its channels)
+
+    def scaled_parts(self) -> dict:
+        """{effect id: its part of the expected periodogram at the fitted values}: ``parts`` are at
+        the scaling references, each free variance's part (one output's, for a per-output one)
+        times its fitted factor."""
+        out = {k: E for k, E in self.parts.items() if k not in self.scale_ids}
+        for e, j, vi in zip(self.scale_ids, self.scale_ch or [None] * len(self.scale_ids), np.atleast_1d(self.v)):
+            if e in self.parts:
+                out[e] = out.get(e, 0.0) + _channel(self.parts[e], j) * vi
+        return out
 
 
 class Hypotheses:
@@ -1027,23 +1038,28 @@ class Hypotheses:
     def inner_fit(self, model, free: dict) -> Fit:
         d = self.data
         self.ev.evals += 1
-        scales = []                                    # (effect id, parameter, power of the variance)
+        # (effect id, parameter, power of the variance, output or None): a sensor noise of several
+        # outputs has one variance per output (:data:`PER_OUTPUT`), the others one over their channels
+        scales = []
         for e, names in free.items():
             if CATALOGUE[e].fit.kind in ("noise", "modulated") and e in model.effects:
                 sname, power = _scale_name(model.effects[e])
                 if sname in names:
-                    scales.append((e, sname, power))
-        scale_ids = [e for e, _, _ in scales]
+                    chans = range(d.p) if d.p > 1 and e in PER_OUTPUT else (None,)
+                    scales += [(e, sname, power, j) for j in chans]
+        scale_ids = [e for e, *_ in scales]
+        scale_ch = [j for *_, j in scales]
         nonlin = any(hasattr(e, "knots") for e in model.effects.values())
         canon = model
         cur, refs = [], []
-        for e, sname, power in scales:
-            val = float(np.max(np.asarray(model.effects[e].params[sname], float)))
+        for e, sname, power, j in scales:
+            vals = np.atleast_1d(np.asarray(model.effects[e].params[sname], float))
+            val = float(np.max(vals) if j is None else np.broadcast_to(vals, (d.p,))[j])
             unit = _unit_scale(CATALOGUE[e].fit, d.Ts) if sname != "psd" else 1.0
             ref = val if (nonlin and val > 0) else unit
             cur.append(val)
             refs.append(ref)
-            canon = _set_scale(canon, e, sname, ref, model)
+        canon = _set_scales(canon, scales, refs, model)
         r, ydot, tone_amp, Ig = self.ev.grouped_periodogram(model, "sensor.tone" in free)
         if tone_amp is not None and "sensor.tone" in free:
             model = _set(model, "sensor.tone", {"amplitude": _vec(tone_amp)})
@@ -1083,16 +1099,14 @@ class Hypotheses:
             mo = self.ev.quant_moments(m)[0] if qid in m.effects and d.p > 1 else None
             ps = _stein(parts, mo, m.predictor().tone_ids() if mo is not None else ())
             return (sum((v for k, v in ps.items() if k not in scale_ids), np.zeros_like(Ig)),
-                    [ps.get(e, np.zeros_like(Ig)) for e in scale_ids])
+                    [_channel(ps.get(e, np.zeros_like(Ig)), j) for e, j in zip(scale_ids, scale_ch)])
         E0, U = assemble(parts, model)
         inner = Inner(Ig, d.weights / W.taper(d.M)[2], E0, U, mod, mod_index)
         res_model = model                              # the model the residual (Ig) is of
-        v0 = np.array([(c / ref) ** pw for c, ref, (_, _, pw) in zip(cur, refs, scales)]) if scales else None
+        v0 = np.array([(c / ref) ** pw for c, ref, (_, _, pw, _) in zip(cur, refs, scales)]) if scales else None
         v, l = inner.optimize(v0)
         for _ in range(QUANT_ROUNDS if qid in model.effects and scales else 0):
-            trial = model
-            for (e, sname, pw), vi, ref in zip(scales, v, refs):
-                trial = _set_scale(trial, e, sname, float(ref * vi ** (1.0 / pw)), model)
+            trial = _set_scales(model, scales, [ref * vi ** (1.0 / sc[2]) for sc, vi, ref in zip(scales, v, refs)], model)
             # the quantizer's slope modulation at the fitted noise and jitter (:meth:`_quant_slope`)
             base_moved = False
             if mod is not None and mod.base is not None:
@@ -1124,10 +1138,8 @@ class Hypotheses:
         if d.grid is not None:
             l += self.grid_loglik(model)
         l += self.ev.ramp_term(res_model, "sensor.tone" in free)
-        fitted = model
-        for (e, sname, pw), vi, ref in zip(scales, v, refs):
-            fitted = _set_scale(fitted, e, sname, float(ref * vi ** (1.0 / pw)), model)
-        return Fit(fitted, free, l, parts, inner, v, scale_ids)
+        fitted = _set_scales(model, scales, [ref * vi ** (1.0 / sc[2]) for sc, vi, ref in zip(scales, v, refs)], model)
+        return Fit(fitted, free, l, parts, inner, v, scale_ids, scale_ch)
 
     def grid_loglik(self, model) -> float:
         """l_grid: values on the model's quantization grid (ln(1 / 2e-6) each) when the data are."""
@@ -1336,6 +1348,37 @@ def _set(model, eid: str, values: dict):
     if "tau_s" in values:
         params.pop("rho", None)
     return model.with_params(eid, params)
+
+
+PER_OUTPUT = ("sensor.white", "sensor.bias_walk", "sensor.bias_markov")   # one variance per output
+
+
+def _channel(E: np.ndarray, j):
+    """A sensor noise's part at output ``j`` alone (None: all of it). Its outputs' noises are
+    independent, so its cross-spectral matrices are diagonal; one output's part is its diagonal
+    element."""
+    if j is None:
+        return E
+    out = np.zeros_like(E)
+    if E.ndim == 3:
+        out[:, j, j] = E[:, j, j]
+    else:
+        out[:, j] = E[:, j]
+    return out
+
+
+def _set_scales(model, scales: list, values: list, like):
+    """``model`` with each scale of ``scales`` [(effect id, parameter, power, output or None)] at
+    its value: per output where it has one (:func:`_channel`), else by :func:`_set_scale`."""
+    per: dict = {}
+    for (e, sname, _, j), val in zip(scales, values):
+        if j is None:
+            model = _set_scale(model, e, sname, float(val), like)
+        else:
+            per.setdefault((e, sname), {})[j] = float(val)
+    for (e, sname), vals in per.items():
+        model = _set(model, e, {sname: [vals[j] for j in sorted(vals)]})
+    return model
 
 
 def _set_scale(model, eid: str, name: str, value: float, like):
@@ -1707,7 +1750,8 @@ class Search:
         m = _set(model, eid, init) if init else model
         free = dict(cur.free)
         free[eid] = names
-        return [Start(eid, mode, m, free, len(names))]
+        k = len(names) + (d.p - 1 if d.p > 1 and eid in PER_OUTPUT and spec.kind == "noise" else 0)
+        return [Start(eid, mode, m, free, k)]
 
     def _grid(self, cur: Fit, mode: str) -> list[Start]:
         d = self.data
@@ -1803,7 +1847,12 @@ def interval_tasks(H: Hypotheses, fit: Fit, eid: str) -> list:
                 out.append(((name, side), lambda side=side: _profile_scale_shaped(H, fit, eid, name, val, 2 * side - 1)))
         else:
             def scale_iv():
+                # the largest channel's (per output: the variance of the output whose value is largest)
                 a = fit.scale_ids.index(eid)
+                if fit.scale_ch and fit.scale_ch[a] is not None:
+                    vals = np.atleast_1d(np.asarray(eff.params[name], float))
+                    j = int(np.argmax(np.broadcast_to(vals, (H.data.p,))))
+                    a = next(i for i, (e, c) in enumerate(zip(fit.scale_ids, fit.scale_ch)) if e == eid and c == j)
                 # a modulated variance (jitter): the likelihood overstates its evidence, so the
                 # profile's threshold is scaled by the sandwich factor (never below the plain one)
                 chi2 = CHI2_95 * (max(godambe_factor(H, fit, a), 1.0) if spec.kind == "modulated" else 1.0)
