@@ -907,7 +907,8 @@ def test_a_sensor_noise_of_two_outputs_is_fitted_per_output():
     one value set on every output (the largest), so the refit made them equal, fitted badly and
     lost to an actuator noise and a jitter that the data do not have (model error 98 after).
     (b) A bias walk of [0.002, 0.02] / sqrt(s) missing: found per output (one std for both read
-    0.0067, model error 8.9 after); one variance per output counts as one parameter each."""
+    0.0067, model error 8.9 after); one variance per output counts as one parameter each. (c) The
+    same for a Gauss-Markov bias."""
     doc = ("name = \"pv\"\n[sampling]\nTs = 0.01\n[plant]\nA = [[0.0, 1.0], [-4.0, -0.6]]\nB = [[0.0], [1.0]]\n"
            "C = [[1.0, 0.0], [0.0, 1.0]]\n[command]\nkind = \"sine\"\namplitude = 1.0\nfrequency_hz = 0.3\n"
            "[process.white]\nstd = 0.5\n[sensor.white]\nstd = SW\n")
@@ -931,4 +932,19 @@ def test_a_sensor_noise_of_two_outputs_is_fitted_per_output():
     # the smaller output's std, its walk in the same ratio to its sensor noise: within the larger's
     # relative precision, the interval's full width (about 4 standard errors)
     assert got[0] == pytest.approx(0.002, rel=(hi - lo) / got[1])
+    assert rep["error_after"] <= 1.5
+
+    # (c) a Gauss-Markov bias of [0.003, 0.03], tau 5 s (one value for both read 0.025, tau 34 s,
+    # model error 3.2 after): per output, tau within its interval; the std's interval is the
+    # profile of the largest output's alone, the other's variance and tau re-optimized at every
+    # value (held at its fit instead, with tau free, it came out 10 % narrower in hi / lo)
+    gm = parse_model(doc.replace("SW", "[0.004, 0.04]") + "[sensor.bias_markov]\nstd = [0.003, 0.03]\ntau_s = 5.0\n",
+                     "gm")
+    rep, _ = _diagnose_hidden(gm, ("sensor.bias_markov",), 12_000, 4)
+    assert [m["effect"] for m in rep["missing"]] == ["sensor.bias_markov"]
+    m = rep["missing"][0]
+    lo, hi = m["interval"]["std"]
+    assert lo <= 0.03 <= hi and lo <= m["params"]["std"][1] <= hi
+    assert m["params"]["std"][0] == pytest.approx(0.003, rel=(hi - lo) / m["params"]["std"][1])
+    assert m["interval"]["tau_s"][0] <= 5.0 <= m["interval"]["tau_s"][1]
     assert rep["error_after"] <= 1.5

@@ -1045,7 +1045,9 @@ class Hypotheses:
             if CATALOGUE[e].fit.kind in ("noise", "modulated") and e in model.effects:
                 sname, power = _scale_name(model.effects[e])
                 if sname in names:
-                    chans = range(d.p) if d.p > 1 and e in PER_OUTPUT else (None,)
+                    # "hold:j" among the names: output j's variance held at the model's value (a profile)
+                    chans = [j for j in range(d.p) if f"hold:{j}" not in names] \
+                        if d.p > 1 and e in PER_OUTPUT else (None,)
                     scales += [(e, sname, power, j) for j in chans]
         scale_ids = [e for e, *_ in scales]
         scale_ch = [j for *_, j in scales]
@@ -1098,7 +1100,12 @@ class Hypotheses:
             """E0 and U, the noise parts times the quantizer's Stein factors (:func:`_stein`)."""
             mo = self.ev.quant_moments(m)[0] if qid in m.effects and d.p > 1 else None
             ps = _stein(parts, mo, m.predictor().tone_ids() if mo is not None else ())
-            return (sum((v for k, v in ps.items() if k not in scale_ids), np.zeros_like(Ig)),
+            # the fixed parts: every effect without a free variance, and the outputs held of one with
+            # a variance per output (at the model's value in ``canon``)
+            pairs = set(zip(scale_ids, scale_ch))
+            held = [_channel(ps[e], j) for e in {e for e, j in pairs if j is not None} if e in ps
+                    for j in range(d.p) if (e, j) not in pairs]
+            return (sum((v for k, v in ps.items() if k not in scale_ids), np.zeros_like(Ig)) + sum(held, np.zeros_like(Ig)),
                     [_channel(ps.get(e, np.zeros_like(Ig)), j) for e, j in zip(scale_ids, scale_ch)])
         E0, U = assemble(parts, model)
         inner = Inner(Ig, d.weights / W.taper(d.M)[2], E0, U, mod, mod_index)
@@ -1377,7 +1384,12 @@ def _set_scales(model, scales: list, values: list, like):
         else:
             per.setdefault((e, sname), {})[j] = float(val)
     for (e, sname), vals in per.items():
-        model = _set(model, e, {sname: [vals[j] for j in sorted(vals)]})
+        # the outputs not listed (held) keep ``like``'s values
+        cur = np.atleast_1d(np.asarray(like.effects[e].params[sname], float))
+        full = np.broadcast_to(cur, (max(cur.size, max(vals) + 1),)).copy()
+        for j, v in vals.items():
+            full[j] = v
+        model = _set(model, e, {sname: [float(x) for x in full]})
     return model
 
 
@@ -1896,14 +1908,27 @@ def _tone_intervals(H: Hypotheses, fit: Fit) -> dict:
 
 def _profile_scale_shaped(H: Hypotheses, fit: Fit, eid: str, name: str, val: float, direction: int) -> float:
     """The lower (``direction`` -1) or upper (+1) end of the profile interval of an effect's scale,
-    its searched parameters refitted at every value."""
+    its searched parameters refitted at every value. A scale per output (:data:`PER_OUTPUT`): the
+    largest output's alone, the other outputs' variances re-optimized with the searched parameters
+    (scaled along with it, their data counted as evidence on it)."""
     free = dict(fit.free)
-    free[eid] = [n for n in fit.free[eid] if n != name]
     target = fit.loglik - CHI2_95 / 2
+    vec = np.atleast_1d(np.asarray(fit.model.effects[eid].params[name], float)).copy()
+    per_output = H.data.p > 1 and eid in PER_OUTPUT and vec.size == H.data.p
+    j = int(np.argmax(vec))
+    # the others' variances stay free (re-optimized at every value), output j's is held
+    free[eid] = list(fit.free[eid]) + [f"hold:{j}"] if per_output else [n for n in fit.free[eid] if n != name]
+
+    def at(v):
+        if not per_output:
+            return _set_scale(fit.model, eid, name, v, fit.model)
+        w = vec.copy()
+        w[j] = v
+        return _set(fit.model, eid, {name: [float(x) for x in w]})
 
     def l_at(v):
         try:
-            return H.fit(_set_scale(fit.model, eid, name, v, fit.model), free, rounds=1).loglik
+            return H.fit(at(v), free, rounds=1).loglik
         except (ModelError, ValueError, np.linalg.LinAlgError):
             return -1e300
 
