@@ -196,7 +196,8 @@ def _contribution(text, eid):
     m = parse_model(text)
     st = m.predictor().steady_state()
     c = st.contributions.get(eid)
-    if c is None and eid in st.contributions and not st.stable:
+    if (c is None or np.any(np.isnan(c))) and eid in st.contributions and not st.stable:
+        # (NaN: at an output the plant's walk reaches; the growth over 1 s, as for every output)
         g = m.predictor().variogram(int(round(1.0 / m.Ts)) + 1, quantization=False).get(eid)
         c = None if g is None else 2.0 * g[-1]
     return None if c is None else float(np.max(c))
@@ -205,7 +206,7 @@ def _contribution(text, eid):
 def _scale(text) -> float:
     """The nominal model's output variance (steady state; for a plant that integrates, over 1 s)."""
     st = parse_model(text).predictor().steady_state()
-    if st.var_y is not None:
+    if st.var_y is not None and np.all(np.isfinite(st.var_y)):
         return float(np.max(st.var_y))
     return sum(_contribution(text, eid) for eid in st.contributions)
 
