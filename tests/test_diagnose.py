@@ -948,3 +948,16 @@ def test_a_sensor_noise_of_two_outputs_is_fitted_per_output():
     assert m["params"]["std"][0] == pytest.approx(0.003, rel=(hi - lo) / m["params"]["std"][1])
     assert m["interval"]["tau_s"][0] <= 5.0 <= m["interval"]["tau_s"][1]
     assert rep["error_after"] <= 1.5
+
+
+def test_a_candidate_ties_with_itself_at_any_score():
+    """A model without sensor noise scores adding it at Delta BIC ~7e15, where floats are spaced by
+    1: 'key(c) > key(lead) - 0.5' was False for c = lead, and the ranking's min() over the tied
+    candidates crashed (a two-output motor of the integrator bench, seed 9)."""
+    from types import SimpleNamespace
+
+    from service.diagnose.search import exact_tie
+    for s in (12.5, 7432835967802488.0, 1e17):
+        c = SimpleNamespace(score=s, k=2)
+        assert exact_tie(c, c, lambda x: x.score)
+        assert not exact_tie(SimpleNamespace(score=s - 0.01 * s, k=2), c, lambda x: x.score)

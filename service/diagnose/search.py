@@ -1518,7 +1518,8 @@ def exact_tie(c, lead, key) -> bool:
     candidates of different sizes within it are not a tie: their scores already weigh the extra
     parameter (a walk and a Gauss-Markov bias, whose choice score is the likelihood-ratio test of
     1/tau > 0, are as the test decides, not as the signal chain's order)."""
-    return key(c) > key(lead) - EXACT_TIE and c.k == lead.k
+    # as a difference: scores of 1e16 (a model without sensor noise) have a spacing above 0.5
+    return key(lead) - key(c) < EXACT_TIE and c.k == lead.k
 
 
 # Near-ties (the data cannot tell the candidates apart, e.g. white actuator and process noise through
@@ -1642,7 +1643,7 @@ class Search:
         if out:
             key = (lambda c: c.sel) if out[0].score >= bar else (lambda c: c.score)
             top = key(out[0])
-            near = [c for c in out if key(c) > top - TIE and (c.score >= bar) == (out[0].score >= bar)]
+            near = [c for c in out if top - key(c) < TIE and (c.score >= bar) == (out[0].score >= bar)]
             # the preferred mode first; within it the best score, and on an exact tie (identical
             # spectra, e.g. process and actuator white noise through the same input) chain order
             rank = min(MODE_RANK[c.mode.split(":")[0]] for c in near)
@@ -1689,7 +1690,7 @@ class Search:
         for c in pool:
             if c.effect in DRIFT_BIASES:
                 margin = self.drift_margin(first.fit, c.fit)
-                if margin is not None and key(c) > key(first) - margin:
+                if margin is not None and key(first) - key(c) < margin:
                     bias.append(c)
         return max(bias, key=key) if bias else first
 
