@@ -960,4 +960,4 @@ def test_a_candidate_ties_with_itself_at_any_score():
     for s in (12.5, 7432835967802488.0, 1e17):
         c = SimpleNamespace(score=s, k=2)
         assert exact_tie(c, c, lambda x: x.score)
-        assert not exact_tie(SimpleNamespace(score=s - 0.01 * s, k=2), c, lambda x: x.score)
+        assert not exact_tie(SimpleNamespace(score=s - 1.0 - 0.01 * s, k=2), c, lambda x: x.score)
