@@ -1112,8 +1112,12 @@ class Hypotheses:
         res_model = model                              # the model the residual (Ig) is of
         v0 = np.array([(c / ref) ** pw for c, ref, (_, _, pw, _) in zip(cur, refs, scales)]) if scales else None
         v, l = inner.optimize(v0)
+
+        def values(v):               # the scales' values at the inner problem's variances v
+            return [ref * vi ** (1.0 / sc[2]) for sc, vi, ref in zip(scales, v, refs)]
+
         for _ in range(QUANT_ROUNDS if qid in model.effects and scales else 0):
-            trial = _set_scales(model, scales, [ref * vi ** (1.0 / sc[2]) for sc, vi, ref in zip(scales, v, refs)], model)
+            trial = _set_scales(model, scales, values(v), model)
             # the quantizer's slope modulation at the fitted noise and jitter (:meth:`_quant_slope`)
             base_moved = False
             if mod is not None and mod.base is not None:
@@ -1145,7 +1149,7 @@ class Hypotheses:
         if d.grid is not None:
             l += self.grid_loglik(model)
         l += self.ev.ramp_term(res_model, "sensor.tone" in free)
-        fitted = _set_scales(model, scales, [ref * vi ** (1.0 / sc[2]) for sc, vi, ref in zip(scales, v, refs)], model)
+        fitted = _set_scales(model, scales, values(v), model)
         return Fit(fitted, free, l, parts, inner, v, scale_ids, scale_ch)
 
     def grid_loglik(self, model) -> float:
