@@ -724,6 +724,23 @@ def test_generated_cases(seed):
     assert sc["ok"], (case.hidden, sc, [(m["effect"], m["params"]) for m in rep["missing"]])
 
 
+def test_the_bench_scores_a_value_per_input_each():
+    """hidden_set plants an actuator noise of two inputs with one std per input: each is held to the
+    30 % criterion (one std for both inputs, or the smaller input's 60 % off, fails), and the
+    reported interval (the largest input's) is checked against the largest planted value."""
+    from hidden_set import Case
+    case = Case("c", "", "", {"actuator.white": {"std": [0.3, 0.05]}}, 60.0, 1)
+
+    def rep(std, iv):
+        return {"missing": [{"effect": "actuator.white", "mode": "add", "params": {"std": std},
+                             "interval": {"std": iv}, "score": 10.0}], "error_before": 5.0, "error_after": 1.0}
+    good = score_case(case, rep([0.31, 0.06], [0.28, 0.33]))
+    assert good["ok"] and good["covered"] == [True]
+    assert score_case(case, rep([0.31, 0.06], [0.31, 0.33]))["covered"] == [False]
+    assert not score_case(case, rep([0.31, 0.08], [0.28, 0.33]))["ok"]
+    assert not score_case(case, rep(0.31, [0.28, 0.33]))["params_ok"]
+
+
 # -- the command line ------------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def walk_recording(tmp_path_factory):
@@ -948,6 +965,29 @@ def test_a_sensor_noise_of_two_outputs_is_fitted_per_output():
     assert m["params"]["std"][0] == pytest.approx(0.003, rel=(hi - lo) / m["params"]["std"][1])
     assert m["interval"]["tau_s"][0] <= 5.0 <= m["interval"]["tau_s"][1]
     assert rep["error_after"] <= 1.5
+
+
+def test_an_actuator_noise_of_two_inputs_is_fitted_per_input():
+    """Two masses, each driven by its own input, each position measured; AR(1) actuator noise of
+    std [0.3, 0.05] (tau 0.2 s) missing. One factor over the inputs (their proportions taken as
+    equal, the file giving none) found a Gauss-Markov sensor bias first and an AR(1) of one std
+    0.03, model error 8.4 after. Each input's variance is fitted (its part through the plant
+    computed apart: it reaches both outputs), each counted as a parameter."""
+    doc = ('name = "two"\n[sampling]\nTs = 0.01\n[plant]\n'
+           'A = [[0.0, 1.0, 0.0, 0.0], [-4.0, -0.6, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0], [1.0, 0.0, -9.0, -0.8]]\n'
+           'B = [[0.0, 0.0], [1.0, 0.0], [0.0, 0.0], [0.0, 1.0]]\nC = [[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]]\n'
+           '[command]\nkind = "sine"\namplitude = 1.0\nfrequency_hz = 0.3\n[sensor.white]\nstd = [0.004, 0.004]\n')
+    truth = parse_model(doc + "[actuator.ar1]\nstd = [0.3, 0.05]\ntau_s = 0.2\n", "truth")
+    nominal = parse_model(doc, "nominal")
+    rec = truth.simulate(30_000, seed=1)
+    rep = diagnose(nominal, rec.t, rec.y, rec.u)
+    assert [(m["effect"], m["mode"]) for m in rep["missing"]] == [("actuator.ar1", "add")]
+    m = rep["missing"][0]
+    lo, hi = m["interval"]["std"]                          # the largest input's
+    assert lo <= 0.3 <= hi and lo <= m["params"]["std"][0] <= hi
+    assert m["params"]["std"][1] == pytest.approx(0.05, rel=0.3)
+    assert m["interval"]["tau_s"][0] <= 0.2 <= m["interval"]["tau_s"][1]
+    assert rep["error_after"] <= 1.5 < rep["error_before"]
 
 
 def test_a_candidate_ties_with_itself_at_any_score():

@@ -951,7 +951,8 @@ class Fit:
     inner: object = None
     v: np.ndarray = None
     scale_ids: list = field(default_factory=list)   # the effect of each of ``v``'s variances
-    scale_ch: list = field(default_factory=list)    # ... and its output (None: all its channels)
+    scale_ch: list = field(default_factory=list)    # ... and its channel (None: all its channels)
+    chparts: dict = field(default_factory=dict)     # (effect id, input): that input's part (PER_INPUT)
 
     def scaled_parts(self) -> dict:
         """{effect id: its part of the expected periodogram at the fitted values}: ``parts`` are at
@@ -960,7 +961,7 @@ class Fit:
         out = {k: E for k, E in self.parts.items() if k not in self.scale_ids}
         for e, j, vi in zip(self.scale_ids, self.scale_ch or [None] * len(self.scale_ids), np.atleast_1d(self.v)):
             if e in self.parts:
-                out[e] = out.get(e, 0.0) + _channel(self.parts[e], j) * vi
+                out[e] = out.get(e, 0.0) + _channel(self.parts[e], j, self.chparts, e) * vi
         return out
 
 
@@ -1038,16 +1039,17 @@ class Hypotheses:
     def inner_fit(self, model, free: dict) -> Fit:
         d = self.data
         self.ev.evals += 1
-        # (effect id, parameter, power of the variance, output or None): a sensor noise of several
-        # outputs has one variance per output (:data:`PER_OUTPUT`), the others one over their channels
+        # (effect id, parameter, power of the variance, channel or None): a sensor noise of several
+        # outputs has one variance per output, an actuator or process noise of several inputs one per
+        # input (:func:`n_channels`), the others one over their channels
         scales = []
         for e, names in free.items():
             if CATALOGUE[e].fit.kind in ("noise", "modulated") and e in model.effects:
                 sname, power = _scale_name(model.effects[e])
                 if sname in names:
-                    # "hold:j" among the names: output j's variance held at the model's value (a profile)
-                    chans = [j for j in range(d.p) if f"hold:{j}" not in names] \
-                        if d.p > 1 and e in PER_OUTPUT else (None,)
+                    # "hold:j" among the names: channel j's variance held at the model's value (a profile)
+                    nc = n_channels(model, e)
+                    chans = [j for j in range(nc) if f"hold:{j}" not in names] if nc > 1 else (None,)
                     scales += [(e, sname, power, j) for j in chans]
         scale_ids = [e for e, *_ in scales]
         scale_ch = [j for *_, j in scales]
@@ -1056,7 +1058,7 @@ class Hypotheses:
         cur, refs = [], []
         for e, sname, power, j in scales:
             vals = np.atleast_1d(np.asarray(model.effects[e].params[sname], float))
-            val = float(np.max(vals) if j is None else np.broadcast_to(vals, (d.p,))[j])
+            val = float(np.max(vals) if j is None else np.broadcast_to(vals, (n_channels(model, e),))[j])
             unit = _unit_scale(CATALOGUE[e].fit, d.Ts) if sname != "psd" else 1.0
             ref = val if (nonlin and val > 0) else unit
             cur.append(val)
@@ -1080,6 +1082,15 @@ class Hypotheses:
             parts["sensor.jitter"] = W.expected_parts(
                 jm, d.M, d.k0, d.at_rest, ydot_sq=ydot_sq, skip=tuple(e for e in jm.effects if e != "sensor.jitter"),
                 groups=d.groups, cross=d.p > 1)["sensor.jitter"]
+        # an input's part reaches every output (not a diagonal element): each input's computed apart,
+        # the effect's scale at its value in ``canon`` on that input alone (parts are linear in it)
+        chparts = {}
+        for e, sname in dict.fromkeys((e, sname) for e, sname, _, j in scales if j is not None and e in PER_INPUT):
+            vec = np.broadcast_to(np.asarray(canon.effects[e].params[sname], float), (n_channels(model, e),))
+            for j in range(vec.size):
+                one = np.where(np.arange(vec.size) == j, vec, 0.0)
+                chparts[(e, j)] = self.ev.parts(_set(canon, e, {sname: [float(x) for x in one]}), ydot_sq)[e] \
+                    if vec[j] > 0 else np.zeros_like(parts[e])
         mod = None
         mod_index = None
         if "sensor.jitter" in model.effects or "sensor.jitter" in scale_ids:
@@ -1099,14 +1110,15 @@ class Hypotheses:
         def assemble(parts, m):
             """E0 and U, the noise parts times the quantizer's Stein factors (:func:`_stein`)."""
             mo = self.ev.quant_moments(m)[0] if qid in m.effects and d.p > 1 else None
-            ps = _stein(parts, mo, m.predictor().tone_ids() if mo is not None else ())
-            # the fixed parts: every effect without a free variance, and the outputs held of one with
-            # a variance per output (at the model's value in ``canon``)
+            tones = m.predictor().tone_ids() if mo is not None else ()
+            ps, cps = _stein(parts, mo, tones), _stein(chparts, mo, tones)
+            # the fixed parts: every effect without a free variance, and the channels held of one with
+            # a variance per channel (at the model's value in ``canon``)
             pairs = set(zip(scale_ids, scale_ch))
-            held = [_channel(ps[e], j) for e in {e for e, j in pairs if j is not None} if e in ps
-                    for j in range(d.p) if (e, j) not in pairs]
+            held = [_channel(ps[e], j, cps, e) for e in {e for e, j in pairs if j is not None} if e in ps
+                    for j in range(n_channels(m, e)) if (e, j) not in pairs]
             return (sum((v for k, v in ps.items() if k not in scale_ids), np.zeros_like(Ig)) + sum(held, np.zeros_like(Ig)),
-                    [_channel(ps.get(e, np.zeros_like(Ig)), j) for e, j in zip(scale_ids, scale_ch)])
+                    [_channel(ps.get(e, np.zeros_like(Ig)), j, cps, e) for e, j in zip(scale_ids, scale_ch)])
         E0, U = assemble(parts, model)
         inner = Inner(Ig, d.weights / W.taper(d.M)[2], E0, U, mod, mod_index)
         res_model = model                              # the model the residual (Ig) is of
@@ -1150,7 +1162,7 @@ class Hypotheses:
             l += self.grid_loglik(model)
         l += self.ev.ramp_term(res_model, "sensor.tone" in free)
         fitted = _set_scales(model, scales, values(v), model)
-        return Fit(fitted, free, l, parts, inner, v, scale_ids, scale_ch)
+        return Fit(fitted, free, l, parts, inner, v, scale_ids, scale_ch, chparts)
 
     def grid_loglik(self, model) -> float:
         """l_grid: values on the model's quantization grid (ln(1 / 2e-6) each) when the data are."""
@@ -1362,14 +1374,28 @@ def _set(model, eid: str, values: dict):
 
 
 PER_OUTPUT = ("sensor.white", "sensor.bias_walk", "sensor.bias_markov")   # one variance per output
+PER_INPUT = ("actuator.white", "actuator.ar1", "process.white")            # ... per (noise) input
 
 
-def _channel(E: np.ndarray, j):
-    """A sensor noise's part at output ``j`` alone (None: all of it). Its outputs' noises are
-    independent, so its cross-spectral matrices are diagonal; one output's part is its diagonal
-    element."""
+def n_channels(model, eid: str) -> int:
+    """How many variances effect ``eid``'s scale has in a fit: one per output for a sensor noise
+    (:data:`PER_OUTPUT`), one per input for an actuator noise and per noise input (a column of L)
+    for a process noise (:data:`PER_INPUT`), where there are several; else 1 (one factor)."""
+    if eid in PER_OUTPUT:
+        return model.p
+    if eid == "process.white":
+        return model.plant.nw
+    return model.m if eid in PER_INPUT else 1
+
+
+def _channel(E: np.ndarray, j, chparts: dict | None = None, eid: str | None = None):
+    """An effect's part at channel ``j`` alone (None: all of it). A sensor noise's outputs are
+    independent, so its cross-spectral matrices are diagonal: one output's part is its diagonal
+    element. An input's part reaches every output: computed apart, in ``chparts`` under (eid, j)."""
     if j is None:
         return E
+    if chparts and (eid, j) in chparts:
+        return chparts[(eid, j)]
     out = np.zeros_like(E)
     if E.ndim == 3:
         out[:, j, j] = E[:, j, j]
@@ -1767,7 +1793,7 @@ class Search:
         m = _set(model, eid, init) if init else model
         free = dict(cur.free)
         free[eid] = names
-        k = len(names) + (d.p - 1 if d.p > 1 and eid in PER_OUTPUT and spec.kind == "noise" else 0)
+        k = len(names) + (n_channels(model, eid) - 1 if spec.kind == "noise" else 0)
         return [Start(eid, mode, m, free, k)]
 
     def _grid(self, cur: Fit, mode: str) -> list[Start]:
@@ -1864,11 +1890,11 @@ def interval_tasks(H: Hypotheses, fit: Fit, eid: str) -> list:
                 out.append(((name, side), lambda side=side: _profile_scale_shaped(H, fit, eid, name, val, 2 * side - 1)))
         else:
             def scale_iv():
-                # the largest channel's (per output: the variance of the output whose value is largest)
+                # the largest channel's (per channel: the variance of the one whose value is largest)
                 a = fit.scale_ids.index(eid)
                 if fit.scale_ch and fit.scale_ch[a] is not None:
                     vals = np.atleast_1d(np.asarray(eff.params[name], float))
-                    j = int(np.argmax(np.broadcast_to(vals, (H.data.p,))))
+                    j = int(np.argmax(np.broadcast_to(vals, (n_channels(fit.model, eid),))))
                     a = next(i for i, (e, c) in enumerate(zip(fit.scale_ids, fit.scale_ch)) if e == eid and c == j)
                 # a modulated variance (jitter): the likelihood overstates its evidence, so the
                 # profile's threshold is scaled by the sandwich factor (never below the plain one)
@@ -1913,19 +1939,20 @@ def _tone_intervals(H: Hypotheses, fit: Fit) -> dict:
 
 def _profile_scale_shaped(H: Hypotheses, fit: Fit, eid: str, name: str, val: float, direction: int) -> float:
     """The lower (``direction`` -1) or upper (+1) end of the profile interval of an effect's scale,
-    its searched parameters refitted at every value. A scale per output (:data:`PER_OUTPUT`): the
-    largest output's alone, the other outputs' variances re-optimized with the searched parameters
+    its searched parameters refitted at every value. A scale per channel (:func:`n_channels`): the
+    largest channel's alone, the other channels' variances re-optimized with the searched parameters
     (scaled along with it, their data counted as evidence on it)."""
     free = dict(fit.free)
     target = fit.loglik - CHI2_95 / 2
-    vec = np.atleast_1d(np.asarray(fit.model.effects[eid].params[name], float)).copy()
-    per_output = H.data.p > 1 and eid in PER_OUTPUT and vec.size == H.data.p
+    nc = n_channels(fit.model, eid)
+    vec = np.broadcast_to(np.asarray(fit.model.effects[eid].params[name], float), (nc,)).copy()
+    per_channel = nc > 1
     j = int(np.argmax(vec))
-    # the others' variances stay free (re-optimized at every value), output j's is held
-    free[eid] = list(fit.free[eid]) + [f"hold:{j}"] if per_output else [n for n in fit.free[eid] if n != name]
+    # the others' variances stay free (re-optimized at every value), channel j's is held
+    free[eid] = list(fit.free[eid]) + [f"hold:{j}"] if per_channel else [n for n in fit.free[eid] if n != name]
 
     def at(v):
-        if not per_output:
+        if not per_channel:
             return _set_scale(fit.model, eid, name, v, fit.model)
         w = vec.copy()
         w[j] = v

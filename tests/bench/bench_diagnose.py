@@ -33,6 +33,10 @@ Run on demand, not by pytest (``pyproject.toml`` ignores ``tests/bench``)::
 8. Plants that integrate (``--integrator``): the same seeds' effects on plants with a pole at 0
    (``hidden_set.make_case(seed, plants="integrator")``: DC motors' angles, with the speed as a
    second output in a third of them, and general A, B, C plants with an eigenvalue 0).
+9. Plants with two inputs (``--inputs``): the same seeds' effects on general A, B, C plants whose
+   two inputs each have their own column of B (``hidden_set.make_case(seed, plants="inputs")``),
+   an actuator noise planted with its own std per input, the process noise through its own L or
+   through both inputs (L = B).
 """
 
 from __future__ import annotations
@@ -157,7 +161,7 @@ def _coverage(rows) -> str:
 
 
 def render(meta, bigr, rows, nrows, scan=(), planted=None, n_scan=0, steps=(), n_step=0, wrong=(), n_wrong=0,
-           coarse=(), n_coarse=0, other=(), pairs=(), integ=()) -> str:
+           coarse=(), n_coarse=0, other=(), pairs=(), integ=(), inputs=()) -> str:
     L = [BEGIN, "", f"Run: {meta['date']} (local time), wall {meta['wall']:.0f} s. Machine: nproc {os.cpu_count()}, "
          f"{platform.platform()}; Python {platform.python_version()}, numpy {np.__version__}. Load average at "
          f"start {meta['load0']}, at end {meta['load1']}.", ""]
@@ -229,6 +233,14 @@ def render(meta, bigr, rows, nrows, scan=(), planted=None, n_scan=0, steps=(), n
               f"{_criteria([r for r in integ if not r['null']])}; null cases clean "
               f"{sum(r['ok'] for r in integ if r['null'])}/{sum(r['null'] for r in integ)}.", ""]
         L += _details(integ)
+    if inputs:
+        L += [f"Plants with two inputs (`hidden_set.make_case(seed, plants=\"inputs\")`, seeds 0..{len(inputs) - 1}: "
+              "general A, B, C plants of order 1 to 4 from 1 or 2 modes, turned by a random similarity transform, each "
+              "input through its own column of B, one or two outputs, the process noise through its own L or through "
+              "both inputs (L = B); the same effects hidden as in the generator's case of that seed, an actuator noise "
+              f"with its own std per input): {_criteria([r for r in inputs if not r['null']])}; null cases clean "
+              f"{sum(r['ok'] for r in inputs if r['null'])}/{sum(r['null'] for r in inputs)}.", ""]
+        L += _details(inputs)
     if pairs:
         L += [f"A bias random walk and a Gauss-Markov bias hidden together (`hidden_set.with_bias_pair`, the nominals "
               f"of seeds 0..{len(pairs) - 1}; the generator never pairs them): {_criteria(pairs)}.", ""]
@@ -273,6 +285,8 @@ def main(argv=None):
                     help="also run seeds 0..PAIRS-1 with a bias walk and a Gauss-Markov bias hidden together")
     ap.add_argument("--integrator", type=int, default=40,
                     help="also run seeds 0..INTEGRATOR-1 on plants that integrate (hidden_set._plant_integrator)")
+    ap.add_argument("--inputs", type=int, default=24,
+                    help="also run seeds 0..INPUTS-1 on plants with two inputs (hidden_set._plant_inputs)")
     ap.add_argument("--no-big", action="store_true")
     ap.add_argument("--write", action="store_true")
     ap.add_argument("--json")
@@ -306,15 +320,16 @@ def main(argv=None):
     other = cases(range(a.other), log, plants="other") if a.other else []
     pairs = cases(range(a.pairs), log, variant=with_bias_pair) if a.pairs else []
     integ = cases(range(a.integrator), log, plants="integrator") if a.integrator else []
+    inputs = cases(range(a.inputs), log, plants="inputs") if a.inputs else []
     nrows = nulls(a.nulls, log) if a.nulls else []
     meta["wall"] = time.perf_counter() - t0
     meta["load1"] = " ".join(f"{x:.2f}" for x in os.getloadavg())
     block = render(meta, bigr, rows, nrows, scan, a.planted, a.scan, steps, a.step, wrong, a.wrong, coarse, a.coarse,
-                   other, pairs, integ)
+                   other, pairs, integ, inputs)
     print(block)
     if a.json:
         Path(a.json).write_text(json.dumps({"big": bigr, "cases": rows, "nulls": nrows, "scan": scan, "steps": steps, "wrong": wrong,
-                                            "coarse": coarse, "other": other, "pairs": pairs, "integrator": integ}, default=str,
+                                            "coarse": coarse, "other": other, "pairs": pairs, "integrator": integ, "inputs": inputs}, default=str,
                                            indent=1))
     if a.write:
         write_results(block)

@@ -164,6 +164,32 @@ def _plant_integrator(rng, Ts, T):
     return plant, float(np.min(freqs)), 1
 
 
+def _plant_inputs(rng, Ts, T):
+    """Plants with two inputs (``make_case(..., plants="inputs")``), which the generators above never
+    draw: a general A, B, C plant of order 2 to 4 from 1 or 2 modes, turned by a random similarity
+    transform, each input reaching the states through its own random column of B, one or two
+    outputs; the process noise enters through its own input L in half of them and through both
+    command inputs (L = B, the default) in the other half. The command drives both inputs alike.
+    Modes sit between 10 / T and 1/12 of the sample rate."""
+    fmax = min(3.0, 0.08 / Ts)
+    fmin = min(max(0.1, 10.0 / T), fmax / 2)
+    blocks, freqs = [], []
+    for _ in range(int(rng.integers(1, 3))):
+        f = float(np.exp(rng.uniform(np.log(fmin), np.log(fmax))))
+        freqs.append(f)
+        blocks.append(_mode(rng, 2 * np.pi * f, 0.7, 0.05))
+    A, B1, Lp, Tm, Ti = _turned(rng, blocks, freqs)
+    n = A.shape[0]
+    w0 = 2 * np.pi * float(np.median(freqs))
+    B2 = Tm @ (w0 * rng.uniform(0.5, 2.0, (n, 1)) * rng.choice([-1, 1], (n, 1)))
+    p = 2 if rng.random() < 0.4 else 1
+    C = rng.uniform(-1, 1, (p, n)) @ Ti
+    plant = {"A": _sig(A), "B": _sig(np.hstack([B1, B2])), "C": _sig(C)}
+    if rng.random() < 0.5:
+        plant["L"] = _sig(Lp)
+    return plant, float(np.min(freqs)), p
+
+
 def _sig(X) -> list:
     """A matrix as nested lists of floats to 5 significant digits (what a model file holds)."""
     return [[float(f"{v:.5g}") for v in row] for row in np.atleast_2d(X)]
@@ -222,8 +248,10 @@ def make_case(seed: int, n_hidden: int | None = None, null: bool | None = None, 
         plant, fn, p = _plant_other(np.random.default_rng([seed, 17]), Ts, T)
     elif plants == "integrator":
         plant, fn, p = _plant_integrator(np.random.default_rng([seed, 19]), Ts, T)
+    elif plants == "inputs":
+        plant, fn, p = _plant_inputs(np.random.default_rng([seed, 23]), Ts, T)
     elif plants != "generator":
-        raise ValueError(f"plants: expected 'generator', 'other' or 'integrator', got {plants!r}")
+        raise ValueError(f"plants: expected 'generator', 'other', 'integrator' or 'inputs', got {plants!r}")
     null = bool(rng.random() < 0.2) if null is None else null
     n_hidden = (1 if rng.random() < 0.6 else 2) if n_hidden is None else n_hidden
     with_command = bool(rng.random() < 0.85)
@@ -305,8 +333,12 @@ def _hidden_params(rng, eid, Ts, T, plant, command, nominal, var0, sd0, fn):
         if eid == "actuator.ar1":
             tau = float(np.exp(rng.uniform(np.log(5 * Ts), np.log(max(6 * Ts, 0.5 / fn)))))
         params = {"std": 1.0} if tau is None else {"std": 1.0, "tau_s": float(f"{tau:.4g}")}
+        m = len(plant["B"][0]) if "B" in plant else 1
+        if m > 1:
+            # several inputs: each its own std, the smaller 0.1 to 1 times the larger
+            params["std"] = [float(x) for x in rng.permutation([1.0] + list(rng.uniform(0.1, 1.0, m - 1)))]
         c = _contribution(_doc("c", Ts, plant, command, {eid: params}), eid)
-        params["std"] = float(f"{math.sqrt(f * var0 / c):.4g}")
+        params["std"] = _map_sig(lambda s: s * math.sqrt(f * var0 / c), params["std"])
         return params
     if eid == "sensor.bias_walk":
         return {"std": float(f"{math.sqrt(f * var0 / T) * 2:.4g}")}
@@ -344,6 +376,11 @@ def _hidden_params(rng, eid, Ts, T, plant, command, nominal, var0, sd0, fn):
     return None
 
 
+def _map_sig(fn, v):
+    """fn applied to a value or to each of a list's, to 4 significant digits."""
+    return [float(f"{fn(x):.4g}") for x in v] if isinstance(v, list) else float(f"{fn(v):.4g}")
+
+
 def within_30_chance(iv) -> float:
     """P(0.7 <= estimate / truth <= 1.3) for an unbiased estimator, normal in log, whose 95 %
     interval is ``iv`` (its log-width / (2 x 1.96) the standard deviation): what the data allow."""
@@ -370,14 +407,20 @@ def score_case(case: Case, rep: dict) -> dict:
         if m["effect"] not in planted:
             continue
         for k, v in case.hidden[m["effect"]].items():
-            if k == "mode" or not isinstance(v, (int, float)):
+            if k == "mode" or not isinstance(v, (int, float, list)):
                 continue
             got = m["params"].get(k)
             if got is None:
                 within.append(False)
                 continue
-            got = float(np.max(got)) if isinstance(got, list) else float(got)
-            within.append(abs(got / v - 1) <= 0.3)
+            if isinstance(v, list):
+                # one value per channel: each within 30 %; the interval is the largest channel's
+                g = np.broadcast_to(np.asarray(got, float), (len(v),))
+                within.append(all(abs(gi / vi - 1) <= 0.3 for gi, vi in zip(g, v) if vi > 0))
+                v = float(np.max(v))
+            else:
+                got = float(np.max(got)) if isinstance(got, list) else float(got)
+                within.append(abs(got / v - 1) <= 0.3)
             iv = m.get("interval", {}).get(k)
             if iv is not None and v > 0 and iv[0] > 0:
                 covered.append(bool(iv[0] <= v <= iv[1]))
