@@ -1047,9 +1047,11 @@ class Hypotheses:
             if CATALOGUE[e].fit.kind in ("noise", "modulated") and e in model.effects:
                 sname, power = _scale_name(model.effects[e])
                 if sname in names:
-                    # "hold:j" among the names: channel j's variance held at the model's value (a profile)
+                    # "hold:j" among the names: channel j's variance held at the model's value (a
+                    # profile); COMMON: one factor over the channels
                     nc = n_channels(model, e)
-                    chans = [j for j in range(nc) if f"hold:{j}" not in names] if nc > 1 else (None,)
+                    chans = [j for j in range(nc) if f"hold:{j}" not in names] if nc > 1 and COMMON not in names \
+                        else (None,)
                     scales += [(e, sname, power, j) for j in chans]
         scale_ids = [e for e, *_ in scales]
         scale_ch = [j for *_, j in scales]
@@ -1375,6 +1377,7 @@ def _set(model, eid: str, values: dict):
 
 PER_OUTPUT = ("sensor.white", "sensor.bias_walk", "sensor.bias_markov")   # one variance per output
 PER_INPUT = ("actuator.white", "actuator.ar1", "process.white")            # ... per (noise) input
+COMMON = "common"     # among an effect's free names: one factor over its channels (the file's proportions)
 
 
 def n_channels(model, eid: str) -> int:
@@ -1652,6 +1655,11 @@ class Search:
             c.start = st
             out.append(c)
         out.sort(key=lambda c: -c.score)
+        # the two forms of a noise of several inputs (per input or one factor): the better by Delta BIC
+        best: dict = {}
+        for c in out:
+            best.setdefault((c.effect, c.mode), c)
+        out = [c for c in out if c.effect not in PER_INPUT or best[(c.effect, c.mode)] is c]
         leaders = [c for c in out[:self.n_full] if c.score >= bar - 30]
 
         def full_fit(c):
@@ -1793,8 +1801,15 @@ class Search:
         m = _set(model, eid, init) if init else model
         free = dict(cur.free)
         free[eid] = names
-        k = len(names) + (n_channels(model, eid) - 1 if spec.kind == "noise" else 0)
-        return [Start(eid, mode, m, free, k)]
+        nc = n_channels(model, eid) if spec.kind == "noise" else 1
+        out = [Start(eid, mode, m, free, len(names) + nc - 1)]
+        if nc > 1 and eid in PER_INPUT:
+            # a noise of several inputs: also one factor over them (the file's proportions, equal for
+            # a new effect); :meth:`candidates` keeps the better supported of the two. Where inputs
+            # reach the outputs alike their variances are not told apart, and a per-input fit put
+            # all of an equal noise on one of them
+            out.append(Start(eid, mode, m, dict(free, **{eid: names + [COMMON]}), len(names)))
+        return out
 
     def _grid(self, cur: Fit, mode: str) -> list[Start]:
         d = self.data
@@ -1946,7 +1961,7 @@ def _profile_scale_shaped(H: Hypotheses, fit: Fit, eid: str, name: str, val: flo
     target = fit.loglik - CHI2_95 / 2
     nc = n_channels(fit.model, eid)
     vec = np.broadcast_to(np.asarray(fit.model.effects[eid].params[name], float), (nc,)).copy()
-    per_channel = nc > 1
+    per_channel = nc > 1 and COMMON not in fit.free[eid]
     j = int(np.argmax(vec))
     # the others' variances stay free (re-optimized at every value), channel j's is held
     free[eid] = list(fit.free[eid]) + [f"hold:{j}"] if per_channel else [n for n in fit.free[eid] if n != name]
@@ -1971,6 +1986,10 @@ def _profile_scale_shaped(H: Hypotheses, fit: Fit, eid: str, name: str, val: flo
             l_out = l_at(outside)
             if l_out < target:
                 break
+            if not UNBOUNDED < outside / val < 1.0 / UNBOUNDED:
+                # the data do not bound it on this side (a channel they hardly see): 0, or the
+                # largest value tried (the factor squared at every step overflowed a float)
+                return 0.0 if direction < 0 else outside
             inside, l_in, factor = outside, l_out, factor ** 2
             outside = inside * factor ** direction
         else:
@@ -1978,6 +1997,9 @@ def _profile_scale_shaped(H: Hypotheses, fit: Fit, eid: str, name: str, val: flo
         return _crossing(l_at, inside, l_in, outside, l_out, target)
 
     return edge(direction)
+
+
+UNBOUNDED = 1e-4          # a profile's end this far from the estimate (ratio): the data do not bound it
 
 
 def _crossing(l_at, x_in, l_in, x_out, l_out, target, tol=0.02, max_iter=10):
