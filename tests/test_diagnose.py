@@ -1026,6 +1026,17 @@ def test_a_profile_the_data_do_not_bound_ends_at_zero_or_the_largest_value_tried
     assert S._profile_scale_shaped(bowl, fit, "actuator.ar1", "std", 0.3, -1) == pytest.approx(0.3 - 0.0196, abs=5e-4)
     assert S._profile_scale_shaped(bowl, fit, "actuator.ar1", "std", 0.3, +1) == pytest.approx(0.3 + 0.0196, abs=5e-4)
 
+    # a std fitted at 0 (the model's effect absent from the data): divided by it before (the bound's
+    # ratio raised ZeroDivisionError); now [0, the upper end], found from below and from above
+    none = SimpleNamespace(free=fit.free, loglik=0.0, model=parse_model(doc.replace("[0.3, 0.05]", "[0.0, 0.0]"), "none"))
+    for width in (0.02, 1e-5):                   # ends above and below a new effect's start (1e-3)
+        def at_zero(model, free, rounds=1, width=width):
+            s = model.effects["actuator.ar1"].params["std"][0]
+            return SimpleNamespace(loglik=-0.5 * (s / width) ** 2)
+        H0 = SimpleNamespace(fit=at_zero, data=SimpleNamespace(Ts=0.01))
+        assert S._profile_scale_shaped(H0, none, "actuator.ar1", "std", 0.0, -1) == 0.0
+        assert S._profile_scale_shaped(H0, none, "actuator.ar1", "std", 0.0, +1) == pytest.approx(1.96 * width, rel=0.02)
+
 
 def test_a_candidate_ties_with_itself_at_any_score():
     """A model without sensor noise scores adding it at Delta BIC ~7e15, where floats are spaced by

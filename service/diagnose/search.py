@@ -1980,13 +1980,26 @@ def _profile_scale_shaped(H: Hypotheses, fit: Fit, eid: str, name: str, val: flo
             return -1e300
 
     def edge(direction):
-        inside, l_in, factor = val, fit.loglik, 1.05
-        outside = val * factor ** direction
+        inside, l_in, factor, ref = val, fit.loglik, 1.05, val
+        if not val > 0:
+            # fitted at 0 (the data have none of it): the lower end is 0; the upper is searched from
+            # the value a new effect starts at, first down by decades to a value inside the interval
+            if direction < 0:
+                return 0.0
+            ref = inside = _unit_scale(CATALOGUE[eid].fit, H.data.Ts) * 1e-3
+            for _ in range(8):
+                l_in = l_at(inside)
+                if l_in >= target:
+                    break
+                inside /= 10.0
+            else:
+                return inside            # below 1e-8 of that: 0 for any purpose
+        outside = inside * factor ** direction
         for _ in range(30):
             l_out = l_at(outside)
             if l_out < target:
                 break
-            if not UNBOUNDED < outside / val < 1.0 / UNBOUNDED:
+            if not UNBOUNDED < outside / ref < 1.0 / UNBOUNDED:
                 # the data do not bound it on this side (a channel they hardly see): 0, or the
                 # largest value tried (the factor squared at every step overflowed a float)
                 return 0.0 if direction < 0 else outside
