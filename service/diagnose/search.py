@@ -1391,13 +1391,13 @@ def n_channels(model, eid: str) -> int:
     return model.m if eid in PER_INPUT else 1
 
 
-def _channel(E: np.ndarray, j, chparts: dict | None = None, eid: str | None = None):
-    """An effect's part at channel ``j`` alone (None: all of it). A sensor noise's outputs are
-    independent, so its cross-spectral matrices are diagonal: one output's part is its diagonal
+def _channel(E: np.ndarray, j, chparts: dict, eid: str):
+    """Effect ``eid``'s part at channel ``j`` alone (None: all of it, ``E``). A sensor noise's outputs
+    are independent, so its cross-spectral matrices are diagonal: one output's part is its diagonal
     element. An input's part reaches every output: computed apart, in ``chparts`` under (eid, j)."""
     if j is None:
         return E
-    if chparts and (eid, j) in chparts:
+    if eid in PER_INPUT:
         return chparts[(eid, j)]
     out = np.zeros_like(E)
     if E.ndim == 3:

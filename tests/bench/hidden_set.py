@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from service.model import parse_model
+from service.model.effects.base import _map
 from service.model.model import dumps_toml
 
 PERIODS = (0.002, 0.005, 0.01, 0.02)
@@ -166,7 +167,7 @@ def _plant_integrator(rng, Ts, T):
 
 def _plant_inputs(rng, Ts, T):
     """Plants with two inputs (``make_case(..., plants="inputs")``), which the generators above never
-    draw: a general A, B, C plant of order 2 to 4 from 1 or 2 modes, turned by a random similarity
+    draw: a general A, B, C plant of order 1 to 4 from 1 or 2 modes (a real pole or a pair each), turned by a random similarity
     transform, each input reaching the states through its own random column of B, one or two
     outputs; the process noise enters through its own input L in half of them and through both
     command inputs (L = B, the default) in the other half. The command drives both inputs alike.
@@ -338,7 +339,7 @@ def _hidden_params(rng, eid, Ts, T, plant, command, nominal, var0, sd0, fn):
             # several inputs: each its own std, the smaller 0.1 to 1 times the larger
             params["std"] = [float(x) for x in rng.permutation([1.0] + list(rng.uniform(0.1, 1.0, m - 1)))]
         c = _contribution(_doc("c", Ts, plant, command, {eid: params}), eid)
-        params["std"] = _map_sig(lambda s: s * math.sqrt(f * var0 / c), params["std"])
+        params["std"] = _map(lambda s: float(f"{s * math.sqrt(f * var0 / c):.4g}"), params["std"])
         return params
     if eid == "sensor.bias_walk":
         return {"std": float(f"{math.sqrt(f * var0 / T) * 2:.4g}")}
@@ -374,11 +375,6 @@ def _hidden_params(rng, eid, Ts, T, plant, command, nominal, var0, sd0, fn):
             return None
         return {"std_s": float(f"{std_s:.4g}")}
     return None
-
-
-def _map_sig(fn, v):
-    """fn applied to a value or to each of a list's, to 4 significant digits."""
-    return [float(f"{fn(x):.4g}") for x in v] if isinstance(v, list) else float(f"{fn(v):.4g}")
 
 
 def within_30_chance(iv) -> float:
