@@ -376,7 +376,12 @@ class Predictor:
             return self._steady_cache
         mdl = self.model
         notes = []
-        mean = self.mean_response()
+        # the mean response over the horizon only where a term depends on the signal (the
+        # nonlinearities' gains, the jitter's slope, the quantizer's spread): at Ts = 1 us the
+        # horizon is 6e7 samples, a minute and gigabytes for a model that needs none of it
+        needs_mean = bool(self._nonlin) or any(kind == "jitter" for _, kind, *_ in self._primitives()) \
+            or "sensor.quantization" in mdl.effects
+        mean = self.mean_response() if needs_mean else None
         g = np.sqrt(np.mean(mean.gain**2, axis=0)) if self._nonlin else None
         dstd = np.sqrt(np.mean(mean.distortion_var, axis=0)) if self._nonlin else None
         if self._nonlin:
@@ -444,8 +449,8 @@ class Predictor:
                             np.zeros(mdl.p)) / mdl.Ts
         slope_ok = stable or (marginal and not walk_ydot.any())
         rate = np.zeros(mdl.p)
-        burn = min(mean.t.size // 2, _settle_samples(mdl))
-        ydot2 = np.mean(mean.ydot[burn:] ** 2, axis=0)
+        burn = min(mean.t.size // 2, _settle_samples(mdl)) if needs_mean else 0
+        ydot2 = np.mean(mean.ydot[burn:] ** 2, axis=0) if needs_mean else np.zeros(mdl.p)
         for eid, kind, *prm in self._primitives():
             if kind == "white":
                 contributions[eid] = np.broadcast_to(prm[0], (mdl.p,)).copy()
