@@ -304,16 +304,18 @@ def test_shared_noise_is_not_counted_twice():
     assert 0.55 < np.mean(stats) < 1.45, np.mean(stats)
 
 
-def test_two_by_two_inverse_in_closed_form():
-    """The inner problem's closed-form 2 x 2 inverse and ln det against LAPACK, on random Hermitian
-    positive definite matrices spanning 12 decades of scale and near-singular ones (coherence 1 - 1e-6)."""
+@pytest.mark.parametrize("p", [2, 3])
+def test_small_inverses_in_closed_form(p):
+    """The inner problem's closed-form 2 x 2 and 3 x 3 inverses and ln det against LAPACK, on random
+    Hermitian positive definite matrices spanning 12 decades of scale and near-singular ones
+    (one direction 1e-6 of the others' power: coherence 1 - 1e-6)."""
     from service.diagnose.search import _inv_logdet
 
     rng = np.random.default_rng(0)
-    X = rng.standard_normal((500, 2, 3)) + 1j * rng.standard_normal((500, 2, 3))
+    X = rng.standard_normal((500, p, p + 1)) + 1j * rng.standard_normal((500, p, p + 1))
     E = X @ np.conj(X.transpose(0, 2, 1)) * np.exp(rng.uniform(-14, -2, 500))[:, None, None]
     v = X[:50, :, 0]                                           # nearly coherent: v v^H + 1e-6 |v|^2 I
-    E[:50] = v[:, :, None] * np.conj(v[:, None, :]) + 1e-6 * np.sum(np.abs(v) ** 2, axis=1)[:, None, None] * np.eye(2)
+    E[:50] = v[:, :, None] * np.conj(v[:, None, :]) + 1e-6 * np.sum(np.abs(v) ** 2, axis=1)[:, None, None] * np.eye(p)
     Ei, ld = _inv_logdet(E)
     np.testing.assert_allclose(Ei, np.linalg.inv(E), rtol=1e-7)
     np.testing.assert_allclose(ld, np.linalg.slogdet(E)[1], rtol=1e-9, atol=1e-9)

@@ -560,8 +560,8 @@ def _mean_key(model, gain: bool = True) -> str:
 
 # -- the likelihood over the free variances (inner problem) ---------------------------------------------------
 def _inv_logdet(E: np.ndarray):
-    """Inverses and ln det of Hermitian positive definite matrices E (nb, p, p); two outputs in
-    closed form (batched LAPACK calls on 2 x 2 matrices cost ~10x more)."""
+    """Inverses and ln det of Hermitian positive definite matrices E (nb, p, p); two and three
+    outputs in closed form (batched LAPACK calls on 2 x 2 matrices cost ~10x more)."""
     if E.shape[1] == 2:
         a, d, b = E[:, 0, 0].real, E[:, 1, 1].real, E[:, 0, 1]
         # a model whose outputs share one noise source and nothing else (two outputs of one plant,
@@ -572,6 +572,26 @@ def _inv_logdet(E: np.ndarray):
         Ei[:, 0, 0], Ei[:, 1, 1] = d / det, a / det
         Ei[:, 0, 1], Ei[:, 1, 0] = -b / det, -np.conj(b) / det
         return Ei, np.log(det)
+    if E.shape[1] == 3:
+        # three outputs by E = L D L^H in closed form (4-9x faster than batched inv + slogdet on
+        # 3 x 3; the adjugate's determinant loses digits as cond^2, this as cond): pivots d1..d3,
+        # each floored like the 2 x 2 determinant; E^-1 = M^H D^-1 M, M = L^-1
+        d1 = np.maximum(E[:, 0, 0].real, 1e-300)
+        l21, l31 = E[:, 1, 0] / d1, E[:, 2, 0] / d1
+        e11, e22 = E[:, 1, 1].real, E[:, 2, 2].real
+        d2 = np.maximum(e11 - (l21.real**2 + l21.imag**2) * d1, 1e-12 * e11)
+        l32 = (E[:, 2, 1] - l31 * np.conj(E[:, 1, 0])) / d2
+        d3 = np.maximum(e22 - (l31.real**2 + l31.imag**2) * d1 - (l32.real**2 + l32.imag**2) * d2, 1e-12 * e22)
+        m31 = l21 * l32 - l31                                      # M = [[1, 0, 0], [-l21, 1, 0], [m31, -l32, 1]]
+        Ei = np.empty_like(E)
+        Ei[:, 2, 2] = 1.0 / d3
+        Ei[:, 1, 1] = 1.0 / d2 + (l32.real**2 + l32.imag**2) / d3
+        Ei[:, 0, 0] = 1.0 / d1 + (l21.real**2 + l21.imag**2) / d2 + (m31.real**2 + m31.imag**2) / d3
+        Ei[:, 0, 1] = -np.conj(l21) / d2 - np.conj(m31) * l32 / d3
+        Ei[:, 0, 2] = np.conj(m31) / d3
+        Ei[:, 1, 2] = -np.conj(l32) / d3
+        Ei[:, 1, 0], Ei[:, 2, 0], Ei[:, 2, 1] = np.conj(Ei[:, 0, 1]), np.conj(Ei[:, 0, 2]), np.conj(Ei[:, 1, 2])
+        return Ei, np.log(d1) + np.log(d2) + np.log(d3)
     return np.linalg.inv(E), np.linalg.slogdet(E)[1]
 
 
