@@ -1038,6 +1038,30 @@ def test_a_profile_the_data_do_not_bound_ends_at_zero_or_the_largest_value_tried
         assert S._profile_scale_shaped(H0, none, "actuator.ar1", "std", 0.0, +1) == pytest.approx(1.96 * width, rel=0.02)
 
 
+def test_an_exact_add_refit_tie_goes_to_the_addition_whichever_candidate_leads():
+    """Actuator white noise hidden on a plant whose process noise enters through the same input (L
+    = B): adding it and refitting the process noise are the same spectra (scores equal to 1e-9).
+    On this record an AR(1) leads both in the choice score, by its second parameter's near-level
+    likelihood ratio; the tie rule (the user's value kept, the effect added) must still apply.
+    Before, the tie was looked for beside the leader only, and the refit was reported."""
+    from service.diagnose.search import EXACT_TIE
+    base = ("name = \"m2\"\n[sampling]\nTs = 0.01\n[plant]\n"
+            "A = [[0, 1, 0, 0], [-6, -0.6, 2, 0.3], [0, 0, 0, 1], [2, 0.3, -2, -0.3]]\n"
+            "B = [[0], [1], [0], [0]]\nC = [[1, 0, 0, 0]]\n"
+            "[command]\nkind = \"sine\"\namplitude = 1.0\nfrequency_hz = 0.3\n"
+            "[process.white]\nstd = 0.5\n[sensor.white]\nstd = 0.003\n")
+    nominal = parse_model(base)
+    rec = parse_model(base + "[actuator.white]\nstd = 0.4\n").simulate(6000, seed=2)
+    S = Search(nominal, Data(rec.y, rec.u, nominal.Ts, True))
+    cands = S.candidates(S.start())
+    by = {(c.effect, c.mode): c for c in cands}
+    add, refit = by[("actuator.white", "add")], by[("process.white", "refit")]
+    assert add.score == pytest.approx(refit.score, rel=1e-9, abs=1e-9) and add.score > THRESHOLD
+    assert max(c.sel for c in cands) > add.sel + EXACT_TIE          # the case: a third candidate leads
+    assert cands[0] is add
+    assert "process.white" in [a.effect for a in add.alternatives]
+
+
 def test_a_candidate_ties_with_itself_at_any_score():
     """A model without sensor noise scores adding it at Delta BIC ~7e15, where floats are spaced by
     1: 'key(c) > key(lead) - 0.5' was False for c = lead, and the ranking's min() over the tied
