@@ -1712,14 +1712,15 @@ class Search:
             first = self._drift_as_bias(first, [c for c in out if (c.score >= bar) == sig
                                                 and MODE_RANK[c.mode.split(":")[0]] == rank], key)
             # an exact tie between a new effect and a changed value (identical spectra): the data do
-            # not contradict the user's value, so it is kept and the effect is added. The tie is the
-            # chosen candidate's, whichever leads: a third candidate (an AR(1) 0.8 ahead in the choice
-            # score, its extra parameter near the test's level) used to hide it, and a refit of
-            # process noise was taken over the added actuator noise it is identical with
-            exact = [c for c in near if abs(key(c) - key(first)) < EXACT_TIE and c.k == first.k]
-            modes = {c.mode.split(":")[0] for c in exact}
-            if {"add", "refit"} <= modes:
-                first = min(exact, key=lambda c: (EXACT_RANK[c.mode.split(":")[0]], CATALOGUE[c.effect].chain_order))
+            # not contradict the user's value, so it is kept and the effect is added. The leader's tie
+            # first, then the chosen candidate's: a third candidate leading (an AR(1) 0.8 ahead in the
+            # choice score, its extra parameter near the test's level) used to hide the latter, and
+            # a refit of process noise was taken over the added actuator noise it is identical with
+            for anchor in (max(near, key=key), first):
+                exact = [c for c in near if abs(key(c) - key(anchor)) < EXACT_TIE and c.k == anchor.k]
+                if {"add", "refit"} <= {c.mode.split(":")[0] for c in exact}:
+                    first = min(exact, key=lambda c: (EXACT_RANK[c.mode.split(":")[0]], CATALOGUE[c.effect].chain_order))
+                    break
             near = [first] + [c for c in near if c is not first]
             first.alternatives = [c for c in near[1:] if c.effect != first.effect]
             out.remove(first)
