@@ -1062,6 +1062,23 @@ def test_an_exact_add_refit_tie_goes_to_the_addition_whichever_candidate_leads()
     assert "process.white" in [a.effect for a in add.alternatives]
 
 
+def test_the_leaders_exact_add_refit_tie_goes_before_the_mode_order():
+    """Generated case 8: process noise hidden (absent from the nominal, which has actuator white
+    noise through the same input). Adding it and refitting the actuator noise tie exactly and lead;
+    a replacement of the actuator noise by a near-white AR(1) sits within the near-tie margin, and
+    the mode order alone would take it. The leader's tie comes first: the process noise is added
+    (the first version of the chosen-candidate rule reported the AR(1))."""
+    from service.diagnose.search import TIE
+    case = make_case(8)
+    truth, nominal = parse_model(case.truth, "truth"), parse_model(case.nominal, "nominal")
+    assert "process.white" not in nominal.effects and "actuator.white" in nominal.effects
+    rec = truth.simulate(int(round(case.duration / truth.Ts)), seed=case.seed)
+    S = Search(nominal, Data(rec.y, rec.u, nominal.Ts, True))
+    cands = S.candidates(S.start())
+    assert (cands[0].effect, cands[0].mode) == ("process.white", "add")
+    assert any(c.mode.startswith("replace") and abs(c.sel - cands[0].sel) < TIE for c in cands[1:])
+
+
 def test_a_candidate_ties_with_itself_at_any_score():
     """A model without sensor noise scores adding it at Delta BIC ~7e15, where floats are spaced by
     1: 'key(c) > key(lead) - 0.5' was False for c = lead, and the ranking's min() over the tied
