@@ -1717,7 +1717,7 @@ class Search:
             # choice score, its extra parameter near the test's level) used to hide the latter, and
             # a refit of process noise was taken over the added actuator noise it is identical with
             for anchor in (max(near, key=key), first):
-                exact = [c for c in near if abs(key(c) - key(anchor)) < EXACT_TIE and c.k == anchor.k]
+                exact = [c for c in near if exact_tie(c, anchor, key) and exact_tie(anchor, c, key)]
                 if {"add", "refit"} <= {c.mode.split(":")[0] for c in exact}:
                     first = min(exact, key=lambda c: (EXACT_RANK[c.mode.split(":")[0]], CATALOGUE[c.effect].chain_order))
                     break

@@ -379,8 +379,7 @@ class Predictor:
         # the mean response over the horizon only where a term depends on the signal (the
         # nonlinearities' gains, the jitter's slope, the quantizer's spread): at Ts = 1 us the
         # horizon is 6e7 samples, a minute and gigabytes for a model that needs none of it
-        needs_mean = bool(self._nonlin) or any(kind == "jitter" for _, kind, *_ in self._primitives()) \
-            or "sensor.quantization" in mdl.effects or "sensor.jitter" in mdl.effects
+        needs_mean = bool(self._nonlin) or "sensor.quantization" in mdl.effects or "sensor.jitter" in mdl.effects
         mean = self.mean_response() if needs_mean else None
         g = np.sqrt(np.mean(mean.gain**2, axis=0)) if self._nonlin else None
         dstd = np.sqrt(np.mean(mean.distortion_var, axis=0)) if self._nonlin else None
