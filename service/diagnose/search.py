@@ -10,7 +10,16 @@ the effect is there but a value is wrong). Every hypothesis is scored by one lik
         + l_ramp   (the first and last tenth of the record, which the periodogram's taper weighs
                     down: the mean response there, by whitened least squares; :class:`.whittle.Ramps`)
 
-and hypotheses are compared by Delta BIC = 2 Delta l - k ln n (k free parameters added, n the
+A record from rest adds l_level (:func:`.whittle.level_loglik`): its residual's mean against the
+spread the hypothesis predicts for it. Differencing removes the record's level, and with it what
+a step command says about a mean effect (a saturation, a dead zone, a scale factor set the level
+the output settles at: there l_level is ~10x more precise than the rest). It enters the search
+over a mean effect's parameter and that parameter's profile interval (``Fit.objective``), not
+the comparison between hypotheses: under slow noise (a walk, a Gauss-Markov bias of long tau)
+the mean is not independent of the differenced record, and in the comparison its marginal
+density took a hidden walk for a Gauss-Markov bias.
+
+Hypotheses are compared by Delta BIC = 2 Delta l - k ln n (k free parameters added, n the
 number of samples times outputs; Schwarz 1978). A candidate is added when its Delta BIC exceeds
 :data:`THRESHOLD` (10: "very strong" evidence, Kass & Raftery 1995), then every parameter freed so
 far is refitted jointly and the search repeats, so a second hidden effect is found with the first
@@ -71,6 +80,7 @@ PARALLEL_MIN = 50_000     # samples x outputs from which they are
 MORE_ROUNDS = 2           # extra rounds a joint search may take while a round still gains > 1 in l
 SCREEN_N = 1 << 18        # records of at least 2 SCREEN_N samples are screened on their first SCREEN_N
 RAMPS = True              # the taper ramps' time-domain term (:class:`.whittle.Ramps`)
+LEVEL = True              # a record from rest: its mean in the mean effects' fit (:func:`.whittle.level_loglik`)
 GRID_TOL = 1e-6           # values within GRID_TOL * step of the grid count as on it
 QUANT_LAGS = 8192         # lags of the quantizer's correlated error kept in the likelihood, unless ...
 QUANT_TAIL = 1e-4         # ... it is still above this (relative) in their last quarter: then every lag
@@ -91,6 +101,7 @@ class Data:
     k0: int = 0
     notes: list = field(default_factory=list)
     ramps: object = None          # the taper ramps' term (:class:`.whittle.Ramps`), set by the first Hypotheses
+    stable: bool = False          # the plant is stable (a stationary level: ``Evaluator.level_term``), set there too
 
     def __post_init__(self):
         self.y = np.asarray(self.y, float).reshape(len(self.y), -1)
@@ -313,6 +324,7 @@ class Evaluator:
         self._pgram: dict = {}
         self._slope: dict = {}
         self._ramp: dict = {}
+        self._level: dict = {}
         self._quant: dict = {}
         self._qmo: dict = {}
         self.evals = 0
@@ -461,6 +473,24 @@ class Evaluator:
             r = self.grouped_periodogram(model, free_tone)[0]
             got = self._ramp[key] = ramps(np.diff(r[self.data.k0:], axis=0))
         return got
+
+    def level_term(self, res_model, free_tone: bool, model) -> float:
+        """l_level (:func:`.whittle.level_loglik`): the mean of ``res_model``'s residual against
+        ``model``'s noise; 0 for a record not from rest (its absolute level is not predicted) or a
+        plant that is not stable (no stationary level: an integrator's walk), the same for every
+        hypothesis of a record (they share the plant)."""
+        d = self.data
+        if not (LEVEL and d.at_rest and d.stable):
+            return 0.0
+        key_r = ("mean",) + self.residual_key(res_model, free_tone)
+        got = self._level.get(key_r)
+        if got is None:
+            if len(self._level) > 64:
+                self._level.clear()
+            r, yd = self.grouped_periodogram(res_model, free_tone)[:2]
+            got = self._level[key_r] = (np.mean(r[d.k0:], axis=0), np.mean(yd[d.k0:] ** 2, axis=0))
+        m, slope_sq = got
+        return W.level_loglik(m, *W.level_density(model, d.N - d.k0, slope_sq), d.N - d.k0)
 
     def residual(self, model, free_tone: bool):
         """r (N, p) with the tones removed, and the tone parameters fitted (amplitude per output).
@@ -958,6 +988,16 @@ def godambe_factor(H: "Hypotheses", fit: "Fit", a: int) -> float:
 
 
 # -- hypotheses ---------------------------------------------------------------------------------------------
+def plant_stable(model) -> bool:
+    """Every eigenvalue of the discrete plant inside the unit circle, an integrator's (within
+    :func:`service.model.predict.unit_tol` of 1) excluded."""
+    from ..model.predict import unit_tol
+    Ad = np.asarray(model.Ad, float)
+    if Ad.size == 0:
+        return True
+    return bool(np.max(np.abs(np.linalg.eigvals(Ad))) < 1.0 - unit_tol(np.asarray(model.Ac, float), model.Ts))
+
+
 def _unit_scale(spec, Ts):
     return Ts / 10 if spec.unit_scale == "Ts/10" else float(spec.unit_scale)
 
@@ -973,6 +1013,12 @@ class Fit:
     scale_ids: list = field(default_factory=list)   # the effect of each of ``v``'s variances
     scale_ch: list = field(default_factory=list)    # ... and its channel (None: all its channels)
     chparts: dict = field(default_factory=dict)     # (effect id, input): that input's part (PER_INPUT)
+    level: float = 0.0              # l_level (:meth:`Evaluator.level_term`), outside ``loglik``
+
+    def objective(self, mean: bool) -> float:
+        """What a search over a parameter maximizes: ``loglik``, plus ``level`` for a mean
+        effect's parameter (:meth:`Hypotheses._search`)."""
+        return self.loglik + self.level if mean else self.loglik
 
     def scaled_parts(self) -> dict:
         """{effect id: its part of the expected periodogram at the fitted values}: ``parts`` are at
@@ -994,6 +1040,7 @@ class Hypotheses:
         if data.ramps is None:
             # the ramps' whitener: from the first model's residual (the nominal), one per record
             data.ramps = False
+            data.stable = plant_stable(base_model)
             if RAMPS and data.M >= W.RAMP_MIN:
                 r = self.ev.residual(base_model, False)[0]
                 data.ramps = W.Ramps(np.diff(r[data.k0:], axis=0), data.at_rest)
@@ -1184,7 +1231,8 @@ class Hypotheses:
             l += self.grid_loglik(model)
         l += self.ev.ramp_term(res_model, "sensor.tone" in free)
         fitted = _set_scales(model, scales, values(v), model)
-        return Fit(fitted, free, l, parts, inner, v, scale_ids, scale_ch, chparts)
+        lv = self.ev.level_term(res_model, "sensor.tone" in free, fitted)
+        return Fit(fitted, free, l, parts, inner, v, scale_ids, scale_ch, chparts, lv)
 
     def grid_loglik(self, model) -> float:
         """l_grid: values on the model's quantization grid (ln(1 / 2e-6) each) when the data are."""
@@ -1218,15 +1266,16 @@ class Hypotheses:
             best = self._fit_tone_frequency(best)
         n_rounds = 1 if screen else rounds
         rnd = 0
+        mean = any(CATALOGUE[e].fit.kind == "mean" for e, _ in outer)
         while rnd < n_rounds:
-            before = best.loglik
+            before = best.objective(mean)
             x0 = self._coords(best, outer)
             for e, spec in outer:
                 best = self._search(best, e, spec, coarse=(rnd == 0 and e in new),
                                     n_grid=7 if screen else 9, n_golden=6 if screen else 10)
             if rnd > 0 or not new:
                 best = self._pattern(best, outer, x0)
-            gain = best.loglik - before
+            gain = best.objective(mean) - before
             if gain < 0.05:
                 break
             rnd += 1
@@ -1254,6 +1303,7 @@ class Hypotheses:
         if not np.all(np.isfinite(dx)) or np.count_nonzero(np.abs(dx) > 1e-12) < 2:
             return fit
         best = fit
+        mean = all(CATALOGUE[e].fit.kind == "mean" for e, _ in outer)
         for lam in (1.0, 2.0, 4.0):
             x = x1 + lam * dx
             m = fit.model
@@ -1269,7 +1319,7 @@ class Hypotheses:
                 f = self.inner_fit(m, fit.free)
             except (ModelError, ValueError, np.linalg.LinAlgError):
                 break
-            if f.loglik <= best.loglik:
+            if f.objective(mean) <= best.objective(mean):
                 break
             best = f
         return best
@@ -1299,11 +1349,13 @@ class Hypotheses:
         tr = (np.log, np.exp) if spacing == "log" else (lambda x: x, lambda x: x)
         a, b = tr[0](lo), tr[0](hi)
         best = fit
+        # a mean effect's parameter sets the level a step settles at: the record's level enters
+        mean = CATALOGUE[e].fit.kind == "mean"
         if coarse or cur is None:
             xs = np.linspace(a, b, n_grid)
             for x in xs:
                 f = self._try(fit, e, name, float(tr[1](x)))
-                if f is not None and f.loglik > best.loglik:
+                if f is not None and f.objective(mean) > best.objective(mean):
                     best = f
             step = (b - a) / (n_grid - 1)
         else:
@@ -1325,7 +1377,7 @@ class Hypotheses:
                 if x not in cache:
                     cache[x] = self._try(best, e, name, float(tr[1](x)))
                 f = cache[x]
-                return -1e300 if f is None else f.loglik
+                return -1e300 if f is None else f.objective(mean)
 
             c1, d1 = b2 - gr * (b2 - a2), a2 + gr * (b2 - a2)
             for _ in range(n_golden):
@@ -1337,7 +1389,7 @@ class Hypotheses:
                     d1 = a2 + gr * (b2 - a2)
             moved = False
             for f in cache.values():
-                if f is not None and f.loglik > best.loglik:
+                if f is not None and f.objective(mean) > best.objective(mean):
                     best, moved = f, True
             if not moved:
                 break
@@ -2077,11 +2129,12 @@ def _profile_outer(H: Hypotheses, fit: Fit, eid: str, spec, direction: int) -> f
     name = spec[0]
     lo_b, hi_b, spacing = H._bounds(spec)
     x = float(np.mean(fit.model.effects[eid].param_dict()[name]))
-    target = fit.loglik - CHI2_95 / 2
+    mean = CATALOGUE[eid].fit.kind == "mean"
+    target = fit.objective(mean) - CHI2_95 / 2
 
     def l_at(v):
         f = H._try(fit, eid, name, v)
-        return -1e300 if f is None else f.loglik
+        return -1e300 if f is None else f.objective(mean)
 
     def edge(direction):
         inside = x
