@@ -1013,7 +1013,15 @@ class Fit:
     scale_ids: list = field(default_factory=list)   # the effect of each of ``v``'s variances
     scale_ch: list = field(default_factory=list)    # ... and its channel (None: all its channels)
     chparts: dict = field(default_factory=dict)     # (effect id, input): that input's part (PER_INPUT)
-    level: float = 0.0              # l_level (:meth:`Evaluator.level_term`), outside ``loglik``
+    level_fn: object = None         # () -> l_level (:meth:`Evaluator.level_term`), outside ``loglik``
+    _level: float | None = None
+
+    @property
+    def level(self) -> float:
+        """l_level, computed when first asked for (only a mean effect's search asks)."""
+        if self._level is None:
+            self._level = float(self.level_fn()) if self.level_fn is not None else 0.0
+        return self._level
 
     def objective(self, mean: bool) -> float:
         """What a search over a parameter maximizes: ``loglik``, plus ``level`` for a mean
@@ -1231,8 +1239,9 @@ class Hypotheses:
             l += self.grid_loglik(model)
         l += self.ev.ramp_term(res_model, "sensor.tone" in free)
         fitted = _set_scales(model, scales, values(v), model)
-        lv = self.ev.level_term(res_model, "sensor.tone" in free, fitted)
-        return Fit(fitted, free, l, parts, inner, v, scale_ids, scale_ch, chparts, lv)
+        ev, tone_free = self.ev, "sensor.tone" in free
+        return Fit(fitted, free, l, parts, inner, v, scale_ids, scale_ch, chparts,
+                   lambda: ev.level_term(res_model, tone_free, fitted))
 
     def grid_loglik(self, model) -> float:
         """l_grid: values on the model's quantization grid (ln(1 / 2e-6) each) when the data are."""
