@@ -13,7 +13,8 @@ the effect is there but a value is wrong). Every hypothesis is scored by one lik
 A record from rest adds l_level (:func:`.whittle.level_loglik`): its residual's mean against the
 spread the hypothesis predicts for it. Differencing removes the record's level, and with it what
 a step command says about a mean effect (a saturation, a dead zone, a scale factor set the level
-the output settles at: there l_level is ~10x more precise than the rest). It enters the search
+the output settles at: under a step the level pins a saturation's limit ~10x more tightly than
+the differenced likelihood does). It enters the search
 over a mean effect's parameter and that parameter's profile interval (``Fit.objective``), not
 the comparison between hypotheses: under slow noise (a walk, a Gauss-Markov bias of long tau)
 the mean is not independent of the differenced record, and in the comparison its marginal

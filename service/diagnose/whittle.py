@@ -705,10 +705,10 @@ def level_density(model, N: int, slope_sq: np.ndarray | None = None, at_rest: bo
     v = H (I - F^N) (I - F)^-1. The white parts (sensor noise, the quantizer's Delta^2/12, the
     jitter's std_s^2 times ``slope_sq``, the mean squared slope of the mean response) add their
     variance / N. q: the bias walk's variance per sample, b0: Var(b_0). For a stable plant only.
-    Two approximations, both of which can only widen the level's predicted spread: the actuator
-    nonlinearities are taken at unit gain (a drive clipped by a saturation passes less of its
-    noise, not more), and the jitter's noise-driven slope is left out of its power (its mean
-    slope dominates it wherever a jitter is seen)."""
+    Two approximations: the actuator nonlinearities are taken at unit gain (a drive clipped by a
+    saturation or held in a dead zone passes less of its noise, not more: the spread is, if
+    anything, too wide), and the jitter's noise-driven slope is left out of its power (too narrow
+    by that part; the mean slope dominates it wherever a jitter is seen)."""
     from scipy.linalg import solve_discrete_lyapunov
     p = model.p
     pr = model.predictor()
