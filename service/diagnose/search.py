@@ -14,11 +14,11 @@ A record from rest adds l_level (:func:`.whittle.level_loglik`): its residual's 
 spread the hypothesis predicts for it. Differencing removes the record's level, and with it what
 a step command says about a mean effect (a saturation, a dead zone, a scale factor set the level
 the output settles at: under a step the level pins a saturation's limit ~10x more tightly than
-the differenced likelihood does). It enters the search
-over a mean effect's parameter and that parameter's profile interval (``Fit.objective``), not
-the comparison between hypotheses: under slow noise (a walk, a Gauss-Markov bias of long tau)
-the mean is not independent of the differenced record, and in the comparison its marginal
-density took a hidden walk for a Gauss-Markov bias.
+the differenced likelihood does). It enters the search over a mean effect's parameter and that
+parameter's profile interval (``Fit.objective``), not the comparison between hypotheses: under
+slow noise (a walk, a Gauss-Markov bias of long tau) the mean is not independent of the
+differenced record, and in the comparison its marginal density took a hidden walk for a
+Gauss-Markov bias.
 
 Hypotheses are compared by Delta BIC = 2 Delta l - k ln n (k free parameters added, n the
 number of samples times outputs; Schwarz 1978). A candidate is added when its Delta BIC exceeds
@@ -996,7 +996,7 @@ def plant_stable(model) -> bool:
     Ad = np.asarray(model.Ad, float)
     if Ad.size == 0:
         return True
-    return bool(np.max(np.abs(np.linalg.eigvals(Ad))) < 1.0 - unit_tol(np.asarray(model.Ac, float), model.Ts))
+    return _radius(Ad) < 1.0 - unit_tol(np.asarray(model.Ac, float), model.Ts)
 
 
 def _unit_scale(spec, Ts):
