@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import run_once
 from service.diagnose.load import load_noiselab
 from service.model import load_model, parse_model
 
@@ -31,12 +32,18 @@ def cli(*args, cwd=None):
                           env=env, cwd=cwd, timeout=600)
 
 
+def _run_demo(d: Path) -> dict:
+    r = cli("demo", "--duration", DURATION, "--speed", SPEED, "--seed", SEED, "--out", d / "recordings", "--json")
+    assert r.returncode == 0, r.stderr
+    return json.loads(r.stdout)
+
+
 @pytest.fixture(scope="module")
 def demo(tmp_path_factory):
-    out = tmp_path_factory.mktemp("demo") / "recordings"
-    r = cli("demo", "--duration", DURATION, "--speed", SPEED, "--seed", SEED, "--out", out, "--json")
-    assert r.returncode == 0, r.stderr
-    return out, json.loads(r.stdout)
+    """The demo (about 40 s), run once for the whole test run even when the tests here are spread
+    over xdist's workers."""
+    d, summary = run_once(tmp_path_factory, "demo", _run_demo)
+    return d / "recordings", summary
 
 
 def test_demo_recording_is_the_lesson_sample_path(demo):

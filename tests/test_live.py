@@ -970,7 +970,7 @@ def test_bad_input_is_one_line_exit_2(case, tmp_path):
 # ------------------------------------------------------------------ 6. safe by default
 
 
-def test_default_endpoints_listen_on_loopback_only(spawn):
+def test_default_endpoints_listen_on_loopback_only(default_endpoint, spawn):
     """With no endpoint flags the emulator listens on tcp/127.0.0.1:7447 and nothing else: every
     socket of the process is bound to 127.0.0.1 (none on 0.0.0.0 or ::), no UDP (no scouting)."""
     users = [c for c in psutil.net_connections(kind="inet")

@@ -86,6 +86,9 @@ def test_python_example(scratch):
 def _port_free(port: int) -> bool:
     import socket
     with socket.socket() as s:
+        # as the listener will (Rust's TcpListener sets it): a connection of an earlier test in
+        # TIME_WAIT on the port does not make it busy; a listener on it does
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
             s.bind(("127.0.0.1", port))
         except OSError:
@@ -93,7 +96,7 @@ def _port_free(port: int) -> bool:
     return True
 
 
-def test_three_terminal_example(scratch):
+def test_three_terminal_example(default_endpoint, scratch):
     """The by-hand example, as written, on the default endpoint: the recorder is started first and
     waits for the emulator; Ctrl-C (SIGINT) finishes its file; the replay republishes it."""
     import signal
