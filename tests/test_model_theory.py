@@ -431,3 +431,39 @@ def test_a_slow_stable_pole_is_no_integrator(A, Ts):
     g = (1 - np.exp(-a * Ts)) / a
     assert st.stable and st.walk_var_rate is None
     assert st.var_y == pytest.approx([g**2 * 0.01 / (1 - np.exp(-2 * a * Ts))], rel=1e-6)
+
+
+
+def test_a_steady_state_that_shares_its_mean_response_equals_one_computed_alone():
+    """The model's own mean response is shared between models that differ only in what it does
+    not depend on (``predict._OWN_MEAN``, keyed by ``predict.mean_key``): a steady state through the
+    shared mean equals one computed with the share emptied, whether the change is in a noise or a
+    jitter (shared), a mean effect or the command (not shared: their means differ). A shared mean's
+    arrays are read-only."""
+    from service.model import load_model
+    from service.model import predict as P
+    from service.model.model import dumps_toml
+    seed = load_model("seed")
+    louder = seed.to_dict()
+    louder["command"]["amplitude"] = 2.0
+    louder["sensor"]["jitter"] = {"std_s": 1e-3}          # its part follows the mean's slope
+    variants = [seed, seed.with_params("actuator.ar1", {"std": 0.3, "rho": 0.9}),
+                seed.with_params("actuator.saturation", {"limit": 0.5}),
+                seed.with_params("sensor.scale_factor", {"error": 0.2}),
+                seed.with_params("sensor.jitter", {"std_s": 1e-3}),
+                parse_model(dumps_toml(louder), "louder")]
+    P._OWN_MEAN.clear()
+    shared = [m.predictor().steady_state() for m in variants]     # in turn: each may reuse a mean
+    keys = [P.mean_key(m) for m in variants]
+    assert keys[0] == keys[1] == keys[4] and len(set(keys)) == 4    # the noises (the jitter's too) share
+    for m, got in zip(variants, shared):
+        P._OWN_MEAN.clear()
+        same = m.with_params("sensor.white", m.effects["sensor.white"].param_dict())   # a new predictor
+        alone = same.predictor().steady_state()
+        assert np.array_equal(got.var_y, alone.var_y)
+        for eid, v in got.contributions.items():
+            assert np.array_equal(v, alone.contributions[eid]), eid
+        assert got.notes == alone.notes
+    mean = seed.predictor()._own_mean()
+    with pytest.raises(ValueError):
+        mean.y[0] = 1.0

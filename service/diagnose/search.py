@@ -64,6 +64,7 @@ import scipy.fft as sfft
 
 from ..model import ModelError
 from ..model.effects import CATALOGUE
+from ..model.predict import mean_key as _mean_key
 from ..model.simulate import lsim
 from . import whittle as W
 
@@ -568,25 +569,6 @@ def _residual_key(model, free_tone: bool) -> tuple:
     """What the residual depends on: the mean response and the tone (fitted freely or held)."""
     tone = model.effects.get("sensor.tone")
     return _mean_key(model), repr(tone.param_dict()) if tone is not None else None, free_tone
-
-
-def _mean_key(model, gain: bool = True) -> str:
-    """The part of a model the mean response depends on: plant, sampling, command and the mean
-    effects; actuator noise only through the nonlinearities' statistical linearization.
-    ``gain=False``: without the sensor gain (the scale factor)."""
-    d = model.to_dict()
-    if not gain:
-        d.get("sensor", {}).pop("scale_factor", None)
-    nonlin = any(hasattr(e, "knots") for e in model.effects.values())
-    for g in ("process", "sensor", "actuator"):
-        sub = d.get(g, {})
-        for s in list(sub):
-            eid = f"{g}.{s}"
-            if CATALOGUE[eid].fit.kind != "mean" and not (nonlin and g == "actuator"):
-                sub.pop(s)
-    d.pop("description", None)
-    d.pop("name", None)
-    return repr(d)
 
 
 # -- the likelihood over the free variances (inner problem) ---------------------------------------------------

@@ -124,6 +124,34 @@ class Steady:
     walk_var_rate: np.ndarray | None = None   # (p,) growth of Var(y) per second where the plant integrates
 
 
+def mean_key(model, gain: bool = True) -> str:
+    """The part of a model the mean response depends on: plant, sampling, command and the mean
+    effects; actuator noise only through the nonlinearities' statistical linearization.
+    ``gain=False``: without the sensor gain (the scale factor)."""
+    from .effects import CATALOGUE
+    d = model.to_dict()
+    if not gain:
+        d.get("sensor", {}).pop("scale_factor", None)
+    nonlin = any(hasattr(e, "knots") for e in model.effects.values())
+    for g in ("process", "sensor", "actuator"):
+        sub = d.get(g, {})
+        for s in list(sub):
+            eid = f"{g}.{s}"
+            if CATALOGUE[eid].fit.kind != "mean" and not (nonlin and g == "actuator"):
+                sub.pop(s)
+    d.pop("description", None)
+    d.pop("name", None)
+    return repr(d)
+
+
+# The model's own mean response over its horizon, shared between models that differ only in what
+# it does not depend on (:func:`mean_key`): a diagnosis builds thousands of models that differ in a
+# noise parameter, and each one's steady state needs the mean when the model has a quantizer, a
+# jitter or a nonlinearity (on 10^6 samples of the seed: 2325 steady states, 5.9 s of 42 s in the
+# mean responses). Read-only arrays; get-then-set (threads may compute one twice, never wrongly).
+_OWN_MEAN: dict = {}
+
+
 class Predictor:
     """Predictions for one model. ``horizon_s`` sets how long a command history is averaged over
     for signal-dependent approximations (jitter, nonlinear actuator gains)."""
@@ -236,6 +264,21 @@ class Predictor:
         ydot = (x @ (mdl.Cy @ mdl.Ac).T + drive @ (mdl.Cy @ mdl.Bc).T) * mdl.out_gain
         return MeanResponse(t=np.arange(n) * mdl.Ts, x=x, drive=drive, gain=gain, drive_var=var,
                             distortion_var=dvar, ydot=ydot, y=y)
+
+    def _own_mean(self) -> MeanResponse:
+        """:meth:`mean_response` of the model's own command over the horizon, shared through
+        :data:`_OWN_MEAN` (read-only: not for callers that change it)."""
+        key = (mean_key(self.model), self.horizon)
+        got = _OWN_MEAN.get(key)
+        if got is None:
+            got = self.mean_response()
+            for v in vars(got).values():
+                if isinstance(v, np.ndarray):
+                    v.setflags(write=False)
+            if len(_OWN_MEAN) > 8:
+                _OWN_MEAN.clear()
+            _OWN_MEAN[key] = got
+        return got
 
     # -- the augmented linear system -------------------------------------------------------------------
     def linear_system(self, g: np.ndarray | None = None, dstd: np.ndarray | None = None) -> LinearSystem:
@@ -380,7 +423,7 @@ class Predictor:
         # nonlinearities' gains, the jitter's slope, the quantizer's spread): at Ts = 1 us the
         # horizon is 6e7 samples, a minute and gigabytes for a model that needs none of it
         needs_mean = bool(self._nonlin) or "sensor.quantization" in mdl.effects or "sensor.jitter" in mdl.effects
-        mean = self.mean_response() if needs_mean else None
+        mean = self._own_mean() if needs_mean else None
         g = np.sqrt(np.mean(mean.gain**2, axis=0)) if self._nonlin else None
         dstd = np.sqrt(np.mean(mean.distortion_var, axis=0)) if self._nonlin else None
         if self._nonlin:
