@@ -433,7 +433,6 @@ def test_a_slow_stable_pole_is_no_integrator(A, Ts):
     assert st.var_y == pytest.approx([g**2 * 0.01 / (1 - np.exp(-2 * a * Ts))], rel=1e-6)
 
 
-
 def test_a_steady_state_that_shares_its_mean_response_equals_one_computed_alone():
     """The model's own mean response is shared between models that differ only in what it does
     not depend on (``predict._OWN_MEAN``, keyed by ``predict.mean_key``): a steady state through the

@@ -38,6 +38,7 @@ import numpy as np
 from scipy.linalg import block_diag, solve_discrete_lyapunov
 from scipy.special import ndtr
 
+from .effects import CATALOGUE
 from .simulate import lsim
 
 _SQRT2PI = np.sqrt(2.0 * np.pi)
@@ -128,7 +129,6 @@ def mean_key(model, gain: bool = True) -> str:
     """The part of a model the mean response depends on: plant, sampling, command and the mean
     effects; actuator noise only through the nonlinearities' statistical linearization.
     ``gain=False``: without the sensor gain (the scale factor)."""
-    from .effects import CATALOGUE
     d = model.to_dict()
     if not gain:
         d.get("sensor", {}).pop("scale_factor", None)
