@@ -438,7 +438,7 @@ def test_a_steady_state_that_shares_its_mean_response_equals_one_computed_alone(
     not depend on (``predict._OWN_MEAN``, keyed by ``predict.mean_key``): a steady state through the
     shared mean equals one computed with the share emptied, whether the change is in a noise or a
     jitter (shared), a mean effect or the command (not shared: their means differ). A shared mean's
-    arrays are read-only."""
+    arrays are read-only; one over the share's size bound is not kept."""
     from service.model import load_model
     from service.model import predict as P
     from service.model.model import dumps_toml
@@ -466,3 +466,10 @@ def test_a_steady_state_that_shares_its_mean_response_equals_one_computed_alone(
     mean = seed.predictor()._own_mean()
     with pytest.raises(ValueError):
         mean.y[0] = 1.0
+    # a mean larger than the share's bound is used, not kept (a fine sample period's horizon)
+    P._OWN_MEAN.clear()
+    fine = seed.to_dict()
+    fine["sampling"]["Ts"] = 1e-4               # 600 000 samples of 60 s: about 38 MB of arrays
+    fine_model = parse_model(dumps_toml(fine), "fine")
+    assert fine_model.predictor().steady_state().var_y is not None
+    assert not P._OWN_MEAN

@@ -148,8 +148,11 @@ def mean_key(model, gain: bool = True) -> str:
 # it does not depend on (:func:`mean_key`): a diagnosis builds thousands of models that differ in a
 # noise parameter, and each one's steady state needs the mean when the model has a quantizer, a
 # jitter or a nonlinearity (on 10^6 samples of the seed: 2325 steady states, 5.9 s of 42 s in the
-# mean responses). Read-only arrays; get-then-set (threads may compute one twice, never wrongly).
+# mean responses, under the profiler). Read-only arrays; get-then-set (threads may compute one
+# twice, never wrongly). Only means of at most _OWN_MEAN_BYTES are kept: the horizon is 60 s of
+# samples, and at Ts = 1 us one mean response is gigabytes.
 _OWN_MEAN: dict = {}
+_OWN_MEAN_BYTES = 16 << 20
 
 
 class Predictor:
@@ -272,12 +275,13 @@ class Predictor:
         got = _OWN_MEAN.get(key)
         if got is None:
             got = self.mean_response()
-            for v in vars(got).values():
-                if isinstance(v, np.ndarray):
-                    v.setflags(write=False)
-            if len(_OWN_MEAN) > 8:
-                _OWN_MEAN.clear()
-            _OWN_MEAN[key] = got
+            arrays = [v for v in vars(got).values() if isinstance(v, np.ndarray)]
+            for v in arrays:
+                v.setflags(write=False)
+            if sum(v.nbytes for v in arrays) <= _OWN_MEAN_BYTES:
+                if len(_OWN_MEAN) > 8:
+                    _OWN_MEAN.clear()
+                _OWN_MEAN[key] = got
         return got
 
     # -- the augmented linear system -------------------------------------------------------------------
