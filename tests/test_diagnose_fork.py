@@ -1,0 +1,155 @@
+"""The candidate maps in a forked second process (``search._fork_map``): the same report as the
+threads give, and whatever the child does not deliver is computed in the parent.
+
+Each check runs in a subprocess of its own: a fork is only safe from a process that runs a single
+thread, which a pytest-xdist worker is not (``search._can_fork`` refuses there, and the threads run).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _run(code: str) -> dict:
+    env = dict(os.environ, PYTHONPATH=str(ROOT), OPENBLAS_NUM_THREADS="1")
+    r = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True, text=True,
+                       cwd=ROOT, env=env, timeout=600)
+    assert r.returncode == 0, r.stderr[-3000:]
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+_DIAGNOSE = """
+    import json, sys
+    sys.path.insert(0, "tests/bench")
+    from hidden_set import make_case
+    from service.diagnose import search
+    from service.diagnose.diagnose import diagnose
+    from service.model import parse_model
+    search.PROCESSES = {processes}
+    case = make_case(27)                       # a walk and process noise, 115000 samples at 2 ms
+    truth, nominal = parse_model(case.truth, "truth"), parse_model(case.nominal, "nominal")
+    rec = truth.simulate(int(round(case.duration / truth.Ts)), seed=case.seed)
+    assert len(rec.t) * truth.p >= search.PARALLEL_MIN
+    rep = diagnose(nominal, rec.t, rec.y, rec.u)
+    keep = {{k: v for k, v in rep.items() if k not in ("model", "before", "after", "seconds")}}
+    print(json.dumps({{"report": keep, "forks": search.FORKS}}, default=str))
+"""
+
+
+def test_forked_candidate_maps_give_the_report_the_threads_give():
+    forked = _run(_DIAGNOSE.format(processes=True))
+    threads = _run(_DIAGNOSE.format(processes=False))
+    f = forked["forks"]
+    # the fork ran every map (screens, full fits, the backward pass, exchanges, intervals), and every
+    # item the child took came back from it
+    assert f["maps"] >= 8 and f["child_items"] >= 8 and f["recomputed"] == 0, f
+    assert threads["forks"]["maps"] == 0
+    assert [m["effect"] for m in forked["report"]["missing"]], "the case has effects to find"
+    # the same report, intervals and notes included, to rounding: a value the caches share (a
+    # source's part, a mean response) may have been computed from another trial model that
+    # shares it, in another order (so two runs on threads can differ in the last digit too)
+    _same(forked["report"], threads["report"])
+
+
+def _same(a, b, path="report"):
+    if isinstance(a, float) or isinstance(b, float):
+        assert isinstance(a, (int, float)) and isinstance(b, (int, float)), path
+        assert a == b or abs(a - b) <= 1e-9 * max(abs(a), abs(b)), (path, a, b)
+    elif isinstance(a, dict):
+        assert isinstance(b, dict) and a.keys() == b.keys(), (path, a, b)
+        for k in a:
+            _same(a[k], b[k], f"{path}/{k}")
+    elif isinstance(a, list):
+        assert isinstance(b, list) and len(a) == len(b), (path, a, b)
+        for i, (x, y) in enumerate(zip(a, b)):
+            _same(x, y, f"{path}[{i}]")
+    else:
+        assert a == b, (path, a, b)
+
+
+_TOY = """
+    import json, os, sys, threading
+    from service.diagnose import search
+
+    parent = os.getpid()
+    sync_r = sync_w = None
+    first = []
+
+    def gate():
+        # the parent's first item waits until the child has taken one (a pipe, no sleeping)
+        if os.getpid() == parent and not first:
+            first.append(1)
+            os.read(sync_r, 1)
+
+    def square(x):
+        gate()
+        if os.getpid() != parent:
+            os.write(sync_w, b"x")
+        return x * x
+
+    def child_fails(x):
+        gate()
+        if os.getpid() != parent:
+            os.write(sync_w, b"x")
+            raise RuntimeError("child only")
+        return x * x
+
+    def child_unpicklable(x):
+        gate()
+        if os.getpid() != parent:
+            os.write(sync_w, b"x")
+            return lambda: x * x          # will not pickle: the child delivers nothing
+        return lambda: x * x
+
+    out = {{"threads": threading.active_count(), "can_fork": search._can_fork()}}
+    items = list(range(12))
+    order = items[::-1]
+    for name, fn in (("square", square), ("child_fails", child_fails), ("child_unpicklable", child_unpicklable)):
+        first.clear()
+        sync_r, sync_w = os.pipe()          # a fresh one per map (the last child's bytes stay in the old)
+        before = dict(search.FORKS)
+        res = search._fork_map(fn, items, order)
+        os.close(sync_r)
+        os.close(sync_w)
+        res = [r() if callable(r) else r for r in res]
+        out[name] = {{"ok": res == [x * x for x in items],
+                     **{{k: search.FORKS[k] - before[k] for k in search.FORKS}}}}
+
+    def parent_fails(x):
+        if os.getpid() == parent:
+            raise ValueError("parent item")
+        return x
+
+    try:
+        search._fork_map(parent_fails, items, order)
+        out["parent_fails"] = "no error"
+    except ValueError as exc:
+        out["parent_fails"] = str(exc)
+    try:
+        os.waitpid(-1, os.WNOHANG)
+        out["children_left"] = True
+    except ChildProcessError:
+        out["children_left"] = False
+    print(json.dumps(out))
+"""
+
+
+def test_a_forked_map_computes_here_what_the_child_did_not_deliver():
+    out = _run(_TOY.format())
+    assert out["threads"] == 1 and out["can_fork"] is (sys.platform.startswith("linux"))
+    sq = out["square"]
+    assert sq["ok"] and sq["maps"] == 1 and sq["child_items"] >= 1 and sq["recomputed"] == 0, sq
+    assert sq["child_items"] + sq["recomputed"] < 12            # the parent took its share too
+    for name in ("child_fails", "child_unpicklable"):
+        r = out[name]
+        # the child took at least one item (the parent's first waited for it) and delivered none
+        assert r["ok"] and r["child_items"] == 0 and r["recomputed"] >= 1, (name, r)
+    assert out["parent_fails"] == "parent item"               # raised here, by the item that causes it
+    assert out["children_left"] is False                      # and the child was reaped
