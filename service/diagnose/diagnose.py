@@ -372,7 +372,8 @@ def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MA
     # the comparisons (before, after each step, after all) run beside the fits on long records (one
     # more thread: the candidate maps leave a core idle at their ends), unless the maps fork a
     # second process (search._can_fork: only while this process runs a single thread; a fork there
-    # gains more than the overlap, 33 s -> 25 s on 10^6 samples)
+    # gains more than the overlap, 33 s -> 25 s on 10^6 samples; the comparisons in forked
+    # children of their own, a third process on two cores, slowed the maps by as much as they gained)
     bg = ThreadPoolExecutor(max_workers=1) if S.workers > 1 and not _can_fork() else None
     try:
         before = _later(bg, lambda: compare(model, t, y, u, burn=burn, level=S.data.at_rest, revision=0))
