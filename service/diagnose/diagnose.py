@@ -23,11 +23,12 @@ from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 
+from .. import parallel
 from ..model.effects import CATALOGUE
 from ..model.effects.base import _g
 from .compare import check_samples, compare, transient_samples
 from .results import fmt_score
-from .search import THRESHOLD, Data, Search, _can_fork, interval_tasks, merge_intervals
+from .search import THRESHOLD, Data, Search, interval_tasks, merge_intervals
 
 MAX_EFFECTS = 3
 ERROR_OK = 1.5            # a model error the views call explained
@@ -371,10 +372,10 @@ def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MA
     S = Search(model, data, log=say)
     # the comparisons (before, after each step, after all) run beside the fits on long records (one
     # more thread: the candidate maps leave a core idle at their ends), unless the maps fork a
-    # second process (search._can_fork: only while this process runs a single thread; a fork there
+    # second process (parallel.can_fork: only while this process runs a single thread; a fork there
     # gains more than the overlap, 33 s -> 25 s on 10^6 samples; the comparisons in forked
     # children of their own, a third process on two cores, slowed the maps by as much as they gained)
-    bg = ThreadPoolExecutor(max_workers=1) if S.workers > 1 and not _can_fork() else None
+    bg = ThreadPoolExecutor(max_workers=1) if S.workers > 1 and not parallel.can_fork() else None
     try:
         before = _later(bg, lambda: compare(model, t, y, u, burn=burn, level=S.data.at_rest, revision=0))
         try:

@@ -57,15 +57,12 @@ from __future__ import annotations
 import hashlib
 import math
 import os
-import pickle
-import signal
-import sys
-import threading
 from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.fft as sfft
 
+from .. import parallel
 from ..model import ModelError
 from ..model.effects import CATALOGUE
 from ..model.predict import mean_key as _mean_key
@@ -81,9 +78,8 @@ MAX_SHIFTS = 4            # a local shape search may move its bracket this many 
 LINE_SHARE = 0.01         # a command line carries at least 1 % of the command's power (Data.command_lines),
 COMB_LINES = 20           # ... and a command with more such lines is a comb (a repeated chirp): none
 HARMONICS = 7             # a residual line at up to the 7th harmonic of a command line is the mean response's
-WORKERS = 2               # candidates fitted concurrently (threads) on long records
+WORKERS = 2               # candidates fitted concurrently on long records (a forked process or threads)
 PARALLEL_MIN = 50_000     # samples x outputs from which they are
-PROCESSES = True          # ... in a forked process beside this one where that is safe (see _can_fork)
 MORE_ROUNDS = 2           # extra rounds a joint search may take while a round still gains > 1 in l
 SCREEN_N = 1 << 18        # records of at least 2 SCREEN_N samples are screened on their first SCREEN_N
 RAMPS = True              # the taper ramps' time-domain term (:class:`.whittle.Ramps`)
@@ -1806,16 +1802,16 @@ class Search:
 
     def _map(self, fn, items: list, cost=None) -> list:
         """fn over items, two at a time on long records: in this process and a forked copy of it
-        where that is safe (:func:`_can_fork`; the fits are mostly Python, which threads cannot
-        run at once), else in :data:`WORKERS` threads (the transforms and array arithmetic
-        release the GIL; the caches they share are get-then-set); results in order. ``cost``: an
-        item's expected cost, the costliest started first (no worker idles at the end while the
-        other runs a long fit)."""
+        where that is safe (:func:`service.parallel.can_fork`; the fits are mostly Python, which
+        threads cannot run at once), else in :data:`WORKERS` threads (the transforms and array
+        arithmetic release the GIL; the caches they share are get-then-set); results in order.
+        ``cost``: an item's expected cost, the costliest started first (no worker idles at the
+        end while the other runs a long fit)."""
         if self.workers <= 1 or len(items) < 2:
             return [fn(x) for x in items]
         order = sorted(range(len(items)), key=lambda i: -cost(items[i])) if cost else list(range(len(items)))
-        if _can_fork():
-            return _fork_map(fn, items, order)
+        if parallel.can_fork():
+            return parallel.fork_map(fn, items, order, portable=_portable)
         from concurrent.futures import ThreadPoolExecutor
         out = [None] * len(items)
         with ThreadPoolExecutor(max_workers=self.workers) as pool:
@@ -2166,14 +2162,7 @@ def _profile_outer(H: Hypotheses, fit: Fit, eid: str, spec, direction: int) -> f
     return edge(direction)
 
 
-# -- a second process for the candidate maps ------------------------------------------------------------
-def _can_fork() -> bool:
-    """Whether :meth:`Search._map` may fork: on Linux, with :data:`PROCESSES`, and only while this
-    process runs a single thread (a fork copies the memory but only the calling thread: a lock
-    another thread held, in Python or in a library, would stay held in the child)."""
-    return PROCESSES and sys.platform.startswith("linux") and hasattr(os, "fork") and threading.active_count() == 1
-
-
+# -- a forked second process for the candidate maps ---------------------------------------------------
 def _portable(x):
     """A map's result made ready to cross to the parent: a :class:`Fit`'s level computed (its
     closure over this process' caches does not travel), recursively in lists, tuples and dicts."""
@@ -2186,82 +2175,3 @@ def _portable(x):
     if isinstance(x, dict):
         return {k: _portable(v) for k, v in x.items()}
     return x
-
-
-FORKS = {"maps": 0, "child_items": 0, "recomputed": 0, "bytes": 0}   # what the forked maps did (tests)
-
-
-def _fork_map(fn, items: list, order: list) -> list:
-    """fn over items in this process and one forked child. Both take the next item of ``order``
-    (the costliest first) from a pipe that holds the items' indices, 4 bytes each (a pipe read
-    of 4 bytes is atomic). The child's results come back pickled through a second pipe (between
-    this process and its own fork only; nothing is read from a file). Anything the child did not
-    deliver (it failed, was killed, or a result would not pickle) is computed here, so an error
-    is raised here, by the item that causes it."""
-    n = len(items)
-    tokens = b"".join(i.to_bytes(4, "little") for i in order)
-    if len(tokens) > 16384:                       # far below a pipe's buffer: written before the fork
-        return [fn(x) for x in items]
-    q_r, q_w = os.pipe()
-    os.write(q_w, tokens)
-    os.close(q_w)
-
-    def take():
-        b = os.read(q_r, 4)
-        return int.from_bytes(b, "little") if len(b) == 4 else None
-
-    for stream in (sys.stdout, sys.stderr):     # nothing buffered is written twice
-        try:
-            stream.flush()
-        except (AttributeError, ValueError, OSError):
-            pass
-    r, w = os.pipe()
-    pid = os.fork()
-    if pid == 0:                                  # the child: never returns
-        code = 1
-        try:
-            os.close(r)
-            done = {}
-            while (i := take()) is not None:
-                done[i] = _portable(fn(items[i]))
-            blob = pickle.dumps(done, protocol=pickle.HIGHEST_PROTOCOL)
-            with os.fdopen(w, "wb") as f:
-                f.write(blob)
-            code = 0
-        except BaseException:                     # the parent computes what is missing
-            pass
-        finally:
-            os._exit(code)
-    os.close(w)
-    out: dict = {}
-    blob = b""
-    try:
-        while (i := take()) is not None:
-            out[i] = fn(items[i])
-        with os.fdopen(r, "rb") as f:
-            r = None
-            blob = f.read()
-    finally:
-        os.close(q_r)
-        if r is not None:                         # an error here: the child's work is not wanted
-            os.close(r)
-            try:
-                os.kill(pid, signal.SIGKILL)
-            except OSError:
-                pass
-        os.waitpid(pid, 0)
-    try:
-        child = pickle.loads(blob) if blob else {}
-    except Exception:
-        child = {}
-    FORKS["maps"] += 1
-    FORKS["bytes"] += len(blob)
-    for i, v in child.items():
-        if i not in out:
-            out[i] = v
-            FORKS["child_items"] += 1
-    for i in range(n):
-        if i not in out:
-            FORKS["recomputed"] += 1
-            out[i] = fn(items[i])
-    return [out[i] for i in range(n)]

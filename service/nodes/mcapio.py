@@ -37,6 +37,7 @@ from mcap.records import Channel, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 
+from .. import parallel
 from . import wire
 
 try:  # mcap depends on both; tolerate a stripped-down install all the same
@@ -823,6 +824,7 @@ class _Packed:
         return [self.blob[a:b] for a, b in zip(starts.tolist(), ends.tolist())]
 
 
+PARALLEL_DECODE = 200_000   # messages over a recording's topics from which two are parsed at once (a fork)
 _MESSAGE_HEADER = 31        # opcode 1, length 8, channel 2, sequence 4, log_time 8, publish_time 8
 
 
@@ -1046,12 +1048,14 @@ def read_recording(path: str | os.PathLike, kinds: Iterable[str] = wire.KINDS) -
             lists[2].append(msg.publish_time)
 
     devices: dict[str, DeviceData] = {}
+    jobs = []                                   # (device name, prefix, kind, topic), devices sorted
+    names: dict[str, str] = {}
     for topic in sorted(t for t in raw if t.endswith("/measurement")):
         prefix = topic[: -len("/measurement")]
         name = prefix[len("noiselab/"):] if prefix.startswith("noiselab/") else prefix
-        if name in devices:  # e.g. both "noiselab/imu" and "imu": keep them apart
+        if name in names.values():  # e.g. both "noiselab/imu" and "imu": keep them apart
             name = prefix
-        streams = {}
+        names[prefix] = name
         for kind in kinds:
             ktopic = f"{prefix}/{kind}"
             if ktopic not in raw:
@@ -1060,19 +1064,40 @@ def read_recording(path: str | os.PathLike, kinds: Iterable[str] = wire.KINDS) -
             if bad:
                 raise McapIoError(f"{path}: topic {ktopic!r} has message encoding "
                                   f"{sorted(bad)[0]!r}; noiselab reads 'json' only")
-            payloads, log, pub = raw[ktopic]
-            if isinstance(payloads, _Packed):
-                seq, t, values = wire.decode_packed(payloads.blob, payloads.lens, kind, topic=ktopic)
-            else:
-                seq, t, values = wire.decode_batch(payloads, kind, topic=ktopic)
-            log_a = _as_i64(log, ktopic, "log_time")
-            pub_a = _as_i64(pub, ktopic, "publish_time")
-            if seq.size > 1 and (np.diff(seq) < 0).any():
-                order = np.argsort(seq, kind="stable")
-                seq, t, values = seq[order], t[order], values[order]
-                log_a, pub_a = log_a[order], pub_a[order]
-            streams[kind] = TopicData(ktopic, kind, seq, t, pub_a, log_a, values)
-        devices[name] = DeviceData(name, prefix, streams)
+            jobs.append((name, prefix, kind, ktopic))
+
+    def decode(job):
+        kind, ktopic = job[2], job[3]
+        payloads = raw[ktopic][0]
+        if isinstance(payloads, _Packed):
+            return wire.decode_packed(payloads.blob, payloads.lens, kind, topic=ktopic)
+        return wire.decode_batch(payloads, kind, topic=ktopic)
+
+    sizes = [len(raw[j[3]][0]) for j in jobs]
+    if len(jobs) >= 2 and sum(sizes) >= PARALLEL_DECODE and parallel.can_fork():
+        # parsing is C strtod under the GIL: two topics in two processes (a forked copy of this one)
+        def caught(job):
+            try:
+                return decode(job)
+            except wire.WireError as exc:          # raised below in the topics' order, as serially
+                return exc
+        decoded = parallel.fork_map(caught, jobs, sorted(range(len(jobs)), key=lambda i: -sizes[i]))
+        for d in decoded:
+            if isinstance(d, Exception):
+                raise d
+    else:
+        decoded = [decode(j) for j in jobs]
+    streams_of: dict[str, dict] = {}
+    for (_name, prefix, kind, ktopic), (seq, t, values) in zip(jobs, decoded):
+        log_a = _as_i64(raw[ktopic][1], ktopic, "log_time")
+        pub_a = _as_i64(raw[ktopic][2], ktopic, "publish_time")
+        if seq.size > 1 and (np.diff(seq) < 0).any():
+            order = np.argsort(seq, kind="stable")
+            seq, t, values = seq[order], t[order], values[order]
+            log_a, pub_a = log_a[order], pub_a[order]
+        streams_of.setdefault(prefix, {})[kind] = TopicData(ktopic, kind, seq, t, pub_a, log_a, values)
+    for prefix, name in names.items():
+        devices[name] = DeviceData(name, prefix, streams_of.get(prefix, {}))
     return Recording(path=path, devices=devices, metadata=report.metadata,
                      complete=bool(report.complete), note=report.note)
 

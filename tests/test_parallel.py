@@ -1,8 +1,9 @@
-"""The candidate maps in a forked second process (``search._fork_map``): the same report as the
-threads give, and whatever the child does not deliver is computed in the parent.
+"""A forked second process (``service.parallel.fork_map``): the diagnosis' candidate maps give the
+report the threads give, the recording's topics are parsed to the same bits, and whatever the
+child does not deliver is computed in the parent.
 
 Each check runs in a subprocess of its own: a fork is only safe from a process that runs a single
-thread, which a pytest-xdist worker is not (``search._can_fork`` refuses there, and the threads run).
+thread, which a pytest-xdist worker is not (``parallel.can_fork`` refuses there, and the threads run).
 """
 
 from __future__ import annotations
@@ -29,17 +30,18 @@ _DIAGNOSE = """
     import json, sys
     sys.path.insert(0, "tests/bench")
     from hidden_set import make_case
+    from service import parallel
     from service.diagnose import search
     from service.diagnose.diagnose import diagnose
     from service.model import parse_model
-    search.PROCESSES = {processes}
+    parallel.ENABLED = {processes}
     case = make_case(27)                       # a walk and process noise, 115000 samples at 2 ms
     truth, nominal = parse_model(case.truth, "truth"), parse_model(case.nominal, "nominal")
     rec = truth.simulate(int(round(case.duration / truth.Ts)), seed=case.seed)
     assert len(rec.t) * truth.p >= search.PARALLEL_MIN
     rep = diagnose(nominal, rec.t, rec.y, rec.u)
     keep = {{k: v for k, v in rep.items() if k not in ("model", "before", "after", "seconds")}}
-    print(json.dumps({{"report": keep, "forks": search.FORKS}}, default=str))
+    print(json.dumps({{"report": keep, "forks": parallel.FORKS}}, default=str))
 """
 
 
@@ -76,7 +78,7 @@ def _same(a, b, path="report"):
 
 _TOY = """
     import json, os, sys, threading
-    from service.diagnose import search
+    from service import parallel
 
     parent = os.getpid()
     sync_r = sync_w = None
@@ -108,19 +110,19 @@ _TOY = """
             return lambda: x * x          # will not pickle: the child delivers nothing
         return lambda: x * x
 
-    out = {{"threads": threading.active_count(), "can_fork": search._can_fork()}}
+    out = {{"threads": threading.active_count(), "can_fork": parallel.can_fork()}}
     items = list(range(12))
     order = items[::-1]
     for name, fn in (("square", square), ("child_fails", child_fails), ("child_unpicklable", child_unpicklable)):
         first.clear()
         sync_r, sync_w = os.pipe()          # a fresh one per map (the last child's bytes stay in the old)
-        before = dict(search.FORKS)
-        res = search._fork_map(fn, items, order)
+        before = dict(parallel.FORKS)
+        res = parallel.fork_map(fn, items, order)
         os.close(sync_r)
         os.close(sync_w)
         res = [r() if callable(r) else r for r in res]
         out[name] = {{"ok": res == [x * x for x in items],
-                     **{{k: search.FORKS[k] - before[k] for k in search.FORKS}}}}
+                     **{{k: parallel.FORKS[k] - before[k] for k in parallel.FORKS}}}}
 
     def parent_fails(x):
         if os.getpid() == parent:
@@ -128,7 +130,7 @@ _TOY = """
         return x
 
     try:
-        search._fork_map(parent_fails, items, order)
+        parallel.fork_map(parent_fails, items, order)
         out["parent_fails"] = "no error"
     except ValueError as exc:
         out["parent_fails"] = str(exc)
@@ -153,3 +155,71 @@ def test_a_forked_map_computes_here_what_the_child_did_not_deliver():
         assert r["ok"] and r["child_items"] == 0 and r["recomputed"] >= 1, (name, r)
     assert out["parent_fails"] == "parent item"               # raised here, by the item that causes it
     assert out["children_left"] is False                      # and the child was reaped
+
+
+_READ = """
+    import json, sys
+    import numpy as np
+    sys.path.insert(0, "tests")
+    from test_mcapio import raw_file, write_sample
+    from service import parallel
+    from service.nodes import mcapio, wire
+
+    mcapio.PARALLEL_DECODE = 1000              # the threshold, not the parser, is what is small here
+    d = sys.argv[1]
+    write_sample(d + "/a.mcap", n=3000, name="a")
+    out = {}
+    for on in (True, False):
+        parallel.ENABLED = on
+        before = dict(parallel.FORKS)
+        rec = mcapio.read_recording(d + "/a.mcap")
+        got = {}
+        for name, dev in rec.devices.items():
+            for kind, td in dev.streams.items():
+                got[name + "/" + kind] = [td.seq.tolist(), td.t.view(np.uint64).tolist(),
+                                          td.values.view(np.uint64).tolist(), td.publish_ns.tolist(),
+                                          td.log_ns.tolist()]
+        out[str(on)] = {"data": got, "forks": {k: parallel.FORKS[k] - before[k] for k in parallel.FORKS}}
+    # a bad payload on the second of two topics: the same one-line error either way
+    raw_file(d + "/bad.mcap", ["noiselab/b/measurement"], n=1500)
+    raw_file(d + "/bad2.mcap", ["noiselab/b/command"], n=1500, payload=b'{"seq":0,"t":0.0,"u":[NaN]}')
+    # both topics in one file: copy the messages of the two
+    from mcap.writer import Writer
+    from mcap.reader import make_reader
+    with open(d + "/both.mcap", "wb") as f:
+        w = Writer(f)
+        w.start()
+        for src in ("bad.mcap", "bad2.mcap"):
+            with open(d + "/" + src, "rb") as g:
+                for schema, channel, msg in make_reader(g).iter_messages():
+                    sid = w.register_schema(schema.name, schema.encoding, schema.data)
+                    cid = w.register_channel(channel.topic, channel.message_encoding, sid)
+                    w.add_message(cid, log_time=msg.log_time, data=msg.data, publish_time=msg.publish_time,
+                                  sequence=msg.sequence)
+        w.finish()
+    errors = {}
+    for on in (True, False):
+        parallel.ENABLED = on
+        try:
+            mcapio.read_recording(d + "/both.mcap")
+            errors[str(on)] = None
+        except wire.WireError as exc:
+            errors[str(on)] = str(exc)
+    out["errors"] = errors
+    print(json.dumps(out))
+"""
+
+
+def test_a_recordings_topics_parsed_in_two_processes_are_the_same_bits(tmp_path):
+    env = dict(os.environ, PYTHONPATH=str(ROOT), OPENBLAS_NUM_THREADS="1")
+    r = subprocess.run([sys.executable, "-c", textwrap.dedent(_READ), str(tmp_path)], capture_output=True,
+                       text=True, cwd=ROOT, env=env, timeout=600)
+    assert r.returncode == 0, r.stderr[-3000:]
+    out = json.loads(r.stdout.strip().splitlines()[-1])
+    forked, serial = out["True"], out["False"]
+    assert set(forked["data"]) == {"a/truth", "a/command", "a/measurement"}
+    assert forked["data"] == serial["data"]                 # seq, t, values, both times: every bit
+    assert forked["forks"]["maps"] == 1 and forked["forks"]["recomputed"] == 0, forked["forks"]
+    assert serial["forks"]["maps"] == 0
+    err = out["errors"]
+    assert err["True"] == err["False"] and err["True"].startswith("noiselab/b/command: "), err
