@@ -57,7 +57,12 @@ def fork_map(fn, items: list, order: list | None = None, portable=None) -> list:
 
     _flush_stdio()
     r, w = os.pipe()
-    pid = os.fork()
+    try:
+        pid = os.fork()
+    except OSError:                               # no process to be had (EAGAIN, ENOMEM): one does it all
+        for fd in (q_r, r, w):
+            os.close(fd)
+        return [fn(x) for x in items]
     if pid == 0:                                  # the child: never returns
         code = 1
         try:

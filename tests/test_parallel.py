@@ -139,6 +139,17 @@ _TOY = """
         out["children_left"] = True
     except ChildProcessError:
         out["children_left"] = False
+
+    def no_fork():
+        raise OSError(11, "Resource temporarily unavailable")
+
+    fds = len(os.listdir("/proc/self/fd"))
+    real, os.fork = os.fork, no_fork
+    before = dict(parallel.FORKS)
+    res = parallel.fork_map(lambda x: x + 1, items, order)
+    os.fork = real
+    out["no_fork"] = {{"ok": res == [x + 1 for x in items], "maps": parallel.FORKS["maps"] - before["maps"],
+                      "fds_leaked": len(os.listdir("/proc/self/fd")) - fds}}
     print(json.dumps(out))
 """
 
@@ -155,6 +166,8 @@ def test_a_forked_map_computes_here_what_the_child_did_not_deliver():
         assert r["ok"] and r["child_items"] == 0 and r["recomputed"] >= 1, (name, r)
     assert out["parent_fails"] == "parent item"               # raised here, by the item that causes it
     assert out["children_left"] is False                      # and the child was reaped
+    # no process to be had (EAGAIN): this one computes everything, and closes its pipes
+    assert out["no_fork"] == {"ok": True, "maps": 0, "fds_leaked": 0}
 
 
 _READ = """
