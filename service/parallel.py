@@ -1,9 +1,10 @@
 """A second process for work that is mostly Python: a forked copy of this process takes half of a
 list of items, so two cores run what two threads could not (the GIL).
 
-Only where that is safe (:func:`can_fork`): on Linux, and while this process runs a single thread
-(a fork copies the memory but only the calling thread: a lock another thread held, in Python or in
-a library, would stay held in the child). Elsewhere the callers use threads or run serially.
+Only where that is safe (:func:`can_fork`): on Linux, and while this process runs a single thread,
+in Python and in its libraries (a fork copies the memory but only the calling thread: a lock another
+thread held would stay held in the child). The command line qualifies: it runs one BLAS thread.
+Elsewhere the callers use threads or run serially.
 
 The child's results come back pickled through a pipe: between this process and its own fork only,
 never from a file. Whatever the child does not deliver (it failed, was killed, or a result would
@@ -24,8 +25,18 @@ FORKS = {"maps": 0, "child_items": 0, "recomputed": 0, "bytes": 0}   # what the 
 
 
 def can_fork() -> bool:
-    """Whether :func:`fork_map` may be used now: :data:`ENABLED`, Linux, a single thread."""
-    return ENABLED and sys.platform.startswith("linux") and hasattr(os, "fork") and threading.active_count() == 1
+    """Whether :func:`fork_map` may be used now: :data:`ENABLED`, Linux, and a single thread, in
+    Python and in the libraries (a BLAS's workers, Zenoh's or Rerun's runtime: ``/proc/self/task``)."""
+    return (ENABLED and sys.platform.startswith("linux") and hasattr(os, "fork")
+            and threading.active_count() == 1 and _os_threads() == 1)
+
+
+def _os_threads() -> int:
+    """The threads of this process as the kernel counts them (0 when it cannot be read: no fork)."""
+    try:
+        return len(os.listdir("/proc/self/task"))
+    except OSError:
+        return 0
 
 
 def _flush_stdio() -> None:

@@ -111,6 +111,14 @@ _TOY = """
         return lambda: x * x
 
     out = {{"threads": threading.active_count(), "can_fork": parallel.can_fork()}}
+    # a second thread, Python's or a library's, and no fork
+    stop = threading.Event()
+    th = threading.Thread(target=stop.wait)
+    th.start()
+    out["with_a_thread"] = [parallel.can_fork(), len(os.listdir("/proc/self/task"))]
+    stop.set()
+    th.join()
+    out["after_it"] = parallel.can_fork()
     items = list(range(12))
     order = items[::-1]
     for name, fn in (("square", square), ("child_fails", child_fails), ("child_unpicklable", child_unpicklable)):
@@ -157,6 +165,7 @@ _TOY = """
 def test_a_forked_map_computes_here_what_the_child_did_not_deliver():
     out = _run(_TOY.format())
     assert out["threads"] == 1 and out["can_fork"] is (sys.platform.startswith("linux"))
+    assert out["with_a_thread"] == [False, 2] and out["after_it"] is True
     sq = out["square"]
     assert sq["ok"] and sq["maps"] == 1 and sq["child_items"] >= 1 and sq["recomputed"] == 0, sq
     assert sq["child_items"] + sq["recomputed"] < 12            # the parent took its share too
@@ -236,3 +245,21 @@ def test_a_recordings_topics_parsed_in_two_processes_are_the_same_bits(tmp_path)
     assert serial["forks"]["maps"] == 0
     err = out["errors"]
     assert err["True"] == err["False"] and err["True"].startswith("noiselab/b/command: "), err
+
+
+def test_no_fork_beside_a_librarys_own_threads():
+    """OpenBLAS with two threads runs a worker the interpreter does not know of: the kernel does."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT), OPENBLAS_NUM_THREADS="2", OMP_NUM_THREADS="2")
+    code = textwrap.dedent("""
+        import json, os, threading
+        import numpy as np
+        from service import parallel
+        a = np.random.default_rng(0).standard_normal((400, 400))
+        a @ a                                           # the BLAS starts its workers
+        print(json.dumps([threading.active_count(), len(os.listdir("/proc/self/task")), parallel.can_fork()]))
+    """)
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, env=env, timeout=120)
+    assert r.returncode == 0, r.stderr[-3000:]
+    py_threads, tasks, can = json.loads(r.stdout.strip().splitlines()[-1])
+    assert py_threads == 1
+    assert can is (tasks == 1)              # a worker (tasks 2 on a 2-core machine): no fork

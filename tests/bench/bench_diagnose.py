@@ -53,7 +53,12 @@ import time
 from collections import Counter
 from pathlib import Path
 
-import numpy as np
+# as the command line: one BLAS thread unless the environment sets a count (its workers would also
+# keep the diagnosis from forking its second process: service.parallel.can_fork)
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import numpy as np  # noqa: E402  (after the thread count: BLAS reads it when numpy loads)
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
