@@ -14,16 +14,13 @@ import sys
 import time
 from pathlib import Path
 
-# One BLAS thread unless the environment sets another count. noiselab's matrices are small (a
-# plant's states and its noises'), the diagnosis runs its own threads, and OpenBLAS's threads on
-# top spin for the same cores: on 10^6 samples of the seed (2 cores) `diagnose` took 26.1-27.9 s
-# wall and 40-43 s CPU with one thread, 30.3-34.9 s and 52-59 s with OpenBLAS's default.
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+from . import one_blas_thread
+
+one_blas_thread()
 
 import numpy as np  # noqa: E402  (after the thread count: BLAS reads it when numpy loads)
 
-from .model import ModelError
+from .model import ModelError  # noqa: E402
 
 
 def load_model(spec):

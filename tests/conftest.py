@@ -10,14 +10,11 @@ import sys
 import tempfile
 from pathlib import Path
 
-# One BLAS thread per process. The suite runs a worker per core (pytest-xdist, pyproject's addopts),
-# and the tests' subprocesses inherit this: OpenBLAS's own threads on top oversubscribe the cores
-# and spin. Measured on a 2-core host: a diagnosis test took 23.3 s wall, 29.8 s CPU with the
-# default threads against 21.5 s wall, 21.0 s CPU with one; two workers with the default threads
-# slowed each other's tests 2-2.7x. Set here, before numpy is imported and before xdist starts its
-# workers (which inherit the environment); a value already set outside is kept.
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+from service import one_blas_thread
+
+# One BLAS thread per process (service.one_blas_thread says why), set before numpy is imported and
+# before xdist starts its workers, which inherit the environment, as the tests' subprocesses do.
+one_blas_thread()
 
 import pytest  # noqa: E402
 

@@ -118,6 +118,11 @@ _TOY = """
     out["with_a_thread"] = [parallel.can_fork(), len(os.listdir("/proc/self/task"))]
     stop.set()
     th.join()
+    # a joined thread's kernel task may outlive join() by a moment: wait for it (yielding, bounded)
+    for _ in range(1_000_000):
+        if parallel.can_fork():
+            break
+        os.sched_yield()
     out["after_it"] = parallel.can_fork()
     items = list(range(12))
     order = items[::-1]
@@ -256,10 +261,13 @@ def test_no_fork_beside_a_librarys_own_threads():
         from service import parallel
         a = np.random.default_rng(0).standard_normal((400, 400))
         a @ a                                           # the BLAS starts its workers
-        print(json.dumps([threading.active_count(), len(os.listdir("/proc/self/task")), parallel.can_fork()]))
+        blas = str(np.__config__.CONFIG.get("Build Dependencies", {}).get("blas", {}).get("name", ""))
+        print(json.dumps([threading.active_count(), len(os.listdir("/proc/self/task")), parallel.can_fork(), blas]))
     """)
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, env=env, timeout=120)
     assert r.returncode == 0, r.stderr[-3000:]
-    py_threads, tasks, can = json.loads(r.stdout.strip().splitlines()[-1])
+    py_threads, tasks, can, blas = json.loads(r.stdout.strip().splitlines()[-1])
     assert py_threads == 1
-    assert can is (tasks == 1)              # a worker (tasks 2 on a 2-core machine): no fork
+    if "openblas" in blas.lower():          # numpy's wheels: OpenBLAS, which starts its workers here
+        assert tasks == 2, tasks
+    assert can is (tasks == 1)              # a library's worker: no fork

@@ -53,10 +53,9 @@ import time
 from collections import Counter
 from pathlib import Path
 
-# as the command line: one BLAS thread unless the environment sets a count (its workers would also
-# keep the diagnosis from forking its second process: service.parallel.can_fork)
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+from service import one_blas_thread
+
+one_blas_thread()          # as the command line does (service.one_blas_thread says why)
 
 import numpy as np  # noqa: E402  (after the thread count: BLAS reads it when numpy loads)
 
