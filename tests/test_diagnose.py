@@ -1114,3 +1114,28 @@ def test_a_candidate_ties_with_itself_at_any_score():
         c = SimpleNamespace(score=s, k=2)
         assert exact_tie(c, c, lambda x: x.score)
         assert not exact_tie(SimpleNamespace(score=s - 1.0 - 0.01 * s, k=2), c, lambda x: x.score)
+
+
+def test_ceiling_crb_matches_the_gauss_markov_closed_form():
+    """tests/bench/bench_ceiling.py bounds the 30 % criterion with a Whittle Cramer-Rao bound. For a
+    Gauss-Markov bias (AR(1), phi = exp(-Ts / tau)) observed over N samples, with its std a nuisance
+    parameter and a sensor noise 1e4 below it, the bound on tau is the AR(1)'s: Var(phi) = (1 -
+    phi^2) / N (Brockwell & Davis 1991 ex. 8.8.1), so sd(ln tau) = sqrt((1 - phi^2) / N) tau /
+    (phi Ts) ~ sqrt(2 tau / T). Its std's own bound follows from the same information matrix; the
+    planted-versus-tie rule leaves a nuisance of the same shape out: with a process noise and an
+    actuator noise through one input, the planted one stands for both (finite, not singular)."""
+    from bench_ceiling import crb_log_sd, within_30
+
+    Ts, tau, N = 0.01, 1.0, 200_000
+    m = parse_model("name = \"gm\"\n[sampling]\nTs = 0.01\n[plant]\nA = [[-1.0]]\nB = [[1.0]]\nC = [[1.0]]\n"
+                    "[sensor.bias_markov]\nstd = 0.1\ntau_s = 1.0\n[sensor.white]\nstd = 1e-5\n")
+    sd = crb_log_sd(m, N * Ts, ("sensor.bias_markov",))
+    phi = math.exp(-Ts / tau)
+    want = math.sqrt((1 - phi**2) / N) * tau / (phi * Ts)
+    assert sd[("sensor.bias_markov", "tau_s")] == pytest.approx(want, rel=0.02)
+    assert want == pytest.approx(math.sqrt(2 * tau / (N * Ts)), rel=0.01)
+    assert within_30(1e-3) == pytest.approx(1.0) and within_30(10.0) < 0.05
+    tie = parse_model("name = \"tie\"\n[sampling]\nTs = 0.01\n[plant]\nm = 1.0\nc = 0.5\nk = 4.0\n"
+                      "[process.white]\nstd = 0.5\n[actuator.white]\nstd = 0.5\n[sensor.white]\nstd = 0.01\n")
+    assert set(crb_log_sd(tie, 600.0, ("process.white",))) == {("process.white", "std"), ("sensor.white", "std")}
+    assert crb_log_sd(tie, 600.0, ("process.white",))[("process.white", "std")] < 0.1
