@@ -1119,11 +1119,11 @@ def test_a_candidate_ties_with_itself_at_any_score():
 def test_ceiling_crb_matches_the_gauss_markov_closed_form():
     """tests/bench/bench_ceiling.py bounds the 30 % criterion with a Whittle Cramer-Rao bound. For a
     Gauss-Markov bias (AR(1), phi = exp(-Ts / tau)) observed over N samples, with its std a nuisance
-    parameter and a sensor noise 1e4 below it, the bound on tau is the AR(1)'s: Var(phi) = (1 -
-    phi^2) / N (Brockwell & Davis 1991 ex. 8.8.1), so sd(ln tau) = sqrt((1 - phi^2) / N) tau /
-    (phi Ts) ~ sqrt(2 tau / T). Its std's own bound follows from the same information matrix; the
-    planted-versus-tie rule leaves a nuisance of the same shape out: with a process noise and an
-    actuator noise through one input, the planted one stands for both (finite, not singular)."""
+    parameter and a sensor noise 1e4 below it, the bound on tau is the AR(1)'s: Var(phi) =
+    (1 - phi^2) / N (the AR(1) maximum-likelihood estimate, Brockwell & Davis 1991 ch. 8), so
+    sd(ln tau) = sqrt((1 - phi^2) / N) tau / (phi Ts) ~ sqrt(2 tau / T). A nuisance of the same
+    spectral shape as the planted parameter is left out: with a process noise and an actuator noise
+    through one input, the planted one stands for both (its bound finite, not singular)."""
     from bench_ceiling import crb_log_sd, within_30
 
     Ts, tau, N = 0.01, 1.0, 200_000

@@ -9,8 +9,8 @@ How often can any estimator, told which effects are hidden, bring their noise pa
   and walk noises, and the correlation times), from the Whittle (asymptotic Gaussian) Fisher
   information of the truth's own spectrum over the record's Fourier frequencies:
   F_ij = sum_f (d ln S_f / d ln theta_i) (d ln S_f / d ln theta_j), one term per complex bin
-  (Whittle 1953; Brockwell & Davis 1991 sec. 10.8). Every noise parameter of the truth is a
-  nuisance parameter, estimated beside the planted ones. A nuisance of the same spectral shape as
+  (Whittle 1953). Every noise parameter of the truth is a nuisance parameter, estimated beside
+  the planted ones. A nuisance of the same spectral shape as
   a planted parameter (process and actuator white noise through one input) cannot be told from
   it: it is left out, and the planted one stands for both (the tie the diagnosis reports);
 * the chance that an unbiased estimate, log-normal with that standard deviation, lands within
@@ -19,8 +19,9 @@ How often can any estimator, told which effects are hidden, bring their noise pa
   intervals are a few per cent wide or narrower in the bench), so the ceiling is, if anything,
   too high.
 
-For a single output only the spectrum of each output is used (cross-spectra left out: too little
-information, a ceiling too low by that part; the generator's two-output cases are few). Integrator
+With several outputs, each output's own spectrum is used and their cross-spectra are left out
+(less information than the data hold: a ceiling too low by that part; the generator's two-output
+cases are few). Integrator
 plants have no stationary spectrum and are not in this set. Checked against the closed form for a
 Gauss-Markov process observed over T >> tau: sd(ln tau) = sqrt(2 tau / T)
 (``tests/test_diagnose.py::test_ceiling_crb_matches_the_gauss_markov_closed_form``).
