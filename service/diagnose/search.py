@@ -626,6 +626,7 @@ class Inner:
         self.multi = I.ndim == 3
         self.I, self.G, self.E0 = I, G.reshape((-1,) + (1,) * (I.ndim - 1)), E0
         self.U = np.stack(U) if len(U) else np.zeros((0,) + I.shape)
+        self.Uf = self.U.reshape(len(self.U), I.size)   # one output: the sources' parts as rows
         self.mod, self.mod_index = mod, mod_index
         tr = (lambda A: np.einsum("...ii->...", A).real) if self.multi else (lambda A: A)
         tot = float(np.sum(self.G * tr(I)))
@@ -672,7 +673,7 @@ class Inner:
         else:
             l = -float(np.sum(self.G * (np.log(E) + self.I / E)))
             R = self.G * (self.I - E) / E**2
-            g = np.array([float(np.sum(u * R)) for u in self.U])
+            g = self.Uf @ R.ravel()
         if self.mod is not None:
             lm, gm = self.mod(v[self.mod_index])
             l += lm
@@ -690,11 +691,7 @@ class Inner:
                 for b in range(a, n):
                     F[a, b] = F[b, a] = float(np.sum(self.Gb * np.einsum("bij,bji->b", V[a], V[b]).real))
         else:
-            W = self.G / E**2
-            for a in range(n):
-                Wa = W * self.U[a]
-                for b in range(a, n):
-                    F[a, b] = F[b, a] = float(np.sum(Wa * self.U[b]))
+            F[:] = (self.Uf * (self.G / E**2).ravel()) @ self.Uf.T
         if self.mod is not None:
             i = self.mod_index
             h = max(abs(v[i]) * 1e-3, self.vref[i] * 1e-9)
