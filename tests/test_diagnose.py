@@ -1139,3 +1139,12 @@ def test_ceiling_crb_matches_the_gauss_markov_closed_form():
                       "[process.white]\nstd = 0.5\n[actuator.white]\nstd = 0.5\n[sensor.white]\nstd = 0.01\n")
     assert set(crb_log_sd(tie, 600.0, ("process.white",))) == {("process.white", "std"), ("sensor.white", "std")}
     assert crb_log_sd(tie, 600.0, ("process.white",))[("process.white", "std")] < 0.1
+    # a std per input: one parameter per element, bounded where the inputs reach the output through
+    # modes of their own, unbounded where they share one column (only their sum is seen)
+    two = lambda B: parse_model("name = \"two\"\n[sampling]\nTs = 0.01\n[plant]\nA = [[-1.0, 0.0], [0.0, -10.0]]\n"
+                                f"B = {B}\nC = [[1.0, 1.0]]\n[actuator.white]\nstd = [0.1, 0.2]\n[sensor.white]\nstd = 0.001\n")
+    own = crb_log_sd(two("[[1.0, 0.0], [0.0, 1.0]]"), 600.0, ("actuator.white",))
+    shared = crb_log_sd(two("[[1.0, 1.0], [0.0, 0.0]]"), 600.0, ("actuator.white",))
+    assert {k for k in own if k[0] == "actuator.white"} == {("actuator.white", "std[0]"), ("actuator.white", "std[1]")}
+    assert max(own[("actuator.white", "std[0]")], own[("actuator.white", "std[1]")]) < 0.1
+    assert min(shared[("actuator.white", "std[0]")], shared[("actuator.white", "std[1]")]) > 100
