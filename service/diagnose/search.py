@@ -626,7 +626,7 @@ class Inner:
         self.multi = I.ndim == 3
         self.I, self.G, self.E0 = I, G.reshape((-1,) + (1,) * (I.ndim - 1)), E0
         self.U = np.stack(U) if len(U) else np.zeros((0,) + I.shape)
-        self.Uf = self.U.reshape(len(self.U), I.size)   # one output: the sources' parts as rows
+        self.Uf = self.U.reshape(len(self.U), I.size)   # the sources' parts as rows (bins x p x p)
         self.mod, self.mod_index = mod, mod_index
         tr = (lambda A: np.einsum("...ii->...", A).real) if self.multi else (lambda A: A)
         tot = float(np.sum(self.G * tr(I)))
@@ -649,7 +649,7 @@ class Inner:
             self.ridge = (1e-13 * np.einsum("bii->b", level).real / p + 1e-150)[:, None, None] * np.eye(p)
 
     def _E(self, v):
-        E = self.E0 + np.tensordot(v, self.U, axes=1) if len(v) else self.E0
+        E = self.E0 + (v @ self.Uf).reshape(self.U.shape[1:]) if len(v) else self.E0
         if self.multi:
             E = E + self.ridge
             d = np.einsum("bii->bi", E)              # a view of the new array's diagonals
@@ -669,7 +669,7 @@ class Inner:
             l = -float(self.Gb @ (logdet + np.einsum("bii->b", EiI).real))
             R = (EiI - np.eye(E.shape[1])) @ Ei                      # E^-1 (I - E) E^-1
             # tr(U_a R) with U_a and R Hermitian: sum_ij U_ij conj(R_ij)
-            g = np.einsum("abij,bij->ab", self.U, np.conj(R)).real @ self.Gb if len(self.U) else np.zeros(0)
+            g = (self.Uf @ (np.conj(R) * self.Gb[:, None, None]).ravel()).real
         else:
             l = -float(np.sum(self.G * (np.log(E) + self.I / E)))
             R = self.G * (self.I - E) / E**2
@@ -686,10 +686,10 @@ class Inner:
         F = np.empty((n, n))
         if self.multi:
             Ei = _inv_logdet(E)[0]
-            V = [Ei @ u for u in self.U]
-            for a in range(n):
-                for b in range(a, n):
-                    F[a, b] = F[b, a] = float(np.sum(self.Gb * np.einsum("bij,bji->b", V[a], V[b]).real))
+            # F_ab = sum_b G_b tr(V_a V_b), V_a = E^-1 U_a: one product over (sources, bins x p x p)
+            V = np.matmul(Ei[None], self.U)
+            Fc = ((V * self.Gb[:, None, None]).reshape(n, -1) @ V.transpose(0, 1, 3, 2).reshape(n, -1).T).real
+            F[:] = 0.5 * (Fc + Fc.T)
         else:
             F[:] = (self.Uf * (self.G / E**2).ravel()) @ self.Uf.T
         if self.mod is not None:
