@@ -355,7 +355,7 @@ def cmd_router(args) -> int:
     from .nodes import transport
 
     stop = _stop_on_signals()
-    with transport.open_session(args, "router") as session:
+    with transport.open_session(args, "router"):            # open while it routes
         ends = transport.endpoints_of(args, "router")
         print(f"noiselab router: listening on {', '.join(ends['listen']) or 'the config file endpoints'}",
               file=sys.stderr, flush=True)
