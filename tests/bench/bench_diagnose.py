@@ -66,7 +66,7 @@ sys.path.insert(0, str(ROOT / "tests" / "bench"))
 
 from hidden_set import (MEAN_EFFECTS, WRONG, make_case, score_case, with_bias_pair,  # noqa: E402
                         with_coarse_quantizer, with_step, with_wrong_value)
-from results_block import write_block  # noqa: E402
+from results_block import RESULTS, write_block  # noqa: E402
 
 from service.diagnose.diagnose import diagnose  # noqa: E402
 from service.model import load_model, parse_model  # noqa: E402
@@ -186,14 +186,13 @@ def speed_lines(bigr, note: str = "") -> list:
 
 def patch_speed(lines: list) -> None:
     """Replace the speed table of the block in RESULTS.md (the rest of the block kept as it was)."""
-    path = ROOT / "tests" / "bench" / "RESULTS.md"
-    text = path.read_text()
+    text = RESULTS.read_text()
     a, b = text.index(BEGIN), text.index(END)
     block = text[a:b].split("\n")
     i = next(k for k, ln in enumerate(block) if ln.startswith(SPEED_HEAD))
     j = i + 5                                   # heading, blank, header, rule, row
     block[i:j] = lines[:-1]
-    path.write_text(text[:a] + "\n".join(block) + text[b:])
+    RESULTS.write_text(text[:a] + "\n".join(block) + text[b:])
 
 
 def render(meta, bigr, rows, nrows, scan=(), planted=None, n_scan=0, steps=(), n_step=0, wrong=(), n_wrong=0,
