@@ -9,10 +9,11 @@ How often can any estimator, told which effects are hidden, bring their noise pa
   and walk noises, and the correlation times), from the Whittle (asymptotic Gaussian) Fisher
   information of the truth's own spectrum over the record's Fourier frequencies:
   F_ij = sum_f (d ln S_f / d ln theta_i) (d ln S_f / d ln theta_j), one term per complex bin
-  (Whittle 1953); a parameter given per input or output is one parameter per element. Every noise parameter of the truth is a nuisance parameter, estimated beside
-  the planted ones. A nuisance of the same spectral shape as
-  a planted parameter (process and actuator white noise through one input) cannot be told from
-  it: it is left out, and the planted one stands for both (the tie the diagnosis reports);
+  (Whittle 1953); a parameter given per input or output is one parameter per element. Every
+  noise parameter of the truth is a nuisance parameter, estimated beside the planted ones. A
+  nuisance of the same spectral shape as a planted parameter (process and actuator white noise
+  through one input) cannot be told from it: it is left out, and the planted one stands for both
+  (the tie the diagnosis reports);
 * the chance that an unbiased estimate, log-normal with that standard deviation, lands within
   30 %: Phi(ln 1.3 / sd) - Phi(ln 0.7 / sd), multiplied over the planted parameters;
 * mean effects, the quantizer, the tone and the jitter are counted as always within 30 % (their
@@ -87,16 +88,13 @@ def crb_log_sd(truth, duration: float, planted: tuple = ()) -> dict:
         for k in keys:
             v = np.asarray(_params(truth, eid)[k], float)
             # a parameter per input or output (an actuator noise's std per input): one row per element
-            for j in (range(v.size) if v.ndim else (None,)):
+            for j in range(v.size):
+                w = np.atleast_1d(v).copy()
+                w[j] *= math.exp(STEP)
                 pd = _params(truth, eid)
-                if j is None:
-                    pd[k] = float(v) * math.exp(STEP)
-                else:
-                    w = v.copy()
-                    w[j] *= math.exp(STEP)
-                    pd[k] = w.tolist()
+                pd[k] = w.tolist() if v.ndim else float(w[0])
                 G.append(((np.log(_spectrum(truth.with_params(eid, pd), f)) - np.log(S0)) / STEP).ravel())
-                names.append((eid, k if j is None or v.size == 1 else f"{k}[{j}]"))
+                names.append((eid, f"{k}[{j}]" if v.size > 1 else k))
     G = np.array(G)
     norms = np.linalg.norm(G, axis=1)
     keep = [i for i, nm in enumerate(names) if nm[0] in planted or not any(
