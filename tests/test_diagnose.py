@@ -360,7 +360,7 @@ def test_a_drift_the_views_see_is_added_when_bic_alone_would_stop():
     390 s): after the AR(1) the bias scored Delta BIC -1.5 (2 Delta l = 21 for 2 parameters, but
     ln n = 11.3 each), and the search stopped with the model error at 1.84, the Allan view 11x
     off. The views' rule adds the best candidate when the error stays above ERROR_OK, its
-    likelihood-ratio test passes at 5 % family-wise over the candidates, and the error falls by a
+    likelihood-ratio test passes at 1 % family-wise over the candidates, and the error falls by a
     third with it: the bias, at its planted tau."""
     from service.diagnose.diagnose import ERROR_FALL, ERROR_OK
 

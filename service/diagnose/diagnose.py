@@ -8,7 +8,7 @@
 3. Add the best candidate when its Delta BIC exceeds :data:`.search.THRESHOLD`, refit everything
    freed so far jointly, and repeat while something significant remains (``max_effects``). When
    nothing passes that threshold but the model error still exceeds :data:`ERROR_OK` (the views
-   see the model fail), the best candidate is added if its likelihood-ratio test passes at 5 %
+   see the model fail), the best candidate is added if its likelihood-ratio test passes at 1 %
    family-wise over the candidates and it brings the model error down by a third (:func:`_by_error`).
 4. Report: the model error before, after each step and at the end; each added effect with its
    fitted parameters (the model file's names), 95 % profile intervals, score and one sentence of
@@ -33,6 +33,7 @@ from .search import THRESHOLD, Data, Search, interval_tasks, merge_intervals
 MAX_EFFECTS = 3
 ERROR_OK = 1.5            # a model error the views call explained
 ERROR_FALL = 2.0 / 3.0    # ... and the fall an effect added on their word must bring
+BY_ERROR_ALPHA = 0.01     # ... and the family-wise level of its likelihood-ratio test (see _by_error)
 NONLINEAR = ("actuator.saturation", "actuator.deadzone")
 
 
@@ -259,8 +260,9 @@ def _step(c, model, error, Ts: float) -> dict:
 def _by_error(S, cur, accepted, steps, comps, step_models, max_effects, t, y, u, burn, say):
     """Nothing passes the Delta BIC threshold, but the views still see the model fail (model error
     above :data:`ERROR_OK`): the best candidate by :meth:`.search.Search.choice` is added when
-    its likelihood-ratio test passes at 5 % family-wise over the candidates offered (2 Delta l
-    above the chi2_k point of 0.05 / m, m candidates: the best of m is being tested) and it
+    its likelihood-ratio test passes at :data:`BY_ERROR_ALPHA` (1 %) family-wise over the candidates
+    offered (2 Delta l above the chi2_k point of 0.01 / m, m candidates: the best of m is being
+    tested) and it
     takes the model error down to :data:`ERROR_FALL` of its value or less, or to a model the views
     call explained (a Gauss-Markov bias in the model at 4x its tau, 380 s at 2 ms: the refit to
     the right tau passed the test with 2 Delta l = 29 for 2 parameters, Delta BIC 4.8, and took
@@ -272,7 +274,12 @@ def _by_error(S, cur, accepted, steps, comps, step_models, max_effects, t, y, u,
     the views call explained gets nothing this way. The views alone are not enough: on a short
     record their error spreads more than its formula says (null records of 60 s, two outputs: sd
     0.42 against 0.17; 6 of 40 above 1.5), and a per-candidate 5 % test let 2 of those 40 add an
-    effect."""
+    effect. So does a slow bias's: the truth of generated case 48 (a Gauss-Markov bias of tau 15 s
+    in 380 s) reads 1.14 on average over 12 records, its ACF and Allan views 1.53, above 1.5 on 1
+    in 12; diagnosed against itself (nominal = truth) on one such record (error 1.59), a 5 %
+    family-wise test let an AR(1) replace its white actuator noise (2 Delta l = 11.9, p = 0.03 over
+    12 candidates). The views' rule is a second chance after BIC refused, taken on records the
+    views already single out, so its test is at 1 %."""
     from scipy import stats as sps
 
     while len(accepted) < max_effects and comps[-1].error > ERROR_OK:
@@ -281,11 +288,11 @@ def _by_error(S, cur, accepted, steps, comps, step_models, max_effects, t, y, u,
             break
         c = cands[0]
         lr = 2.0 * (c.fit.loglik - cur.loglik)
-        crit = float(sps.chi2.isf(0.05 / len(cands), c.k))
+        crit = float(sps.chi2.isf(BY_ERROR_ALPHA / len(cands), c.k))
         if lr <= crit:
             say(f"model error {comps[-1].error:.3g}, but no candidate passes the likelihood-ratio test "
-                f"(best: {c.mode} {c.effect}, 2 Delta l = {lr:.1f} against {crit:.1f}, 5 % over "
-                f"{len(cands)} candidates)")
+                f"(best: {c.mode} {c.effect}, 2 Delta l = {lr:.1f} against {crit:.1f}, "
+                f"{100 * BY_ERROR_ALPHA:g} % over {len(cands)} candidates)")
             break
         new = c.fit if c.full else S.refit_all(c.fit, thorough=True)
         cmp = compare(new.model, t, y, u, burn=burn, level=S.data.at_rest, revision=len(comps))
@@ -294,7 +301,7 @@ def _by_error(S, cur, accepted, steps, comps, step_models, max_effects, t, y, u,
                 f"leave it at {cmp.error:.3g}: not added")
             break
         say(f"step {len(steps) + 1}: {c.mode} {c.effect} on the views' word (Delta BIC {c.score:.1f}; "
-            f"model error {comps[-1].error:.3g} -> {cmp.error:.3g})")
+            f"2 Delta l = {lr:.1f} against {crit:.1f}; model error {comps[-1].error:.3g} -> {cmp.error:.3g})")
         c.by_error = (float(comps[-1].error), float(cmp.error))
         cmp.model_name = f"+ {c.effect}"
         steps.append(_step(c, new.model, cmp.error, S.nominal.Ts))

@@ -110,15 +110,19 @@ def cases(seeds, log, variant=None, plants="generator") -> list[dict]:
         truth, nominal = parse_model(case.truth, "truth"), parse_model(case.nominal, "nominal")
         rec = truth.simulate(int(round(case.duration / truth.Ts)), seed=case.seed)
         t0 = time.perf_counter()
-        rep = diagnose(nominal, rec.t, rec.y, rec.u)
+        said = []
+        rep = diagnose(nominal, rec.t, rec.y, rec.u, log=said.append)
         sc = score_case(case, rep)
+        # the views' rule (diagnose._by_error): what it added, and what it tried and refused
+        sc["views_word"] = [s for s in said if "views' word" in s or "likelihood-ratio test" in s]
         sc.update(seed=seed, seconds=time.perf_counter() - t0, samples=int(len(rec.t)), Ts=truth.Ts,
                   duration=case.duration, p=truth.p, command=truth.command.kind,
                   planted_params={k: {a: b for a, b in v.items()} for k, v in case.hidden.items()},
                   got={m["effect"]: m["params"] for m in rep["missing"]})
         rows.append(sc)
         log(f"case {seed}: {'OK ' if sc['ok'] else 'BAD'} planted {sc['planted']} reported {sc['reported']} "
-            f"error {sc['error_before']:.3g} -> {sc['error_after']:.3g} ({sc['seconds']:.1f} s)")
+            f"error {sc['error_before']:.3g} -> {sc['error_after']:.3g} ({sc['seconds']:.1f} s)"
+            + "".join(f"\n    {s}" for s in sc["views_word"]))
     return rows
 
 
@@ -184,14 +188,28 @@ def speed_lines(bigr, note: str = "") -> list:
             + f" | {r0['error_before']:.3g} → {r0['error_after']:.3g} |", ""]
 
 
+def _speed_of_block() -> list | None:
+    """The speed table's lines (heading, blank, header, rule, row) of the block in RESULTS.md, if any."""
+    text = RESULTS.read_text()
+    if BEGIN not in text or END not in text:
+        return None
+    block = text[text.index(BEGIN):text.index(END)].split("\n")
+    i = next((k for k, ln in enumerate(block) if ln.startswith(SPEED_HEAD)), None)
+    return None if i is None else block[i:i + 5]
+
+
 def patch_speed(lines: list) -> None:
-    """Replace the speed table of the block in RESULTS.md (the rest of the block kept as it was)."""
+    """Replace the speed table of the block in RESULTS.md (the rest of the block kept as it was);
+    a block without one gets it after its "Run:" paragraph."""
     text = RESULTS.read_text()
     a, b = text.index(BEGIN), text.index(END)
     block = text[a:b].split("\n")
-    i = next(k for k, ln in enumerate(block) if ln.startswith(SPEED_HEAD))
-    j = i + 5                                   # heading, blank, header, rule, row
-    block[i:j] = lines[:-1]
+    i = next((k for k, ln in enumerate(block) if ln.startswith(SPEED_HEAD)), None)
+    if i is None:
+        i = 4                                   # after BEGIN, blank, "Run: ...", blank
+        block[i:i] = lines
+    else:
+        block[i:i + 5] = lines[:-1]             # heading, blank, header, rule, row
     RESULTS.write_text(text[:a] + "\n".join(block) + text[b:])
 
 
@@ -281,6 +299,16 @@ def render(meta, bigr, rows, nrows, scan=(), planted=None, n_scan=0, steps=(), n
             rs = [r for r in nrows if r["scenario"] == name]
             L.append(f"| {name} | {len(rs)} | {sum(bool(r['reported']) for r in rs)} |")
         L.append("")
+    sets = [("generated", rows), ("jitter scan", scan), ("step", steps), ("wrong value", wrong), ("coarse quantizer", coarse),
+            ("other plants", other), ("integrators", integ), ("two inputs", inputs), ("bias pairs", pairs)]
+    views = [(name, r) for name, rs in sets for r in rs if r.get("views_word")]
+    if views:
+        L += ["The views' rule (`diagnose._by_error`: nothing passes Delta BIC 10, the model error is above 1.5; the "
+              "best candidate is added when its likelihood-ratio test passes at 1 % family-wise and the error falls), "
+              "every case where it ran, what it said (a case is listed in each set it belongs to):", ""]
+        L += [f"- {name} seed {r['seed']} ({'OK' if r['ok'] else 'failed'}; planted {sorted(r['planted'])}): "
+              + " / ".join(r["views_word"]) for name, r in views]
+        L.append("")
     L += ["Reproduce: `.venv/bin/python tests/bench/bench_diagnose.py --write`", END]
     return "\n".join(L)
 
@@ -368,7 +396,10 @@ def main(argv=None):
                                             "coarse": coarse, "other": other, "pairs": pairs, "integrator": integ, "inputs": inputs}, default=str,
                                            indent=1))
     if a.write:
+        old_speed = _speed_of_block() if bigr is None else None
         write_results(block)
+        if old_speed:               # --no-big: the speed table measured before is kept, as it was
+            patch_speed(old_speed + [""])
 
 
 if __name__ == "__main__":
