@@ -473,6 +473,32 @@ def test_a_wrong_tau_that_the_views_see_is_refitted_when_the_fall_reaches_explai
     assert "excess" not in bias["evidence"] and "refitted: a Gauss-Markov bias" in bias["evidence"]
 
 
+def test_the_views_rule_adds_nothing_to_a_null_record_its_slow_bias_makes_look_wrong():
+    """The same truth (case 48: a Gauss-Markov bias of tau 15 s in 380 s) diagnosed against
+    itself, on record 1825 (``bench_null_rich``'s): its model error is 1.59 by chance (the slow
+    bias's ACF and Allan views spread more than their formulas say), and the best candidate, an
+    AR(1) in place of the white actuator noise, gains 2 Delta l = 11.9 with 2 parameters: past the
+    5 % family-wise point over the candidates offered, short of the 1 % point the views' rule
+    asks. Nothing is reported."""
+    from scipy.stats import chi2
+
+    from service.diagnose.diagnose import BY_ERROR_ALPHA, ERROR_OK
+
+    truth = parse_model("name = \"c\"\n[sampling]\nTs = 0.002\n[plant]\nA = [[0.0, 1.0], [-25.52539, -5.92271]]\n"
+                        "B = [[0.0], [37.74555]]\nC = [[1.0, 0.0]]\nL = [[4.42985], [0.0]]\n"
+                        "[command]\nkind = \"prbs\"\namplitude = 0.6576141691101576\nbit_s = 0.3109\norder = 9\n"
+                        "[process.white]\nstd = 0.3369\n[sensor.white]\nstd = 0.014\n"
+                        "[sensor.bias_markov]\nstd = 0.03582\ntau_s = 15.23\n[actuator.white]\nstd = 0.2008\n")
+    rep, logs = _diagnose_hidden(truth, (), 190_000, 1825)
+    assert rep["missing"] == [] and rep["error_before"] > ERROR_OK
+    said = [s for s in logs if "no candidate passes the likelihood-ratio test" in s]
+    assert len(said) == 1, logs
+    lr = float(said[0].split("2 Delta l = ")[1].split(" ")[0])
+    m = int(said[0].split(" over ")[1].split(" ")[0])
+    assert "actuator.ar1" in said[0] and BY_ERROR_ALPHA == 0.01
+    assert chi2.isf(0.05 / m, 2) < lr < chi2.isf(BY_ERROR_ALPHA / m, 2), (lr, m)
+
+
 def test_a_gauss_markov_bias_beats_a_walk_when_its_likelihood_ratio_test_passes():
     """Generated case 36 (a Gauss-Markov bias of tau 14 s hidden; no command; 280 s at 5 ms). The
     walk (1 parameter) and the Gauss-Markov bias (2) scored within 0.1 of each other by the
