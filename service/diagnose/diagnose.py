@@ -260,11 +260,10 @@ def _step(c, model, error, Ts: float) -> dict:
 def _by_error(S, cur, accepted, steps, comps, step_models, max_effects, t, y, u, burn, say):
     """Nothing passes the Delta BIC threshold, but the views still see the model fail (model error
     above :data:`ERROR_OK`): the best candidate by :meth:`.search.Search.choice` is added when
-    its likelihood-ratio test passes at :data:`BY_ERROR_ALPHA` (1 %) family-wise over the candidates
-    offered (2 Delta l above the chi2_k point of 0.01 / m, m candidates: the best of m is being
-    tested) and it
-    takes the model error down to :data:`ERROR_FALL` of its value or less, or to a model the views
-    call explained (a Gauss-Markov bias in the model at 4x its tau, 380 s at 2 ms: the refit to
+    its likelihood-ratio test passes at :data:`BY_ERROR_ALPHA` (1 %) family-wise over the
+    candidates offered (2 Delta l above the chi2_k point of 0.01 / m, m candidates: the best of m
+    is being tested) and it takes the model error down to :data:`ERROR_FALL` of its value or
+    less, or to a model the views call explained (a Gauss-Markov bias in the model at 4x its tau, 380 s at 2 ms: the refit to
     the right tau passed the test with 2 Delta l = 29 for 2 parameters, Delta BIC 4.8, and took
     the error from 1.58 to 1.16, a fall of only 27 %, so nothing was reported). BIC asks ln n per
     parameter, and n counts samples: a slow drift's evidence grows with the record's length, not

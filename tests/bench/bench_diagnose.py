@@ -68,7 +68,7 @@ from hidden_set import (MEAN_EFFECTS, WRONG, make_case, score_case, with_bias_pa
                         with_coarse_quantizer, with_step, with_wrong_value)
 from results_block import RESULTS, write_block  # noqa: E402
 
-from service.diagnose.diagnose import diagnose  # noqa: E402
+from service.diagnose.diagnose import BY_ERROR_ALPHA, diagnose  # noqa: E402
 from service.model import load_model, parse_model  # noqa: E402
 
 HEADING = "## Diagnosis (issue 5)"
@@ -114,7 +114,7 @@ def cases(seeds, log, variant=None, plants="generator") -> list[dict]:
         rep = diagnose(nominal, rec.t, rec.y, rec.u, log=said.append)
         sc = score_case(case, rep)
         # the views' rule (diagnose._by_error): what it added, and what it tried and refused
-        sc["views_word"] = [s for s in said if "views' word" in s or "likelihood-ratio test" in s]
+        sc["views_word"] = [s for s in said if any(w in s for w in ("views' word", "likelihood-ratio test", "not added"))]
         sc.update(seed=seed, seconds=time.perf_counter() - t0, samples=int(len(rec.t)), Ts=truth.Ts,
                   duration=case.duration, p=truth.p, command=truth.command.kind,
                   planted_params={k: {a: b for a, b in v.items()} for k, v in case.hidden.items()},
@@ -304,7 +304,8 @@ def render(meta, bigr, rows, nrows, scan=(), planted=None, n_scan=0, steps=(), n
     views = [(name, r) for name, rs in sets for r in rs if r.get("views_word")]
     if views:
         L += ["The views' rule (`diagnose._by_error`: nothing passes Delta BIC 10, the model error is above 1.5; the "
-              "best candidate is added when its likelihood-ratio test passes at 1 % family-wise and the error falls), "
+              f"best candidate is added when its likelihood-ratio test passes at {100 * BY_ERROR_ALPHA:g} % family-wise and "
+              "the error falls), "
               "every case where it ran, what it said (a case is listed in each set it belongs to):", ""]
         L += [f"- {name} seed {r['seed']} ({'OK' if r['ok'] else 'failed'}; planted {sorted(r['planted'])}): "
               + " / ".join(r["views_word"]) for name, r in views]
