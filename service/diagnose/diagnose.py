@@ -261,24 +261,25 @@ def _by_error(S, cur, accepted, steps, comps, step_models, max_effects, t, y, u,
     """Nothing passes the Delta BIC threshold, but the views still see the model fail (model error
     above :data:`ERROR_OK`): the best candidate by :meth:`.search.Search.choice` is added when
     its likelihood-ratio test passes at :data:`BY_ERROR_ALPHA` (1 %) family-wise over the
-    candidates offered (2 Delta l above the chi2_k point of 0.01 / m, m candidates: the best of m
-    is being tested) and it takes the model error down to :data:`ERROR_FALL` of its value or
-    less, or to a model the views call explained (a Gauss-Markov bias in the model at 4x its tau, 380 s at 2 ms: the refit to
-    the right tau passed the test with 2 Delta l = 29 for 2 parameters, Delta BIC 4.8, and took
-    the error from 1.58 to 1.16, a fall of only 27 %, so nothing was reported). BIC asks ln n per
-    parameter, and n counts samples: a slow drift's evidence grows with the record's length, not
-    its sample rate, so on a fast-sampled record a Gauss-Markov bias that the Allan view shows 11x
-    off (generated case 21: 2 Delta l = 20.8 for 2 parameters, p < 1e-4) fell 1.7 short of Delta
-    BIC 0. The views' error is the second witness the threshold's margin stands in for; a model
-    the views call explained gets nothing this way. The views alone are not enough: on a short
-    record their error spreads more than its formula says (null records of 60 s, two outputs: sd
-    0.42 against 0.17; 6 of 40 above 1.5), and a per-candidate 5 % test let 2 of those 40 add an
-    effect. So does a slow bias's: the truth of generated case 48 (a Gauss-Markov bias of tau 15 s
-    in 380 s) reads 1.14 on average over 12 records, its ACF and Allan views 1.53, above 1.5 on 1
-    in 12; diagnosed against itself (nominal = truth) on one such record (error 1.59), a 5 %
-    family-wise test let an AR(1) replace its white actuator noise (2 Delta l = 11.9, p = 0.03 over
-    12 candidates). The views' rule is a second chance after BIC refused, taken on records the
-    views already single out, so its test is at 1 %."""
+    candidates offered (2 Delta l above the chi2_k point of 0.01 / m, m candidates: the best of
+    m is being tested) and it takes the model error down to :data:`ERROR_FALL` of its value or
+    less, or to a model the views call explained (a Gauss-Markov bias in the model at 4x its
+    tau, 380 s at 2 ms: the refit to the right tau passed the test with 2 Delta l = 29 for 2
+    parameters, Delta BIC 4.8, and took the error from 1.58 to 1.16, a fall of only 27 %, so
+    nothing was reported). BIC asks ln n per parameter, and n counts samples: a slow drift's
+    evidence grows with the record's length, not its sample rate, so on a fast-sampled record a
+    Gauss-Markov bias that the Allan view shows 11x off (generated case 21: 2 Delta l = 20.8 for
+    2 parameters, p < 1e-4) fell 1.7 short of Delta BIC 0. The views' error is the second
+    witness the threshold's margin stands in for; a model the views call explained gets nothing
+    this way. The views alone are not enough: on a short record their error spreads more than
+    its formula says (null records of 60 s, two outputs: sd 0.42 against 0.17; 6 of 40 above
+    1.5), and a per-candidate 5 % test let 2 of those 40 add an effect. So does a slow bias's:
+    the truth of generated case 48 (a Gauss-Markov bias of tau 15 s in 380 s) reads 1.14 on
+    average over 12 records, its ACF and Allan views 1.53, above 1.5 on 1 in 12; diagnosed
+    against itself (nominal = truth) on one such record (error 1.59), a 5 % family-wise test let
+    an AR(1) replace its white actuator noise (2 Delta l = 11.9, p = 0.03 over 12 candidates).
+    The views' rule is a second chance after BIC refused, taken on records the views already
+    single out, so its test is at 1 %."""
     from scipy import stats as sps
 
     while len(accepted) < max_effects and comps[-1].error > ERROR_OK:
