@@ -977,12 +977,17 @@ def regions_of(view: View) -> list[Region]:
 
 
 # -- entry point -----------------------------------------------------------------------------------------
-def check_samples(model, t, y):
-    """y (N, p) and t (N,) as float arrays, or AnalysisError naming what is wrong with them."""
+def check_samples(model, t, y, u=None):
+    """y (N, p) and t (N,) as float arrays, or AnalysisError naming what is wrong with them (or
+    with the recorded command ``u``, (N, m), when there is one)."""
     y = np.asarray(y, float).reshape(len(y), -1)
     t = np.asarray(t, float)
     if y.shape[1] != model.p:
         raise AnalysisError(f"the recording has {y.shape[1]} measurement components, the model {model.p}")
+    if u is not None:
+        m = np.asarray(u, float).reshape(len(u), -1).shape[1]
+        if m != model.m:
+            raise AnalysisError(f"the recording's command has {m} components, the model {model.m} inputs")
     if not np.all(np.isfinite(y)):
         k = int(np.flatnonzero(~np.all(np.isfinite(y), axis=1))[0])
         raise AnalysisError(f"the measurement holds NaN or inf (first at sample {k}, t = {t[k]:g} s)")
@@ -999,7 +1004,7 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
     record). ``settings`` override :func:`default_settings`. ``level``: the record starts at rest
     (sample 0 of a noiselab stream), so its absolute level is predicted: add the level view.
     """
-    y, t = check_samples(model, t, y)
+    y, t = check_samples(model, t, y, u)
     pr = predictor_of(model)
     try:
         mean = pr.mean_response(command=u) if u is not None else pr.mean_response(len(y))
