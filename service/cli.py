@@ -443,7 +443,7 @@ def _check_out(path: str | None, force: bool):
 
 
 def cmd_analyze(args) -> int:
-    from .diagnose.compare import compare
+    from .diagnose.compare import auto_burn, compare
 
     if args.live:
         from .nodes.analyzer import cmd_analyze_live
@@ -455,11 +455,8 @@ def cmd_analyze(args) -> int:
     _check_out(args.rrd, args.force)
     _check_out(png, args.force)
     series = load_series(args, model, truth=bool(args.rrd or png))    # truth only for the views
-    # the model's transient from rest is skipped for a record from rest, and for a record with a
-    # command that does not start at rest (its predicted mean response starts from zero)
-    driven = series.u is not None and bool(np.any(series.u))
-    burn = None if (args.burn == "auto" and (series.starts_at_rest or driven)) else \
-        (0 if args.burn == "auto" else int(round(float(args.burn) / model.Ts)))
+    burn = auto_burn(series.starts_at_rest, series.u) if args.burn == "auto" else \
+        int(round(float(args.burn) / model.Ts))
     cmp = compare(model, series.t, series.y, series.u, truth=series.truth, burn=burn,
                   level=series.starts_at_rest)
     extra = {}

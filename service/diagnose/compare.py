@@ -977,6 +977,14 @@ def regions_of(view: View) -> list[Region]:
 
 
 # -- entry point -----------------------------------------------------------------------------------------
+def auto_burn(at_rest: bool, u) -> int | None:
+    """compare()'s ``burn`` for a record: None (skip the model's transient from rest) when the
+    record starts at rest (the transient is in its covariance), or when it has a command but does
+    not start at rest (cut mid-stream, or the longest run after a gap: the predicted mean response
+    of its command starts from zero there, the record does not); else 0."""
+    return None if at_rest or (u is not None and bool(np.any(u))) else 0
+
+
 def check_samples(model, t, y, u=None):
     """y (N, p) and t (N,) as float arrays, or AnalysisError naming what is wrong with them (or
     with the recorded command ``u``, (N, m), when there is one)."""

@@ -26,7 +26,7 @@ import numpy as np
 from .. import parallel
 from ..model.effects import CATALOGUE
 from ..model.effects.base import _g
-from .compare import check_samples, compare, transient_samples
+from .compare import auto_burn, check_samples, compare, transient_samples
 from .results import fmt_score
 from .search import THRESHOLD, Data, Search, interval_tasks, merge_intervals
 
@@ -374,11 +374,7 @@ def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MA
     y, t = check_samples(model, t, y, u)       # bad input fails here, before any fitting
     u = None if u is None else np.asarray(u, float).reshape(len(u), -1)
     k0 = 0 if at_rest else min(transient_samples(model), len(y) // 2)
-    # the views skip the model's transient from rest: a record from rest has it in its covariance,
-    # and a record that does not start at rest (mid-stream, or the longest run after a gap) has no
-    # transient where the predicted mean response of its command, which starts from zero, has one
-    driven = u is not None and bool(np.any(u))
-    burn = (None if at_rest or driven else 0) if compare_burn == "auto" else compare_burn
+    burn = auto_burn(at_rest, u) if compare_burn == "auto" else compare_burn
     data = Data(y, u, model.Ts, at_rest, k0)
     S = Search(model, data, log=say)
     # the comparisons (before, after each step, after all) run beside the fits on long records (one

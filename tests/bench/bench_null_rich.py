@@ -66,26 +66,27 @@ def run(plants: str, n: int, log) -> list[dict]:
 
 
 def render(sets, seconds: float) -> str:
+    """``sets``: [(set name, seeds run, rows of :func:`run`)]."""
     lines = [BEGIN, "",
              f"Run: {time.strftime('%Y-%m-%d %H:%M')} (local time), {seconds:.0f} s. Each hidden case diagnosed "
              "against its own truth (the effects the truth has are all in the model), on a record of its own.", "",
              "| set | seeds | cases | anything reported | top candidate's Delta BIC: median | 90 % | largest "
              "| model error: median | largest |",
              "|---|---|---|---|---|---|---|---|---|"]
-    for name, rows in sets:
+    for name, n_seeds, rows in sets:
         tops = np.array([r["top"][2] if r["top"] else -np.inf for r in rows])
         err = np.array([r["error"] for r in rows])
         fp = sum(bool(r["reported"]) for r in rows)
-        lines.append(f"| {SETS[name][0]} | 0..{SETS[name][1] - 1} | {len(rows)} | {fp} | {np.median(tops):.1f} "
+        lines.append(f"| {SETS[name][0]} | 0..{n_seeds - 1} | {len(rows)} | {fp} | {np.median(tops):.1f} "
                      f"| {np.quantile(tops, 0.9):.1f} | {tops.max():.1f} | {np.median(err):.2f} | {err.max():.2f} |")
-    allrows = [r for _, rows in sets for r in rows]
+    allrows = [r for _, _n, rows in sets for r in rows]
     n_fp = sum(bool(r["reported"]) for r in allrows)
     lines += ["", f"In all: {n_fp} of {len(allrows)} with anything reported (threshold: Delta BIC > {THRESHOLD:g})."]
     effects = sorted({e for r in allrows for e in r["effects"]})
     lines += ["", "Cases per effect in the model (and of them, with anything reported): "
               + ", ".join(f"{e} {sum(e in r['effects'] for r in allrows)} "
                           f"({sum(e in r['effects'] and bool(r['reported']) for r in allrows)})" for e in effects) + "."]
-    bad = [(name, r) for name, rows in sets for r in rows if r["reported"]]
+    bad = [(name, r) for name, _n, rows in sets for r in rows if r["reported"]]
     if bad:
         lines += ["", "Reported:", ""]
         lines += [f"- {name} seed {r['seed']} (Ts {r['Ts']} s, {r['duration']:.0f} s, p = {r['p']}; "
@@ -102,12 +103,8 @@ def main(argv=None):
     ap.add_argument("--write", action="store_true")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
-    sets = []
-    for name in SETS:
-        n = getattr(args, name)
-        if n:
-            SETS[name] = (SETS[name][0], n)
-            sets.append((name, run(name, n, lambda s: print(s, flush=True))))
+    sets = [(name, n, run(name, n, lambda s: print(s, flush=True)))
+            for name in SETS if (n := getattr(args, name))]
     block = render(sets, time.perf_counter() - t0)
     print(block)
     if args.write:
