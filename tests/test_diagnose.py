@@ -300,6 +300,42 @@ def test_a_saturation_under_a_step_at_t0_is_found_in_the_taper_ramp():
     assert rep["error_before"] > 10 and rep["error_after"] <= 1.5
 
 
+AR1_SAT = ("name = \"ar1sat\"\n[sampling]\nTs = 0.005\n[plant]\nA = [[0.0, 1.0], [-16.0, -2.0]]\n"
+           "B = [[0.0], [16.0]]\nC = [[1.0, 0.0]]\nL = [[0.0], [4.0]]\n[command]\nkind = \"chirp\"\n"
+           "amplitude = 0.8\nf0_hz = 0.1\nf1_hz = 3.0\nduration_s = 25\n[process.white]\nstd = 0.2\n"
+           "[actuator.ar1]\nstd = 0.05\nrho = 0.98\n[actuator.saturation]\nlimit = 0.7\n[sensor.white]\nstd = 0.002\n")
+
+
+@pytest.mark.parametrize("seed", [1, 3])
+def test_an_ar1_actuator_noise_behind_a_saturation_the_chirp_reaches_is_found_and_nothing_else(seed):
+    """AR(1) actuator noise (tau 0.25 s) through a saturation a chirp (0.1-3 Hz) reaches a third of
+    the time: the clipper's gain switches within the noise's correlation time, which widens the
+    clipped noise's spectrum (``Predictor._gain_shadows``). Hidden from the nominal model, the
+    AR(1) is found alone, std and tau within 30 %, tau within its interval; diagnosed against
+    the truth itself, the record shows nothing. Before the gain's spectrum was modelled (rms gain
+    on the AR(1)'s own spectrum) these records gave tau -32 % (seed 1) and a process-noise refit
+    beside the AR(1) at Delta BIC 17 (seed 3), and against the truth process noise refitted at
+    Delta BIC 72 (seed 3).
+
+    The std's interval is not asserted: it is too narrow here. Over seeds 1, 3, 11-14 the std
+    spreads by 4 % (sd) where its profile interval says 2.7 %: the clipped noise is cyclostationary
+    (its power follows the chirp), and its periodogram spreads more than the stationary Whittle
+    likelihood assumes. Seed 3's interval (0.0506, 0.0563) misses 0.05; tau's hold."""
+    truth = parse_model(AR1_SAT, "ar1sat")
+    rec = truth.simulate(30_000, seed=seed)
+    rep = diagnose(truth.without_effect("actuator.ar1"), rec.t, rec.y, rec.u)
+    assert [m["effect"] for m in rep["missing"]] == ["actuator.ar1"], rep["missing"]
+    got, iv = rep["missing"][0]["params"], rep["missing"][0]["interval"]
+    want = {"std": 0.05, "tau_s": -0.005 / math.log(0.98)}
+    for k, v in want.items():
+        assert abs(got[k] / v - 1) < 0.3, (k, got[k])
+    assert iv["tau_s"][0] < want["tau_s"] < iv["tau_s"][1], iv
+    assert rep["error_after"] < 1.5
+    null = diagnose(truth, rec.t, rec.y, rec.u)
+    assert null["missing"] == [] and max(c["score"] for c in null["candidates"]) < THRESHOLD, \
+        [(c["effect"], c["score"]) for c in null["candidates"][:3]]
+
+
 def test_a_saturations_limit_under_a_step_is_fitted_to_the_records_level():
     """A mass-spring-damper (k = 4) stepped to 2 at t = 0 with its input clipped at 1.5, 120 s
     from rest (``tests/bench/bench_step_level.py``, seed 2). After the transient the plant input

@@ -99,6 +99,7 @@ class LinearSystem:
     owners: dict            # effect id -> column indices of e
     n_x: int                # plant (+ lag) states at the top of s
     plant_block: slice      # rows/cols of s that are plant states (without lag)
+    n_act: int = 0          # actuator-noise states after the plant's (shadows included)
 
 
 @dataclass
@@ -150,6 +151,8 @@ def mean_key(model, gain: bool = True) -> str:
     d.pop("name", None)
     return repr(d)
 
+
+SHADOW_BLOCKS = 4         # at most so many blocks for a colored source's gain fluctuation (Predictor._gain_shadows)
 
 # The model's own mean response over its horizon, shared between models that differ only in what
 # it does not depend on (:func:`mean_key`): a diagnosis builds thousands of models that differ in a
@@ -292,23 +295,48 @@ class Predictor:
         return got
 
     # -- the augmented linear system -------------------------------------------------------------------
-    def linear_system(self, g: np.ndarray | None = None, dstd: np.ndarray | None = None) -> LinearSystem:
+    def linear_system(self, g: np.ndarray | None = None, dstd: np.ndarray | None = None,
+                      shadow: dict | None = None) -> LinearSystem:
         """The augmented system for nonlinearity gain ``g`` and distortion std ``dstd`` (per input).
         The distortion d of the static nonlinearities enters the input channel as white noise,
         owned by the nonlinearity (exact for white actuator noise, whose distortion is iid; an
-        approximation of its spectrum for colored actuator noise)."""
+        approximation of its spectrum for colored actuator noise).
+
+        ``shadow`` ({index of an actuator source: (mean gain (m,), [(fluctuation gain (m,), its
+        shadow block (F, G, C, D))])}, :meth:`_gain_shadows`): a colored source whose gain
+        switches within its correlation time, g_k n_k = gbar n_k + (g_k - gbar) n_k. The first
+        part keeps the source's own dynamics at the mean gain, the second (uncorrelated with it
+        over time) is the shadow blocks at their gains, all owned by the source."""
         mdl = self.model
         g = np.ones(mdl.m) if g is None else np.asarray(g, float)
         G = np.diag(g)
-        nx, na = mdl.n_x, self._Fa.shape[0]
+        shadow = shadow or {}
+        # per actuator block (its own states, then its shadow's): (F, G, C, D, gain matrix)
+        act = []
+        for i, (Ga, Da) in enumerate(zip(self._Ga, self._Da)):
+            a0 = sum(b.shape[0] for b in self._Ga[:i])
+            Fi = self._Fa[a0:a0 + Ga.shape[0], a0:a0 + Ga.shape[0]]
+            Ci = self._Ca[:, a0:a0 + Ga.shape[0]]
+            if i in shadow:
+                gbar, comps = shadow[i]
+                act.append([(Fi, Ga, Ci, Da, np.diag(gbar))] + [(*blk, np.diag(gf)) for gf, blk in comps])
+            else:
+                act.append([(Fi, Ga, Ci, Da, G)])
+        blocks = [b for bl in act for b in bl]
+        na = sum(b[0].shape[0] for b in blocks)
         sen = [e.sensor_linear() for e in self._sen_lin]
         Fs = block_diag(*[s[0] for s in sen]) if sen else np.zeros((0, 0))
         ns_ = Fs.shape[0]
+        nx = mdl.n_x
         n_s = nx + na + ns_
         F = np.zeros((n_s, n_s))
         F[:nx, :nx] = mdl.Ad
-        F[:nx, nx:nx + na] = mdl.Bd @ G @ self._Ca
-        F[nx:nx + na, nx:nx + na] = self._Fa
+        a0 = 0
+        for Fi, _, Ci, _, Gi in blocks:
+            k = Fi.shape[0]
+            F[:nx, nx + a0:nx + a0 + k] = mdl.Bd @ Gi @ Ci
+            F[nx + a0:nx + a0 + k, nx + a0:nx + a0 + k] = Fi
+            a0 += k
         F[nx + na:, nx + na:] = Fs
         cols, owners, Jc, Jdc = [], {}, [], []
         gain = mdl.out_gain[:, None]
@@ -318,20 +346,21 @@ class Predictor:
         def add(eid, col_block, j_block, jd_block):
             nonlocal start
             k = col_block.shape[1]
-            owners[eid] = np.arange(start, start + k)
+            owners[eid] = np.concatenate([owners.get(eid, np.zeros(0, np.int64)), np.arange(start, start + k)])
             start += k
             cols.append(col_block)
             Jc.append(j_block)
             Jdc.append(jd_block)
 
         a0 = 0
-        for e, Ga, Da in zip(self._act_src, self._Ga, self._Da):
-            k, ka = Da.shape[1], Ga.shape[0]
-            col = np.zeros((n_s, k))
-            col[:nx] = mdl.Bd @ G @ Da
-            col[nx + a0:nx + a0 + ka] = Ga
-            a0 += ka
-            add(e.id, col, gain * (mdl.Dy @ G @ Da), gain * (CyBc @ G @ Da))
+        for e, bl in zip(self._act_src, act):
+            for _, Ga, _, Da, Gi in bl:
+                k, ka = Da.shape[1], Ga.shape[0]
+                col = np.zeros((n_s, k))
+                col[:nx] = mdl.Bd @ Gi @ Da
+                col[nx + a0:nx + a0 + ka] = Ga
+                a0 += ka
+                add(e.id, col, gain * (mdl.Dy @ Gi @ Da), gain * (CyBc @ Gi @ Da))
         if self._nonlin and dstd is not None:
             Dd = np.diag(np.asarray(dstd, float))
             col = np.zeros((n_s, mdl.m))
@@ -352,14 +381,110 @@ class Predictor:
         Gam = np.hstack(cols) if cols else np.zeros((n_s, 0))
         H = np.zeros((mdl.p, n_s))
         H[:, :nx] = gain * mdl.Cy
-        H[:, nx:nx + na] = gain * (mdl.Dy @ G @ self._Ca)
         H[:, nx + na:] = np.hstack([s[2] for s in sen]) if sen else np.zeros((mdl.p, 0))
         Hd = np.zeros((mdl.p, n_s))
         Hd[:, :nx] = gain * (mdl.Cy @ mdl.Ac)
-        Hd[:, nx:nx + na] = gain * (CyBc @ G @ self._Ca)
+        a0 = 0
+        for Fi, _, Ci, _, Gi in blocks:
+            k = Fi.shape[0]
+            H[:, nx + a0:nx + a0 + k] = gain * (mdl.Dy @ Gi @ Ci)
+            Hd[:, nx + a0:nx + a0 + k] = gain * (CyBc @ Gi @ Ci)
+            a0 += k
         J = np.hstack(Jc) if Jc else np.zeros((mdl.p, 0))
         Jd = np.hstack(Jdc) if Jdc else np.zeros((mdl.p, 0))
-        return LinearSystem(F, Gam, H, J, Hd, Jd, owners, nx, slice(0, mdl.plant.n))
+        return LinearSystem(F, Gam, H, J, Hd, Jd, owners, nx, slice(0, mdl.plant.n), na)
+
+    def _gain_shadows(self, gain: np.ndarray) -> dict:
+        """The gain fluctuation's part of each colored actuator source, for :meth:`linear_system`.
+
+        Through a nonlinearity the source n_k reaches the plant as g_k n_k (Bussgang), g_k the
+        gain at sample k of the command (0 in a saturation, 1 outside). Over time the product's
+        autocovariance is R_g(d) R_n(d), R_g(d) = mean_k g_k g_(k+d) (the gain is the command's,
+        independent of the noise): the rms gain on the source's own spectrum is right only at
+        d = 0, and too narrow a spectrum when the gain switches within the noise's correlation
+        time (a chirp through the limit). Split R_g(d) = gbar^2 + c(d): the mean gain keeps the
+        source's own spectrum, and the fluctuation's part h(d) = c(d) R_n(d) is a sum of at most
+        :data:`SHADOW_BLOCKS` damped cosines w r^|d| cos(theta d) (a rotating AR(1) of two
+        states; theta = 0: an AR(1)), weights w >= 0 fitted to h's spectrum by non-negative least
+        squares in relative error on frequencies log-spaced from the horizon's lowest to Nyquist,
+        the variance sum w = h(0) held exactly (gbar^2 + c(0) = mean g^2, as with the rms gain).
+        Poles r from the source's slowest to about 1/20 (a few samples), theta from 0 to Nyquist.
+        Per input channel; any source with states (a white one is exact with the rms gain).
+        ``gain`` (N, m) over the model's own command after its transient.
+        {source index: (gbar (m,), [(gain (m,), block (F, G, C, D))])}."""
+        from scipy.optimize import nnls
+        out: dict = {}
+        N = gain.shape[0]
+        if N < 4:
+            return out
+        mdl = self.model
+        Ts, m = mdl.Ts, mdl.m
+        gbar = gain.mean(axis=0)
+        dev = gain - gbar
+        c0 = np.mean(dev**2, axis=0)
+        f = np.geomspace(1.0 / (N * Ts), 0.5 / Ts, 160)
+        w = 2 * np.pi * f * Ts
+        a0 = 0
+        for i, (Ga, Da) in enumerate(zip(self._Ga, self._Da)):
+            na = Ga.shape[0]
+            Fi = self._Fa[a0:a0 + na, a0:a0 + na]
+            Ci = self._Ca[:, a0:a0 + na]
+            a0 += na
+            if na == 0:
+                continue
+            rad = float(np.max(np.abs(np.linalg.eigvals(Fi))))
+            # the fluctuation is worth more blocks only where it is a visible share of the gain's power
+            active = c0 > 1e-6 * np.mean(gain**2, axis=0)
+            if not active.any() or not 0.0 < rad < 1.0:
+                continue
+            Pa = solve_discrete_lyapunov(Fi, Ga @ Ga.T)
+            D = int(min(N - 1, np.ceil(np.log(1e-9) / np.log(rad)) + 1))
+            # R_n(d) per channel: Ca F^(d-1) (F Pa Ca^T + Ga Da^T), d >= 1; Ca Pa Ca^T + Da Da^T at 0
+            Rn = np.empty((D + 1, m))
+            Rn[0] = np.diag(Ci @ Pa @ Ci.T + Da @ Da.T)
+            X = Fi @ Pa @ Ci.T + Ga @ Da.T
+            if D:
+                Rn[1:] = np.diagonal(np.einsum("ij,djk->dik", Ci, _powers_apply(Fi, X, D)), axis1=1, axis2=2)
+            comps = []
+            r = rad ** np.geomspace(1.0, np.log(0.05) / np.log(rad), 7)
+            th = np.concatenate([[0.0], 2 * np.pi * Ts * np.geomspace(f[0], 0.45 / Ts, 12)])
+            R, T = np.meshgrid(r, th, indexing="ij")
+            R, T = R.ravel(), T.ravel()
+
+            # the damped cosines' spectra (unit variance), as columns: (P(w - theta) + P(w + theta)) / 2
+            B = 0.5 * ((1 - R**2) / (1 - 2 * R * np.cos(w[:, None] - T) + R**2)
+                       + (1 - R**2) / (1 - 2 * R * np.cos(w[:, None] + T) + R**2))
+            for j in np.flatnonzero(active & (Rn[0] > 0)):
+                n2 = 1 << int(N + D).bit_length()
+                spec = np.fft.rfft(dev[:, j], n2)
+                cd = np.fft.irfft(np.abs(spec) ** 2, n2)[:D + 1] / (N - np.arange(D + 1))
+                h = cd * Rn[:, j]
+                S = h[0] + 2.0 * np.cos(np.outer(w, np.arange(1, D + 1))) @ h[1:]
+                scale = 1.0 / (np.abs(S) + 1e-3 * np.max(np.abs(S)))
+                # the variance held: sum w / h(0) = 1 as one row weighted far above the spectrum's
+                # (whose relative errors are O(1) per unit of w / h(0))
+                big = 1e3 * np.sqrt(f.size)
+                Mx = np.vstack([B * scale[:, None], np.full((1, R.size), big / h[0])])
+                rhs = np.append(S * scale, big)
+                wt, _ = nnls(Mx, rhs)
+                keep = np.argsort(wt)[::-1][:SHADOW_BLOCKS]
+                keep = keep[wt[keep] > 0]
+                wt_k, _ = nnls(Mx[:, keep], rhs)
+                for k, wk in zip(keep, wt_k):
+                    if wk <= 0:
+                        continue
+                    rk, tk = R[k], T[k]
+                    C = np.zeros((m, 1 if tk == 0 else 2))
+                    C[j, 0] = 1.0
+                    if tk == 0:
+                        Fk = np.array([[rk]])
+                    else:
+                        Fk = rk * np.array([[np.cos(tk), -np.sin(tk)], [np.sin(tk), np.cos(tk)]])
+                    Gk = np.sqrt(wk * (1 - rk**2)) * np.eye(Fk.shape[0])
+                    comps.append((np.ones(m), (Fk, Gk, C, np.zeros((m, Fk.shape[0])))))
+            if comps:
+                out[i] = (gbar, comps)
+        return out
 
     def _distortion_owner(self) -> str:
         """The effect id the distortion is reported under: the (first) nonlinearity."""
@@ -435,15 +560,24 @@ class Predictor:
         # horizon is 6e7 samples, a minute and gigabytes for a model that needs none of it
         needs_mean = bool(self._nonlin) or "sensor.quantization" in mdl.effects or "sensor.jitter" in mdl.effects
         mean = self._own_mean() if needs_mean else None
-        g = np.sqrt(np.mean(mean.gain**2, axis=0)) if self._nonlin else None
-        dstd = np.sqrt(np.mean(mean.distortion_var, axis=0)) if self._nonlin else None
+        burn = min(mean.t.size // 2, _settle_samples(mdl)) if needs_mean else 0
+        # the gains after the transient (the drive noise's variance grows from zero at the start)
+        g = np.sqrt(np.mean(mean.gain[burn:] ** 2, axis=0)) if self._nonlin else None
+        dstd = np.sqrt(np.mean(mean.distortion_var[burn:], axis=0)) if self._nonlin else None
+        shadow = self._gain_shadows(mean.gain[burn:]) if self._nonlin else {}
         if self._nonlin:
             notes.append("actuator nonlinearities linearized around the mean drive (seed section 7): "
                          "rms gain " + ", ".join(f"{v:.4g}" for v in g) + ", distortion std "
                          + ", ".join(f"{v:.3g}" for v in dstd) + " treated as white")
-        ls = self.linear_system(g, dstd)
+        for i, (gbar, comps) in shadow.items():
+            gf = np.sqrt(np.maximum(g**2 - gbar**2, 0.0))
+            notes.append(f"{self._act_src[i].id}: the nonlinearities' gain switches within its correlation "
+                         "time: its mean gain " + ", ".join(f"{v:.4g}" for v in gbar) + " on its own "
+                         "spectrum, the gain's fluctuation (std " + ", ".join(f"{v:.3g}" for v in gf)
+                         + f") on {len(comps)} wider ones (damped cosines fitted to its spectrum)")
+        ls = self.linear_system(g, dstd, shadow)
         nx, n_s = ls.n_x, ls.F.shape[0]
-        plant_part = slice(0, nx + self._Fa.shape[0])
+        plant_part = slice(0, nx + ls.n_act)
         marginal = False
         walk_y = walk_ydot = np.zeros(mdl.p, bool)     # per output: the walk reaches it (its slope)
         leaked = leak_unit_modes(ls.F[:nx, :nx], mdl.Ac, mdl.Ts)
@@ -502,7 +636,6 @@ class Predictor:
                             np.zeros(mdl.p)) / mdl.Ts
         slope_ok = stable or (marginal and not walk_ydot.any())
         rate = np.zeros(mdl.p)
-        burn = min(mean.t.size // 2, _settle_samples(mdl)) if needs_mean else 0
         ydot2 = np.mean(mean.ydot[burn:] ** 2, axis=0) if needs_mean else np.zeros(mdl.p)
         for eid, kind, *prm in self._primitives():
             if kind == "white":

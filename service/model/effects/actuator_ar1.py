@@ -63,4 +63,3 @@ class ActuatorAR1(Effect):
 
     def drive_linear(self):
         return np.diag(self.rho), np.diag(self.c), np.diag(self.rho), np.diag(self.c)
-
