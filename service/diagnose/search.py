@@ -127,6 +127,8 @@ class Data:
         self.has_command = self.u is not None and self.u.size > 0 and bool(
             np.any(np.ptp(self.u, axis=0) > 0) or (self.at_rest and np.any(self.u != 0)))
         self.umax = float(np.max(np.abs(self.u))) if self.u is not None and self.u.size else 0.0
+        # per input (a limit searched per input ranges over its own command's)
+        self.umax_in = np.max(np.abs(self.u), axis=0) if self.u is not None and self.u.size else np.zeros(0)
         self.T = self.N * self.Ts
         self.groups = W.Groups(self.M, REL_BW)
         self.starts, self.sizes = self.groups.starts, self.groups.sizes
@@ -1272,6 +1274,25 @@ class Hypotheses:
             rnd += 1
             if rnd == n_rounds and not screen and len(outer) > 1 and gain > 1.0 and n_rounds < rounds + MORE_ROUNDS:
                 n_rounds += 1           # still climbing a ridge the parameters share: one more round
+        # a mean effect's parameter one per channel (:data:`PER_CHANNEL`): from the common value,
+        # each channel's over its whole range, then each around its value, while a round gains
+        # (the channels trade off through the outputs they share: a ridge, climbed by more rounds
+        # while one still gains more than 1 in l)
+        per_ch = [(e, spec) for e, spec in outer if PER_CHANNEL in free[e] and shape_channels(best.model, e) > 1]
+        n_rounds = 1 if screen else rounds
+        rnd = 0
+        while per_ch and rnd < n_rounds:
+            before = best.objective(True)
+            for e, spec in per_ch:
+                for j in range(shape_channels(best.model, e)):
+                    best = self._search(best, e, spec, coarse=(rnd == 0 and e in new),
+                                        n_grid=7 if screen else 9, n_golden=6 if screen else 10, ch=j)
+            gain = best.objective(True) - before
+            if gain < 0.05:
+                break
+            rnd += 1
+            if rnd == n_rounds and not screen and gain > 1.0 and n_rounds < rounds + 2 * MORE_ROUNDS:
+                n_rounds += 1
         return best
 
     def _coords(self, fit: Fit, outer) -> np.ndarray:
@@ -1315,17 +1336,25 @@ class Hypotheses:
             best = f
         return best
 
-    def _bounds(self, spec):
+    def _bounds(self, spec, ch: int | None = None):
+        """A searched parameter's range (channel ``ch``'s: an input's own command for "umax")."""
         name, lo, hi, unit, spacing = spec
         d = self.data
         if unit == "Ts|T":
             return lo * d.Ts, hi * d.T, spacing
         if unit == "umax":
-            return lo * d.umax, hi * d.umax, spacing
+            um = d.umax if ch is None or ch >= d.umax_in.size or d.umax_in[ch] <= 0 else float(d.umax_in[ch])
+            return lo * um, hi * um, spacing
         return lo, hi, spacing
 
-    def _try(self, fit: Fit, e: str, name: str, value: float) -> Fit | None:
+    def _try(self, fit: Fit, e: str, name: str, value: float, ch: int | None = None) -> Fit | None:
+        """The fit with ``e``'s ``name`` at ``value`` (at channel ``ch`` alone, the others kept)."""
         try:
+            if ch is not None:
+                vals = np.broadcast_to(_shape_values(fit.model.effects[e], name, self.data.Ts),
+                                       (shape_channels(fit.model, e),)).copy()
+                vals[ch] = value
+                value = _vec(vals)
             m = _set(fit.model, e, {name: value})
             if _radius(m.Ad) >= 1.0 and _radius(self.base.Ad) < 1.0:
                 return None            # e.g. a lag faster than Ts under forward Euler: not a model of anything
@@ -1333,10 +1362,13 @@ class Hypotheses:
         except (ModelError, ValueError, np.linalg.LinAlgError):
             return None
 
-    def _search(self, fit: Fit, e: str, spec, coarse: bool, n_grid: int = 9, n_golden: int = 10) -> Fit:
-        lo, hi, spacing = self._bounds(spec)
+    def _search(self, fit: Fit, e: str, spec, coarse: bool, n_grid: int = 9, n_golden: int = 10,
+                ch: int | None = None) -> Fit:
+        """One searched parameter (all channels alike, or channel ``ch`` alone): a grid over its
+        range when ``coarse`` (or unset), then golden section around the best."""
+        lo, hi, spacing = self._bounds(spec, ch)
         name = spec[0]
-        cur = _shape_value(fit.model.effects[e], name, self.data.Ts)
+        cur = _shape_value(fit.model.effects[e], name, self.data.Ts, ch)
         tr = (np.log, np.exp) if spacing == "log" else (lambda x: x, lambda x: x)
         a, b = tr[0](lo), tr[0](hi)
         best = fit
@@ -1345,13 +1377,13 @@ class Hypotheses:
         if coarse or cur is None:
             xs = np.linspace(a, b, n_grid)
             for x in xs:
-                f = self._try(fit, e, name, float(tr[1](x)))
+                f = self._try(fit, e, name, float(tr[1](x)), ch)
                 if f is not None and f.objective(mean) > best.objective(mean):
                     best = f
             step = (b - a) / (n_grid - 1)
         else:
             step = (b - a) / 40
-        c = _shape_value(best.model.effects[e], name, self.data.Ts)
+        c = _shape_value(best.model.effects[e], name, self.data.Ts, ch)
         if c is None:                  # nothing on the grid was valid and the effect has no value yet
             return fit
         gr = (math.sqrt(5) - 1) / 2
@@ -1366,7 +1398,7 @@ class Hypotheses:
 
             def val(x):
                 if x not in cache:
-                    cache[x] = self._try(best, e, name, float(tr[1](x)))
+                    cache[x] = self._try(best, e, name, float(tr[1](x)), ch)
                 f = cache[x]
                 return -1e300 if f is None else f.objective(mean)
 
@@ -1384,7 +1416,7 @@ class Hypotheses:
                     best, moved = f, True
             if not moved:
                 break
-            c = _shape_value(best.model.effects[e], name, self.data.Ts)
+            c = _shape_value(best.model.effects[e], name, self.data.Ts, ch)
             xb = tr[0](c)
             edge = gr ** n_golden * (hi2 - lo2) * 2
             if not ((xb - lo2 < edge and lo2 > a) or (hi2 - xb < edge and hi2 < b)):
@@ -1409,15 +1441,22 @@ class Hypotheses:
         return f if f.loglik >= fit.loglik - CHI2_95 / 2 else fit
 
 
-def _shape_value(eff, name: str, Ts: float) -> float | None:
-    """The current value of a searched parameter (a correlation time given as rho: -Ts / ln rho)."""
+def _shape_value(eff, name: str, Ts: float, ch: int | None = None) -> float | None:
+    """The current value of a searched parameter (a correlation time given as rho: -Ts / ln rho):
+    channel ``ch``'s, or (None) the mean over the channels."""
+    v = _shape_values(eff, name, Ts)
+    return None if v is None else float(np.mean(v) if ch is None else v[ch if v.size > 1 else 0])
+
+
+def _shape_values(eff, name: str, Ts: float) -> np.ndarray | None:
+    """A searched parameter's values (1-d: one, or one per channel)."""
     pd = eff.param_dict()
     v = pd.get(name)
     if v is None and name == "tau_s" and "rho" in pd:
         rho = np.atleast_1d(np.asarray(pd["rho"], float))
         if np.all((rho > 0) & (rho < 1)):
             v = -Ts / np.log(rho)
-    return None if v is None else float(np.mean(v))
+    return None if v is None else np.atleast_1d(np.asarray(v, float))
 
 
 def _radius(A: np.ndarray) -> float:
@@ -1441,6 +1480,15 @@ def _set(model, eid: str, values: dict):
 PER_OUTPUT = ("sensor.white", "sensor.bias_walk", "sensor.bias_markov")   # one variance per output
 PER_INPUT = ("actuator.white", "actuator.ar1", "process.white")            # ... per (noise) input
 COMMON = "common"     # among an effect's free names: one factor over its channels (the file's proportions)
+PER_CHANNEL = "per_channel"   # among a mean effect's free names: its searched parameters one per channel
+
+
+def shape_channels(model, eid: str) -> int:
+    """How many channels a mean effect's searched parameter has: one per input for an actuator
+    effect (a saturation limit, a dead-zone width, a lag), one per output for a sensor effect (a
+    scale factor)."""
+    stage = CATALOGUE[eid].stage
+    return model.m if stage == "actuator" else model.p if stage == "sensor" else 1
 
 
 def n_channels(model, eid: str) -> int:
@@ -1718,11 +1766,13 @@ class Search:
             c.start = st
             out.append(c)
         out.sort(key=lambda c: -c.score)
-        # the two forms of a noise of several inputs (per input or one factor): the better by Delta BIC
+        # the two forms of a noise of several inputs (per input or one factor) and of a mean effect
+        # of several channels (one value per channel or one for all): the better by Delta BIC
         best: dict = {}
         for c in out:
             best.setdefault((c.effect, c.mode), c)
-        out = [c for c in out if c.effect not in PER_INPUT or best[(c.effect, c.mode)] is c]
+        two = {(c.effect, c.mode) for c in out if c.effect in PER_INPUT or PER_CHANNEL in c.start.free.get(c.effect, ())}
+        out = [c for c in out if (c.effect, c.mode) not in two or best[(c.effect, c.mode)] is c]
         leaders = [c for c in out[:self.n_full] if c.score >= bar - 30]
 
         def full_fit(c):
@@ -1873,6 +1923,22 @@ class Search:
         free[eid] = names
         nc = n_channels(model, eid) if spec.kind == "noise" else 1
         out = [Start(eid, mode, m, free, len(names) + nc - 1)]
+        ns = shape_channels(model, eid) if spec.kind == "mean" and spec.shape else 1
+        if ns > 1:
+            # a mean effect of several inputs or outputs: also one value per channel (a saturation
+            # limit per input, a scale factor per output; the file's values for a refit), each a
+            # parameter for Delta BIC; :meth:`candidates` keeps the better supported of the two
+            mc = m
+            if mode == "refit":
+                for sh in spec.shape:
+                    v = _shape_values(model.effects[eid], sh[0], d.Ts)
+                    if v is not None and v.size == ns:
+                        mc = _set(mc, eid, {sh[0]: _vec(v)})
+            elif eid == "sensor.scale_factor":
+                # linear in the residual: each output's least-squares factor on the mean response
+                # (a grid cannot start near it when the response is far above the noise)
+                mc = _set(mc, eid, {"error": _vec(self._scale_ls(model))})
+            out.append(Start(eid, mode, mc, dict(free, **{eid: names + [PER_CHANNEL]}), len(names) * ns))
         if nc > 1 and eid in PER_INPUT:
             # a noise of several inputs: also one factor over them (the file's proportions, equal for
             # a new effect); :meth:`candidates` keeps the better supported of the two. Where inputs
@@ -1880,6 +1946,19 @@ class Search:
             # all of an equal noise on one of them
             out.append(Start(eid, mode, m, dict(free, **{eid: names + [COMMON]}), len(names)))
         return out
+
+    def _scale_ls(self, model) -> np.ndarray:
+        """Per output, the least-squares scale-factor error e of y - E[y] = e E[y] (both centered,
+        from sample k0), within the search's range."""
+        d = self.data
+        ym, _ = self.H.ev.mean(model)
+        a = ym[d.k0:] - ym[d.k0:].mean(axis=0)
+        r = d.y[d.k0:] - ym[d.k0:]
+        r = r - r.mean(axis=0)
+        den = np.sum(a * a, axis=0)
+        e = np.where(den > 0, np.sum(r * a, axis=0) / np.where(den > 0, den, 1.0), 0.0)
+        lo, hi, _ = self.H._bounds(CATALOGUE["sensor.scale_factor"].fit.shape[0])
+        return np.clip(e, lo, hi)
 
     def _grid(self, cur: Fit, mode: str) -> list[Start]:
         d = self.data
@@ -1989,8 +2068,14 @@ def interval_tasks(H: Hypotheses, fit: Fit, eid: str) -> list:
                 return [val * (lo / vhat) ** (1 / power), val * (hi / vhat) ** (1 / power)]
             out.append((name, scale_iv))
     for sh in shaped:
+        # one value per channel (:data:`PER_CHANNEL`): the interval is the largest channel's (in
+        # magnitude), as a noise's of several channels is
+        ch = None
+        if PER_CHANNEL in fit.free.get(eid, ()) and shape_channels(fit.model, eid) > 1:
+            v = _shape_values(eff, sh[0], H.data.Ts)
+            ch = int(np.argmax(np.abs(v))) if v is not None and v.size > 1 else None
         for side in (0, 1):
-            out.append(((sh[0], side), lambda sh=sh, side=side: _profile_outer(H, fit, eid, sh, 2 * side - 1)))
+            out.append(((sh[0], side), lambda sh=sh, side=side, ch=ch: _profile_outer(H, fit, eid, sh, 2 * side - 1, ch)))
     return out
 
 
@@ -2119,16 +2204,23 @@ def _extra(H: Hypotheses, fit: Fit) -> float:
     return fit.loglik - lin
 
 
-def _profile_outer(H: Hypotheses, fit: Fit, eid: str, spec, direction: int) -> float:
-    """The lower (``direction`` -1) or upper (+1) end of a searched parameter's profile interval."""
+def _profile_outer(H: Hypotheses, fit: Fit, eid: str, spec, direction: int, ch: int | None = None) -> float:
+    """The lower (``direction`` -1) or upper (+1) end of a searched parameter's profile interval
+    (channel ``ch``'s, for a parameter fitted per channel: the other channels re-fitted at each
+    value)."""
     name = spec[0]
-    lo_b, hi_b, spacing = H._bounds(spec)
-    x = float(np.mean(fit.model.effects[eid].param_dict()[name]))
+    lo_b, hi_b, spacing = H._bounds(spec, ch)
+    x = _shape_value(fit.model.effects[eid], name, H.data.Ts, ch)
     mean = CATALOGUE[eid].fit.kind == "mean"
     target = fit.objective(mean) - CHI2_95 / 2
 
     def l_at(v):
-        f = H._try(fit, eid, name, v)
+        f = H._try(fit, eid, name, v, ch)
+        if f is not None and ch is not None:
+            # a profile: the other channels re-fitted (they trade off through shared outputs)
+            for o in range(shape_channels(fit.model, eid)):
+                if o != ch:
+                    f = H._search(f, eid, spec, coarse=False, n_golden=6, ch=o)
         return -1e300 if f is None else f.objective(mean)
 
     def edge(direction):
