@@ -1765,7 +1765,7 @@ class Search:
             return PER_CHANNEL in st.free.get(st.effect, ()) and CATALOGUE[st.effect].stage == "actuator"
 
         # an actuator mean effect's per-input form (a grid per input: the dearest screen) only where
-        # its one-value form comes near significance: two limits or lags clip or delay alike
+        # its one-value form comes near significance (two limits clip alike: one value finds both)
         first = [st for st in starts if not per_input(st)]
         todo = [(first, self._map(screen, first, cost=screen_cost))]
         near = set()
