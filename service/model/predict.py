@@ -177,6 +177,7 @@ class Predictor:
         self._nonlin = [e for e in m.effects.values() if hasattr(e, "knots")]
         self._sen_lin = [e for e in m.effects.values() if hasattr(e, "sensor_linear")]
         blocks = [e.drive_linear() for e in self._act_src]
+        self._act_blocks = blocks            # per source: (F, G, C, D)
         mm = m.m
         self._Fa = block_diag(*[b[0] for b in blocks]) if blocks else np.zeros((0, 0))
         self._Ga = [b[1] for b in blocks]
@@ -302,24 +303,21 @@ class Predictor:
         owned by the nonlinearity (exact for white actuator noise, whose distortion is iid; an
         approximation of its spectrum for colored actuator noise).
 
-        ``shadow`` ({index of an actuator source: (mean gain (m,), [(fluctuation gain (m,), its
-        shadow block (F, G, C, D))])}, :meth:`_gain_shadows`): a colored source whose gain
-        switches within its correlation time, g_k n_k = gbar n_k + (g_k - gbar) n_k. The first
-        part keeps the source's own dynamics at the mean gain, the second (uncorrelated with it
-        over time) is the shadow blocks at their gains, all owned by the source."""
+        ``shadow`` ({index of an actuator source: (mean gain (m,), [shadow block (F, G, C, D)])},
+        :meth:`_gain_shadows`): a colored source whose gain switches within its correlation time,
+        g_k n_k = gbar n_k + (g_k - gbar) n_k. The first part keeps the source's own dynamics at
+        the mean gain, the second (uncorrelated with it over time) is the shadow blocks (their
+        variance in their G), all owned by the source."""
         mdl = self.model
         g = np.ones(mdl.m) if g is None else np.asarray(g, float)
         G = np.diag(g)
         shadow = shadow or {}
         # per actuator block (its own states, then its shadow's): (F, G, C, D, gain matrix)
         act = []
-        for i, (Ga, Da) in enumerate(zip(self._Ga, self._Da)):
-            a0 = sum(b.shape[0] for b in self._Ga[:i])
-            Fi = self._Fa[a0:a0 + Ga.shape[0], a0:a0 + Ga.shape[0]]
-            Ci = self._Ca[:, a0:a0 + Ga.shape[0]]
+        for i, (Fi, Ga, Ci, Da) in enumerate(self._act_blocks):
             if i in shadow:
                 gbar, comps = shadow[i]
-                act.append([(Fi, Ga, Ci, Da, np.diag(gbar))] + [(*blk, np.diag(gf)) for gf, blk in comps])
+                act.append([(Fi, Ga, Ci, Da, np.diag(gbar))] + [(*blk, np.eye(mdl.m)) for blk in comps])
             else:
                 act.append([(Fi, Ga, Ci, Da, G)])
         blocks = [b for bl in act for b in bl]
@@ -411,7 +409,7 @@ class Predictor:
         Poles r from the source's slowest to about 1/20 (a few samples), theta from 0 to Nyquist.
         Per input channel; any source with states (a white one is exact with the rms gain).
         ``gain`` (N, m) over the model's own command after its transient.
-        {source index: (gbar (m,), [(gain (m,), block (F, G, C, D))])}."""
+        {source index: (gbar (m,), [block (F, G, C, D)])}."""
         from scipy.optimize import nnls
         out: dict = {}
         N = gain.shape[0]
@@ -424,13 +422,8 @@ class Predictor:
         c0 = np.mean(dev**2, axis=0)
         f = np.geomspace(1.0 / (N * Ts), 0.5 / Ts, 160)
         w = 2 * np.pi * f * Ts
-        a0 = 0
-        for i, (Ga, Da) in enumerate(zip(self._Ga, self._Da)):
-            na = Ga.shape[0]
-            Fi = self._Fa[a0:a0 + na, a0:a0 + na]
-            Ci = self._Ca[:, a0:a0 + na]
-            a0 += na
-            if na == 0:
+        for i, (Fi, Ga, Ci, Da) in enumerate(self._act_blocks):
+            if Fi.shape[0] == 0:
                 continue
             rad = float(np.max(np.abs(np.linalg.eigvals(Fi))))
             # the fluctuation is worth more blocks only where it is a visible share of the gain's power
@@ -481,7 +474,7 @@ class Predictor:
                     else:
                         Fk = rk * np.array([[np.cos(tk), -np.sin(tk)], [np.sin(tk), np.cos(tk)]])
                     Gk = np.sqrt(wk * (1 - rk**2)) * np.eye(Fk.shape[0])
-                    comps.append((np.ones(m), (Fk, Gk, C, np.zeros((m, Fk.shape[0])))))
+                    comps.append((Fk, Gk, C, np.zeros((m, Fk.shape[0]))))
             if comps:
                 out[i] = (gbar, comps)
         return out
