@@ -338,8 +338,7 @@ def cmd_replay(args) -> int:
     from .nodes import transport
     from .nodes.replay import replay_topics, run_replay
 
-    if not Path(args.recording).is_file():
-        raise UsageError(f"{args.recording}: no such file")
+    _check_recording(args.recording)
     replay_topics(args.recording)            # a file that is not MCAP fails here, before any I/O
     if args.prefix:
         transport.check_key_expr(args.prefix)
@@ -430,15 +429,37 @@ def load_series(args, model, truth: bool = True):
     from .diagnose import load as dload
 
     path = args.recording
-    if not Path(path).is_file():
-        raise UsageError(f"{path}: no such file")
+    _check_recording(path)
     if args.measurement:
         return dload.load_foreign(path, args.measurement, args.time, model.Ts)
     return dload.load_noiselab(path, args.device, truth=truth, Ts=model.Ts)
 
 
+def _check_recording(path: str):
+    p = Path(path)
+    if p.is_dir():
+        raise UsageError(f"{path}: is a directory, not an MCAP recording")
+    if not p.is_file():
+        raise UsageError(f"{path}: no such file")
+
+
 def _check_out(path: str | None, force: bool):
-    if path and Path(path).exists() and not force:
+    """An output path, checked before any work: a directory in its place, a parent that cannot be
+    made or an existing file (without --force) is a usage error now, not after the run. A missing
+    parent directory is made, as `simulate`, `record` and `recover` make theirs."""
+    if not path:
+        return
+    p = Path(path)
+    if p.is_dir():
+        raise UsageError(f"{path}: is a directory; give a file name")
+    blocker = next((q for q in (p.parent, *p.parent.parents) if q.exists()), None)
+    if blocker is not None and not blocker.is_dir():
+        raise UsageError(f"{path}: {blocker} is a file, not a directory")
+    try:
+        p.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise UsageError(f"{path}: cannot make its directory {p.parent} ({e.strerror})") from None
+    if p.exists() and not force:
         raise UsageError(f"{path}: exists (use --force to overwrite)")
 
 

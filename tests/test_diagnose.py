@@ -936,11 +936,13 @@ def test_cli_nothing_missing(walk_recording):
     (["{rec}", "--model", "seed", "--max-effects", "0"], "max-effects"),
     (["{bad}", "--model", "seed"], "MCAP"),
     (["{rec}", "--model", "seed", "--fit-out", "{rec}"], "exists"),
+    (["{rec}", "--model", "seed", "--fit-out", "{bad}/fitted.toml"], "bad.mcap is a file, not a directory"),
+    (["{rec}", "--model", "seed", "--rrd", "{tmp}"], "is a directory"),
 ])
 def test_cli_bad_input_one_line_exit_2(walk_recording, tmp_path, args, needle):
     bad = tmp_path / "bad.mcap"
     bad.write_text("not an mcap file")
-    args = [a.format(rec=walk_recording, bad=bad) for a in args]
+    args = [a.format(rec=walk_recording, bad=bad, tmp=tmp_path) for a in args]
     r = cli("diagnose", *args)
     assert r.returncode == 2, (r.returncode, r.stderr)
     lines = r.stderr.strip().splitlines()

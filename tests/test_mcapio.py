@@ -410,8 +410,10 @@ def test_damaged_chunk_in_finished_file(tmp_path):
     blob[(start + end) // 2] ^= 0x10
     bad = tmp_path / "bad.mcap"
     bad.write_bytes(bytes(blob))
-    with pytest.raises(mcapio.CorruptRecordingError, match=f"^{bad}: finished file"):
+    with pytest.raises(mcapio.CorruptRecordingError, match=f"^{bad}: finished file") as err:
         read_recording(bad)
+    # the message names the command that salvages it, as the user types it
+    assert f"`noiselab recover {bad} -o FIXED.mcap`" in str(err.value)
     stats = recover(bad, tmp_path / "salvaged.mcap")
     expected = [m for _, _, ms in chunks[:3] for m in ms]
     assert not stats.already_complete and stats.total == len(expected)

@@ -546,6 +546,14 @@ class Predictor:
         horizon of the model's own command. The bias walk is reported as a rate, not a variance."""
         if self._steady_cache is not None:
             return self._steady_cache
+        if np.any(np.linalg.eigvals(self.model.Ac).real > 0):
+            # an unstable plant's mean response overflows on the way: its contributions come out
+            # None and the callers say the plant is unstable; the overflow warnings are no news
+            with np.errstate(over="ignore", invalid="ignore"):
+                return self._steady_state()
+        return self._steady_state()
+
+    def _steady_state(self) -> Steady:
         mdl = self.model
         notes = []
         # the mean response over the horizon only where a term depends on the signal (the

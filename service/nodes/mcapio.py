@@ -110,6 +110,11 @@ class CorruptRecordingError(McapIoError):
     """A finished MCAP file whose data section is damaged (try :func:`recover`)."""
 
 
+def _salvage(path) -> str:
+    """The way out a user types, named in every corruption message."""
+    return f"`noiselab recover {path} -o FIXED.mcap` salvages what comes before it"
+
+
 class RecordingExistsError(FileExistsError):
     """The output path exists and overwriting was not asked for (``force=True``)."""
 
@@ -462,7 +467,7 @@ def _scan_seeking(path, f, wanted, report):
     except (*_CORRUPTION_ERRORS, OSError) as e:  # OSError: a damaged index seeks nowhere
         raise CorruptRecordingError(
             f"{path}: finished file with a damaged record after {report.messages} messages "
-            f"({type(e).__name__}: {e}); recover() salvages what comes before it") from None
+            f"({type(e).__name__}: {e}); {_salvage(path)}") from None
 
 
 def _scan_stream(path, f, size, wanted, report, finished, why):
@@ -620,8 +625,7 @@ def _merge_chunks(path: str, f, summary, report: ScanReport):
                 pos += 9 + rl
         except (struct.error, CorruptRecordingError) as e:
             raise CorruptRecordingError(f"{path}: finished file with a damaged chunk at byte "
-                                        f"{ci.chunk_start_offset} ({type(e).__name__}); recover() salvages "
-                                        "what comes before it") from None
+                                        f"{ci.chunk_start_offset} ({type(e).__name__}); {_salvage(path)}") from None
         return out
 
     def channel_messages(cid: int):
@@ -846,10 +850,10 @@ def _chunk_records(f, ci, path: str) -> bytes:
         dec = _decompress(comp, buf[off + 8: off + 8 + rlen], usize)
     except Exception as e:      # struct.error, IndexError, UnicodeDecodeError, codec errors
         raise CorruptRecordingError(f"{path}: finished file with a damaged chunk at byte {ci.chunk_start_offset} "
-                                    f"({type(e).__name__}); recover() salvages what comes before it") from None
+                                    f"({type(e).__name__}); {_salvage(path)}") from None
     if ucrc and zlib.crc32(dec) != ucrc:
         raise CorruptRecordingError(f"{path}: finished file with a chunk at byte {ci.chunk_start_offset} that fails its CRC; "
-                                    "recover() salvages what comes before it")
+                                    f"{_salvage(path)}")
     return dec
 
 
@@ -998,7 +1002,7 @@ def _collect_chunks(f, path, chunks, cids_of, use_index: bool):
                 if use_index:
                     return None
                 raise CorruptRecordingError(f"{path}: finished file with a damaged chunk at byte "
-                                            f"{ci.chunk_start_offset}; recover() salvages what comes before it")
+                                            f"{ci.chunk_start_offset}; {_salvage(path)}")
             starts, ends, log, pub = msgs
             blob = b"\n".join(map(dec.__getitem__, map(slice, starts.tolist(), ends.tolist()))) + b"\n"
             acc = parts[topic]
