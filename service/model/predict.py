@@ -153,6 +153,7 @@ def mean_key(model, gain: bool = True) -> str:
 
 
 SHADOW_BLOCKS = 4         # at most so many blocks for a colored source's gain fluctuation (Predictor._gain_shadows)
+DISTORTION_TERMS = 40     # Hermite terms of a colored noise's distortion (Predictor._distortion_colors)
 
 # The model's own mean response over its horizon, shared between models that differ only in what
 # it does not depend on (:func:`mean_key`): a diagnosis builds thousands of models that differ in a
@@ -237,6 +238,16 @@ class Predictor:
             u = e.apply(u)
         return u
 
+    def _channel_map(self, j: int):
+        """(f, knots): input channel j's nonlinearities composed, as a map of one array, and their kinks."""
+        knots = np.concatenate([e.knots()[j] for e in self._nonlin])
+
+        def fj(v):
+            arr = np.zeros((v.size, self.model.m))
+            arr[:, j] = v
+            return self._nonlinear(arr)[:, j]
+        return fj, knots
+
     def drive_stats(self, u_c: np.ndarray, var: np.ndarray):
         """Mean drive E[N(u_c + n)], gain g = E[N'(u_c + n)] and distortion variance
         Var(N) - g^2 var, for n ~ N(0, var), per channel (Bussgang: N(u) = E[N] + g n + d with d
@@ -248,13 +259,7 @@ class Predictor:
         dvar = np.empty_like(u_c)
         sd = np.sqrt(np.broadcast_to(var, u_c.shape))
         for j in range(self.model.m):
-            knots = np.concatenate([e.knots()[j] for e in self._nonlin])
-
-            def fj(v, j=j):
-                arr = np.zeros((v.size, self.model.m))
-                arr[:, j] = v
-                return self._nonlinear(arr)[:, j]
-
+            fj, knots = self._channel_map(j)
             mean[:, j], gain[:, j], sq = gauss_pwl(fj, knots, u_c[:, j], sd[:, j], second=True)
             dvar[:, j] = np.maximum(sq - mean[:, j] ** 2 - gain[:, j] ** 2 * sd[:, j] ** 2, 0.0)
         return mean, gain, dvar
@@ -297,7 +302,7 @@ class Predictor:
 
     # -- the augmented linear system -------------------------------------------------------------------
     def linear_system(self, g: np.ndarray | None = None, dstd: np.ndarray | None = None,
-                      shadow: dict | None = None) -> LinearSystem:
+                      shadow: dict | None = None, dcolor: list | None = None) -> LinearSystem:
         """The augmented system for nonlinearity gain ``g`` and distortion std ``dstd`` (per input).
         The distortion d of the static nonlinearities enters the input channel as white noise,
         owned by the nonlinearity (exact for white actuator noise, whose distortion is iid; an
@@ -307,7 +312,10 @@ class Predictor:
         :meth:`_gain_shadows`): a colored source whose gain switches within its correlation time,
         g_k n_k = gbar n_k + (g_k - gbar) n_k. The first part keeps the source's own dynamics at
         the mean gain, the second (uncorrelated with it over time) is the shadow blocks (their
-        variance in their G), all owned by the source."""
+        variance in their G), all owned by the source.
+
+        ``dcolor`` ([block (F, G, C, D)], :meth:`_distortion_colors`): the colored part of the
+        distortion of a colored source, owned by the nonlinearity beside its white part ``dstd``."""
         mdl = self.model
         g = np.ones(mdl.m) if g is None else np.asarray(g, float)
         G = np.diag(g)
@@ -320,6 +328,10 @@ class Predictor:
                 act.append([(Fi, Ga, Ci, Da, np.diag(gbar))] + [(*blk, np.eye(mdl.m)) for blk in comps])
             else:
                 act.append([(Fi, Ga, Ci, Da, G)])
+        act_ids = [e.id for e in self._act_src]
+        if self._nonlin and dcolor:
+            act.append([(*blk, np.eye(mdl.m)) for blk in dcolor])
+            act_ids.append(self._distortion_owner())
         blocks = [b for bl in act for b in bl]
         na = sum(b[0].shape[0] for b in blocks)
         sen = [e.sensor_linear() for e in self._sen_lin]
@@ -351,14 +363,14 @@ class Predictor:
             Jdc.append(jd_block)
 
         a0 = 0
-        for e, bl in zip(self._act_src, act):
+        for eid, bl in zip(act_ids, act):
             for _, Ga, _, Da, Gi in bl:
                 k, ka = Da.shape[1], Ga.shape[0]
                 col = np.zeros((n_s, k))
                 col[:nx] = mdl.Bd @ Gi @ Da
                 col[nx + a0:nx + a0 + ka] = Ga
                 a0 += ka
-                add(e.id, col, gain * (mdl.Dy @ Gi @ Da), gain * (CyBc @ Gi @ Da))
+                add(eid, col, gain * (mdl.Dy @ Gi @ Da), gain * (CyBc @ Gi @ Da))
         if self._nonlin and dstd is not None:
             Dd = np.diag(np.asarray(dstd, float))
             col = np.zeros((n_s, mdl.m))
@@ -392,6 +404,82 @@ class Predictor:
         Jd = np.hstack(Jdc) if Jdc else np.zeros((mdl.p, 0))
         return LinearSystem(F, Gam, H, J, Hd, Jd, owners, nx, slice(0, mdl.plant.n), na)
 
+    def _source_acf(self, i: int, D: int) -> np.ndarray:
+        """Autocovariance (D + 1, m) of actuator source i per input channel at lags 0..D:
+        C F^(d-1) (F Pa C^T + G D^T) for d >= 1, C Pa C^T + D D^T at 0 (Pa its stationary covariance)."""
+        Fi, Ga, Ci, Da = self._act_blocks[i]
+        Rn = np.zeros((D + 1, self.model.m))
+        Rn[0] = np.diag(Da @ Da.T)
+        if Fi.shape[0] == 0:
+            return Rn
+        Pa = solve_discrete_lyapunov(Fi, Ga @ Ga.T)
+        Rn[0] += np.diag(Ci @ Pa @ Ci.T)
+        X = Fi @ Pa @ Ci.T + Ga @ Da.T
+        if D:
+            Rn[1:] = np.diagonal(np.einsum("ij,djk->dik", Ci, _powers_apply(Fi, X, D)), axis1=1, axis2=2)
+        return Rn
+
+    def _distortion_colors(self, u: np.ndarray, dvar: np.ndarray) -> dict:
+        """The color of the nonlinearities' distortion where the actuator noise is colored.
+
+        With n_k Gaussian, std s and correlation rho(d) (all sources of the channel), f the
+        channel's piecewise-linear map and z = (u_k + n_k ... ) standardized, Mehler's formula gives
+        Cov(f(u_k + n_k), f(u_l + n_l)) = sum_(j>=1) c_j(k) c_j(l) rho^j / j!, c_j(k) the Hermite
+        coefficients of z -> f(u_k + s z). The j = 1 term is the gain's (g_k g_l R_n: the rms
+        gain and :meth:`_gain_shadows`); the rest is the distortion's. Two Stein steps give, at the
+        kinks x_i (slope change Delta_i, z_ik = (x_i - u_k) / s),
+        c_j(k) = s sum_i Delta_i phi(z_ik) He_(j-2)(z_ik), j >= 2, so the distortion's
+        autocovariance over the command is D(d) = sum_(j>=2) mean_k[c_j(k) c_j(k+d)] rho(d)^j / j!
+        (normalized Hermite functions up to DISTORTION_TERMS; the remainder of its variance
+        decays as the last term's). For white noise rho(d) = 0 at d >= 1 and D is white; for an
+        AR(1) slower than the sample D(d) follows it (rho^2, rho^3, ...), far from white. D is
+        fitted by damped cosines and a white part (:func:`_damped_cosines`), per channel.
+        ``u`` (N, m): the command after the transient; ``dvar`` (m,): the mean distortion variance.
+        {channel: (white variance, [block (F, G, C, D)])} for the channels with colored noise."""
+        out: dict = {}
+        N, m = u.shape
+        Ts = self.model.Ts
+        rads = [float(np.max(np.abs(np.linalg.eigvals(b[0])))) if b[0].shape[0] else 0.0 for b in self._act_blocks]
+        colored = [i for i, r in enumerate(rads) if 0.0 < r < 1.0]
+        if N < 4 or not colored:
+            return out
+        rad = max(rads[i] for i in colored)
+        # the distortion decays at least as rho^2: lags to 1e-9 of its variance
+        D = int(min(N - 1, np.ceil(np.log(1e-9) / (2 * np.log(rad))) + 1))
+        Rn = sum((self._source_acf(i, D) for i in range(len(self._act_blocks))), np.zeros((D + 1, m)))
+        J = DISTORTION_TERMS
+        jj = np.arange(2, J + 1)
+        for ch in range(m):
+            s2 = Rn[0, ch]
+            if s2 <= 0 or dvar[ch] <= 1e-12 * s2 or abs(Rn[1, ch]) < 0.05 * s2:
+                continue            # no distortion, or noise white enough that its distortion is
+            s = np.sqrt(s2)
+            rho = Rn[:, ch] / s2
+            fj, knots = self._channel_map(ch)
+            b = np.unique(knots)
+            ext = np.concatenate([[b[0] - 1.0], b, [b[-1] + 1.0]])
+            slope = np.diff(fj(ext)) / np.diff(ext)
+            delta = np.diff(slope)                                  # the slope's change at each kink
+            z = (b[:, None] - u[:, ch]) / s                         # (K, N)
+            wphi = s * delta[:, None] * np.exp(-0.5 * z * z) / _SQRT2PI
+            # c_j / sqrt(j!) = s sum_i Delta_i phi h_(j-2)(z) / sqrt(j (j - 1)), h_n = He_n / sqrt(n!)
+            cj = np.empty((J - 1, N))
+            h0, h1 = np.ones_like(z), z.copy()
+            for n in range(J - 1):
+                cj[n] = (wphi * h0).sum(axis=0) / np.sqrt((n + 2) * (n + 1))
+                h0, h1 = h1, (z * h1 - np.sqrt(n + 1) * h0) / np.sqrt(n + 2)
+            M = _lag_products(cj.T, D)                              # (D + 1, J - 1)
+            Dd = (M * rho[:, None] ** jj).sum(axis=1)
+            rem = max(float(dvar[ch]) - float(M[0].sum()), 0.0)
+            if M[0, -1] > 0:
+                Dd += rem * rho ** (J + 1) * M[:, -1] / M[0, -1]
+            else:
+                Dd[0] += rem
+            if Dd[0] <= 0:
+                continue
+            out[ch] = _damped_cosines(Dd, rad, N, Ts, ch, m, white=True)
+        return out
+
     def _gain_shadows(self, gain: np.ndarray) -> dict:
         """The gain fluctuation's part of each colored actuator source, for :meth:`linear_system`.
 
@@ -410,7 +498,6 @@ class Predictor:
         Per input channel; any source with states (a white one is exact with the rms gain).
         ``gain`` (N, m) over the model's own command after its transient.
         {source index: (gbar (m,), [block (F, G, C, D)])}."""
-        from scipy.optimize import nnls
         out: dict = {}
         N = gain.shape[0]
         if N < 4:
@@ -420,8 +507,6 @@ class Predictor:
         gbar = gain.mean(axis=0)
         dev = gain - gbar
         c0 = np.mean(dev**2, axis=0)
-        f = np.geomspace(1.0 / (N * Ts), 0.5 / Ts, 160)
-        w = 2 * np.pi * f * Ts
         for i, (Fi, Ga, Ci, Da) in enumerate(self._act_blocks):
             if Fi.shape[0] == 0:
                 continue
@@ -430,51 +515,11 @@ class Predictor:
             active = c0 > 1e-6 * np.mean(gain**2, axis=0)
             if not active.any() or not 0.0 < rad < 1.0:
                 continue
-            Pa = solve_discrete_lyapunov(Fi, Ga @ Ga.T)
             D = int(min(N - 1, np.ceil(np.log(1e-9) / np.log(rad)) + 1))
-            # R_n(d) per channel: Ca F^(d-1) (F Pa Ca^T + Ga Da^T), d >= 1; Ca Pa Ca^T + Da Da^T at 0
-            Rn = np.empty((D + 1, m))
-            Rn[0] = np.diag(Ci @ Pa @ Ci.T + Da @ Da.T)
-            X = Fi @ Pa @ Ci.T + Ga @ Da.T
-            if D:
-                Rn[1:] = np.diagonal(np.einsum("ij,djk->dik", Ci, _powers_apply(Fi, X, D)), axis1=1, axis2=2)
+            Rn = self._source_acf(i, D)
             comps = []
-            r = rad ** np.geomspace(1.0, np.log(0.05) / np.log(rad), 7)
-            th = np.concatenate([[0.0], 2 * np.pi * Ts * np.geomspace(f[0], 0.45 / Ts, 12)])
-            R, T = np.meshgrid(r, th, indexing="ij")
-            R, T = R.ravel(), T.ravel()
-
-            # the damped cosines' spectra (unit variance), as columns: (P(w - theta) + P(w + theta)) / 2
-            B = 0.5 * ((1 - R**2) / (1 - 2 * R * np.cos(w[:, None] - T) + R**2)
-                       + (1 - R**2) / (1 - 2 * R * np.cos(w[:, None] + T) + R**2))
             for j in np.flatnonzero(active & (Rn[0] > 0)):
-                n2 = 1 << int(N + D).bit_length()
-                spec = np.fft.rfft(dev[:, j], n2)
-                cd = np.fft.irfft(np.abs(spec) ** 2, n2)[:D + 1] / (N - np.arange(D + 1))
-                h = cd * Rn[:, j]
-                S = h[0] + 2.0 * np.cos(np.outer(w, np.arange(1, D + 1))) @ h[1:]
-                scale = 1.0 / (np.abs(S) + 1e-3 * np.max(np.abs(S)))
-                # the variance held: sum w / h(0) = 1 as one row weighted far above the spectrum's
-                # (whose relative errors are O(1) per unit of w / h(0))
-                big = 1e3 * np.sqrt(f.size)
-                Mx = np.vstack([B * scale[:, None], np.full((1, R.size), big / h[0])])
-                rhs = np.append(S * scale, big)
-                wt, _ = nnls(Mx, rhs)
-                keep = np.argsort(wt)[::-1][:SHADOW_BLOCKS]
-                keep = keep[wt[keep] > 0]
-                wt_k, _ = nnls(Mx[:, keep], rhs)
-                for k, wk in zip(keep, wt_k):
-                    if wk <= 0:
-                        continue
-                    rk, tk = R[k], T[k]
-                    C = np.zeros((m, 1 if tk == 0 else 2))
-                    C[j, 0] = 1.0
-                    if tk == 0:
-                        Fk = np.array([[rk]])
-                    else:
-                        Fk = rk * np.array([[np.cos(tk), -np.sin(tk)], [np.sin(tk), np.cos(tk)]])
-                    Gk = np.sqrt(wk * (1 - rk**2)) * np.eye(Fk.shape[0])
-                    comps.append((Fk, Gk, C, np.zeros((m, Fk.shape[0]))))
+                comps += _damped_cosines(_lag_products(dev[:, j:j + 1], D)[:, 0] * Rn[:, j], rad, N, Ts, j, m)[1]
             if comps:
                 out[i] = (gbar, comps)
         return out
@@ -566,17 +611,24 @@ class Predictor:
         g = np.sqrt(np.mean(mean.gain[burn:] ** 2, axis=0)) if self._nonlin else None
         dstd = np.sqrt(np.mean(mean.distortion_var[burn:], axis=0)) if self._nonlin else None
         shadow = self._gain_shadows(mean.gain[burn:]) if self._nonlin else {}
+        dcolor = self._distortion_colors(mdl.command.values(0, mean.t.size, mdl.Ts)[burn:].reshape(-1, mdl.m),
+                                         dstd**2) if self._nonlin else {}
         if self._nonlin:
             notes.append("actuator nonlinearities linearized around the mean drive (seed section 7): "
                          "rms gain " + ", ".join(f"{v:.4g}" for v in g) + ", distortion std "
-                         + ", ".join(f"{v:.3g}" for v in dstd) + " treated as white")
+                         + ", ".join(f"{v:.3g}" for v in dstd)
+                         + (" treated as white" if not dcolor else ""))
+        for ch, (wvar, comps) in dcolor.items():
+            notes.append(f"the distortion of input {ch}'s colored noise is colored too (Hermite terms of the "
+                         f"noise's correlation): white std {np.sqrt(wvar):.3g} and {len(comps)} damped cosines")
+            dstd[ch] = np.sqrt(wvar)
         for i, (gbar, comps) in shadow.items():
             gf = np.sqrt(np.maximum(g**2 - gbar**2, 0.0))
             notes.append(f"{self._act_src[i].id}: the nonlinearities' gain switches within its correlation "
                          "time: its mean gain " + ", ".join(f"{v:.4g}" for v in gbar) + " on its own "
                          "spectrum, the gain's fluctuation (std " + ", ".join(f"{v:.3g}" for v in gf)
                          + f") on {len(comps)} wider ones (damped cosines fitted to its spectrum)")
-        ls = self.linear_system(g, dstd, shadow)
+        ls = self.linear_system(g, dstd, shadow, [b for _, bl in dcolor.values() for b in bl])
         nx, n_s = ls.n_x, ls.F.shape[0]
         plant_part = slice(0, nx + ls.n_act)
         marginal = False
@@ -941,6 +993,70 @@ def allan_from_variogram(gam: np.ndarray, m: np.ndarray) -> np.ndarray:
     a = 2 * mm * S0[m] - 3 * S1[m]
     b = -2 * mm * (S0[2 * m - 1] - S0[m]) + (S1[2 * m - 1] - S1[m])
     return -(a + b) / mm**2
+
+
+def _lag_products(x: np.ndarray, D: int) -> np.ndarray:
+    """mean_k x_k x_(k+d) over the overlap, d = 0..D, per column of x (N, c): (D + 1, c), by FFT."""
+    N = x.shape[0]
+    n2 = 1 << int(N + D).bit_length()
+    spec = np.fft.rfft(x, n2, axis=0)
+    return np.fft.irfft(np.abs(spec) ** 2, n2, axis=0)[:D + 1] / (N - np.arange(D + 1))[:, None]
+
+
+def _nnls(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """argmin ||A x - b||, x >= 0: scipy's active-set NNLS, and where it runs out of iterations
+    (it does on some of these fits: near-collinear spectra, the variance row 10^4 above the
+    rest) the bounded-variable least squares of lsq_linear."""
+    from scipy.optimize import lsq_linear, nnls
+    try:
+        return nnls(A, b, maxiter=20 * A.shape[1])[0]
+    except RuntimeError:
+        return lsq_linear(A, b, bounds=(0.0, np.inf), method="bvls").x
+
+
+def _damped_cosines(h: np.ndarray, rad: float, N: int, Ts: float, j: int, m: int, white: bool = False,
+                    nblocks: int = SHADOW_BLOCKS):
+    """An autocovariance h(d), d = 0..D, of a noise on input channel j, as at most ``nblocks``
+    damped cosines w r^|d| cos(theta d) (a rotating AR(1) of two states; theta = 0: an AR(1)),
+    and with ``white`` a white part besides. Weights w >= 0 by non-negative least squares on h's
+    spectrum in relative error, at 160 frequencies log-spaced from 1 / (N Ts) to Nyquist, with
+    the variance sum w = h(0) held exactly (a row weighted far above the spectrum's). Poles r from
+    ``rad`` (the slowest source's) to about 1/20 (a few samples), theta from 0 to Nyquist.
+    (white variance, [block (F, G, C, D) of m input channels]); a block's variance is in its G."""
+    D = h.size - 1
+    f = np.geomspace(1.0 / (N * Ts), 0.5 / Ts, 160)
+    w = 2 * np.pi * f * Ts
+    r = rad ** np.geomspace(1.0, np.log(0.05) / np.log(rad), 7)
+    th = np.concatenate([[0.0], 2 * np.pi * Ts * np.geomspace(f[0], 0.45 / Ts, 12)])
+    R, T = np.meshgrid(r, th, indexing="ij")
+    R, T = R.ravel(), T.ravel()
+    # the damped cosines' spectra (unit variance), as columns: (P(w - theta) + P(w + theta)) / 2
+    B = 0.5 * ((1 - R**2) / (1 - 2 * R * np.cos(w[:, None] - T) + R**2)
+               + (1 - R**2) / (1 - 2 * R * np.cos(w[:, None] + T) + R**2))
+    if white:
+        B = np.hstack([B, np.ones((f.size, 1))])
+    S = h[0] + 2.0 * np.cos(np.outer(w, np.arange(1, D + 1))) @ h[1:]
+    scale = 1.0 / (np.abs(S) + 1e-3 * np.max(np.abs(S)))
+    # the variance held: sum w / h(0) = 1 as one row weighted far above the spectrum's (whose
+    # relative errors are O(1) per unit of w / h(0))
+    big = 1e3 * np.sqrt(f.size)
+    Mx = np.vstack([B * scale[:, None], np.full((1, B.shape[1]), big / h[0])])
+    rhs = np.append(S * scale, big)
+    wt = _nnls(Mx, rhs)
+    order = [k for k in np.argsort(wt[:R.size])[::-1][:nblocks] if wt[k] > 0]
+    keep = order + ([R.size] if white else [])
+    wt_k = _nnls(Mx[:, keep], rhs)
+    comps = []
+    for k, wk in zip(order, wt_k):
+        if wk <= 0:
+            continue
+        rk, tk = R[k], T[k]
+        C = np.zeros((m, 1 if tk == 0 else 2))
+        C[j, 0] = 1.0
+        Fk = np.array([[rk]]) if tk == 0 else rk * np.array([[np.cos(tk), -np.sin(tk)], [np.sin(tk), np.cos(tk)]])
+        Gk = np.sqrt(wk * (1 - rk**2)) * np.eye(Fk.shape[0])
+        comps.append((Fk, Gk, C, np.zeros((m, Fk.shape[0]))))
+    return (float(wt_k[-1]) if white else 0.0), comps
 
 
 def _powers_apply(F: np.ndarray, X: np.ndarray, L: int) -> np.ndarray:
