@@ -103,6 +103,23 @@ limit = 0.75
     assert np.all(emp > no_d * 1.05)
 
 
+def _ensemble_welch(mdl, k0: int, n: int, trials: int, L: int, seed: int = 11):
+    """(predictor, residuals about the predicted mean (trials, n), Welch f, per-trial Welch
+    spectra (trials, nf)) of ``trials`` records of k0 + n samples, the first k0 dropped."""
+    from scipy.signal import welch
+
+    rec = mdl.simulate(k0 + n, seed=seed, trials=trials)
+    pr = mdl.predictor()
+    r = rec.y[:, k0:, 0] - pr.mean_response(k0 + n).y[k0:, 0]
+    f, P = welch(r, fs=1 / mdl.Ts, nperseg=L, axis=-1, detrend=False)
+    return pr, r, f, P
+
+
+def _predicted_welch(pr, L: int) -> np.ndarray:
+    """The predicted expected Welch spectrum of output 0, all effects summed."""
+    return sum(v[:, 0] for v in pr.expected_welch(L).values() if v is not None)
+
+
 AR1_THROUGH_A_SATURATION = """
 name = "ar1sat"
 [sampling]
@@ -137,17 +154,12 @@ def test_ar1_actuator_noise_through_a_saturation_the_command_reaches_has_the_gai
     10 %, the linearization's bound in these bands (the gain's spectrum is fitted by at most four
     blocks: measured 2-8 % here). The rms gain alone (the
     prediction before) is off by 10-82 % in the same bands: asserted to fail where it is clear."""
-    from scipy.signal import welch
-
     mdl = load(AR1_THROUGH_A_SATURATION)
-    k0, n, trials, L = 1000, 10000, 100, 1000
-    rec = mdl.simulate(k0 + n, seed=11, trials=trials)
-    pr = mdl.predictor()
-    r = rec.y[:, k0:, 0] - pr.mean_response(k0 + n).y[k0:, 0]
-    f, P = welch(r, fs=1 / mdl.Ts, nperseg=L, axis=-1, detrend=False)        # (trials, nf)
+    trials, L = 100, 1000
+    pr, r, f, P = _ensemble_welch(mdl, 1000, 10000, trials, L)
 
     def predicted(p):
-        return sum(v[:, 0] for v in p.expected_welch(L).values() if v is not None)
+        return _predicted_welch(p, L)
 
     rms_only = mdl.predictor()
     rms_only._gain_shadows = lambda gain: {}           # the rms gain on n's own spectrum
@@ -212,17 +224,12 @@ def test_the_distortion_of_a_colored_noise_through_a_saturation_is_colored():
     to fail by more than 15 % in the bands above 20 Hz. Below 5 Hz the gain fluctuation's fit
     (four blocks for a pattern that repeats at 1 Hz) ripples by up to 20 % between 1 and 3 Hz,
     as before: those bands are the other test's subject, on a chirp."""
-    from scipy.signal import welch
-
     mdl = load(AR1_SATURATED_WITH_FEEDTHROUGH)
-    k0, n, trials, L = 2000, 12000, 60, 1000
-    rec = mdl.simulate(k0 + n, seed=11, trials=trials)
-    pr = mdl.predictor()
-    r = rec.y[:, k0:, 0] - pr.mean_response(k0 + n).y[k0:, 0]
-    f, P = welch(r, fs=1 / mdl.Ts, nperseg=L, axis=-1, detrend=False)        # (trials, nf)
+    trials, L = 60, 1000
+    pr, r, f, P = _ensemble_welch(mdl, 2000, 12000, trials, L)
 
     def predicted(p):
-        return sum(v[:, 0] for v in p.expected_welch(L).values() if v is not None)
+        return _predicted_welch(p, L)
 
     white = mdl.predictor()
     white._distortion_colors = lambda u, dvar: {}        # the distortion as white noise (before)
