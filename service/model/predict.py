@@ -304,9 +304,9 @@ class Predictor:
     def linear_system(self, g: np.ndarray | None = None, dstd: np.ndarray | None = None,
                       shadow: dict | None = None, dcolor: list | None = None) -> LinearSystem:
         """The augmented system for nonlinearity gain ``g`` and distortion std ``dstd`` (per input).
-        The distortion d of the static nonlinearities enters the input channel as white noise,
-        owned by the nonlinearity (exact for white actuator noise, whose distortion is iid; an
-        approximation of its spectrum for colored actuator noise).
+        The distortion d of the static nonlinearities enters the input channel as white noise of
+        std ``dstd``, owned by the nonlinearity (exact for white actuator noise, whose distortion
+        is iid); of a colored noise, the colored part is ``dcolor``.
 
         ``shadow`` ({index of an actuator source: (mean gain (m,), [shadow block (F, G, C, D)])},
         :meth:`_gain_shadows`): a colored source whose gain switches within its correlation time,
@@ -422,8 +422,8 @@ class Predictor:
     def _distortion_colors(self, u: np.ndarray, dvar: np.ndarray) -> dict:
         """The color of the nonlinearities' distortion where the actuator noise is colored.
 
-        With n_k Gaussian, std s and correlation rho(d) (all sources of the channel), f the
-        channel's piecewise-linear map and z = (u_k + n_k ... ) standardized, Mehler's formula gives
+        With n_k Gaussian, std s and correlation rho(d) (all sources of the channel) and f the
+        channel's piecewise-linear map, Mehler's formula gives
         Cov(f(u_k + n_k), f(u_l + n_l)) = sum_(j>=1) c_j(k) c_j(l) rho^j / j!, c_j(k) the Hermite
         coefficients of z -> f(u_k + s z). The j = 1 term is the gain's (g_k g_l R_n: the rms
         gain and :meth:`_gain_shadows`); the rest is the distortion's. Two Stein steps give, at the
@@ -452,7 +452,7 @@ class Predictor:
         for ch in range(m):
             s2 = Rn[0, ch]
             if s2 <= 0 or dvar[ch] <= 1e-12 * s2 or abs(Rn[1, ch]) < 0.05 * s2:
-                continue            # no distortion, or noise white enough that its distortion is
+                continue            # no distortion, or a noise so nearly white that its distortion is white
             s = np.sqrt(s2)
             rho = Rn[:, ch] / s2
             fj, knots = self._channel_map(ch)
