@@ -164,6 +164,10 @@ DISTORTION_TERMS = 40     # Hermite terms of a colored noise's distortion (Predi
 # samples, and at Ts = 1 us one mean response is gigabytes.
 _OWN_MEAN: dict = {}
 _OWN_MEAN_BYTES = 16 << 20
+# The gain fluctuation's and the distortion's damped-cosine fits of a nonlinear model, by the same
+# key as _OWN_MEAN (they depend on nothing else): (shadow, dcolor) of Predictor._colors. Not to be
+# changed by callers.
+_COLORS: dict = {}
 
 
 class Predictor:
@@ -404,6 +408,25 @@ class Predictor:
         Jd = np.hstack(Jdc) if Jdc else np.zeros((mdl.p, 0))
         return LinearSystem(F, Gam, H, J, Hd, Jd, owners, nx, slice(0, mdl.plant.n), na)
 
+    def _colors(self, mean: MeanResponse, burn: int, dstd: np.ndarray):
+        """(:meth:`_gain_shadows`, :meth:`_distortion_colors`) of the own mean after ``burn``,
+        shared through :data:`_COLORS` by the models that share the mean response (a diagnosis
+        varies the other effects' parameters thousands of times; these fits were a third of a
+        nonlinear model's steady state)."""
+        mdl = self.model
+        # the fitting functions in the key too: a predictor given other ones (a test's "before")
+        # does not take the shared fits
+        fits = tuple(getattr(f, "__func__", f) for f in (self._gain_shadows, self._distortion_colors))
+        key = (mean_key(mdl), self.horizon, fits)
+        got = _COLORS.get(key)
+        if got is None:
+            u = mdl.command.values(0, mean.t.size, mdl.Ts)[burn:].reshape(-1, mdl.m)
+            got = (self._gain_shadows(mean.gain[burn:]), self._distortion_colors(u, dstd**2))
+            if len(_COLORS) > 64:
+                _COLORS.clear()
+            _COLORS[key] = got
+        return got
+
     def _source_acf(self, i: int, D: int) -> np.ndarray:
         """Autocovariance (D + 1, m) of actuator source i per input channel at lags 0..D:
         C F^(d-1) (F Pa C^T + G D^T) for d >= 1, C Pa C^T + D D^T at 0 (Pa its stationary covariance)."""
@@ -610,9 +633,7 @@ class Predictor:
         # the gains after the transient (the drive noise's variance grows from zero at the start)
         g = np.sqrt(np.mean(mean.gain[burn:] ** 2, axis=0)) if self._nonlin else None
         dstd = np.sqrt(np.mean(mean.distortion_var[burn:], axis=0)) if self._nonlin else None
-        shadow = self._gain_shadows(mean.gain[burn:]) if self._nonlin else {}
-        dcolor = self._distortion_colors(mdl.command.values(0, mean.t.size, mdl.Ts)[burn:].reshape(-1, mdl.m),
-                                         dstd**2) if self._nonlin else {}
+        shadow, dcolor = self._colors(mean, burn, dstd) if self._nonlin else ({}, {})
         if self._nonlin:
             notes.append("actuator nonlinearities linearized around the mean drive (seed section 7): "
                          "rms gain " + ", ".join(f"{v:.4g}" for v in g) + ", distortion std "
