@@ -153,7 +153,7 @@ def mean_key(model, gain: bool = True) -> str:
 
 
 SHADOW_BLOCKS = 4         # at most so many blocks for a colored source's gain fluctuation (Predictor._gain_shadows)
-DISTORTION_TERMS = 40     # Hermite terms of a colored noise's distortion (Predictor._distortion_colors)
+DISTORTION_TERMS = 20     # Hermite terms of a colored noise's distortion (Predictor._distortion_colors)
 
 # The model's own mean response over its horizon, shared between models that differ only in what
 # it does not depend on (:func:`mean_key`): a diagnosis builds thousands of models that differ in a
@@ -1035,6 +1035,24 @@ def _nnls(A: np.ndarray, b: np.ndarray) -> np.ndarray:
         return lsq_linear(A, b, bounds=(0.0, np.inf), method="bvls").x
 
 
+_COS_TABLES: dict = {}
+
+
+def _cos_table(w: np.ndarray, N: int, Ts: float, D: int) -> np.ndarray:
+    """cos(w d), d = 1..D, (w.size, D) for the frequencies w of (N, Ts): one table per (N, Ts),
+    grown to the longest D asked (most of a fit's time at D in the thousands). Read-only."""
+    key = (N, Ts)
+    got = _COS_TABLES.get(key)
+    if got is None or got.shape[1] < D:
+        if len(_COS_TABLES) > 8:
+            _COS_TABLES.clear()
+        got = np.cos(np.outer(w, np.arange(1, D + 1)))
+        got.setflags(write=False)
+        if got.nbytes <= 16 << 20:
+            _COS_TABLES[key] = got
+    return got[:, :D]
+
+
 def _damped_cosines(h: np.ndarray, rad: float, N: int, Ts: float, j: int, m: int, white: bool = False,
                     nblocks: int = SHADOW_BLOCKS):
     """An autocovariance h(d), d = 0..D, of a noise on input channel j, as at most ``nblocks``
@@ -1056,7 +1074,7 @@ def _damped_cosines(h: np.ndarray, rad: float, N: int, Ts: float, j: int, m: int
                + (1 - R**2) / (1 - 2 * R * np.cos(w[:, None] + T) + R**2))
     if white:
         B = np.hstack([B, np.ones((f.size, 1))])
-    S = h[0] + 2.0 * np.cos(np.outer(w, np.arange(1, D + 1))) @ h[1:]
+    S = h[0] + 2.0 * _cos_table(w, N, Ts, D) @ h[1:]
     scale = 1.0 / (np.abs(S) + 1e-3 * np.max(np.abs(S)))
     # the variance held: sum w / h(0) = 1 as one row weighted far above the spectrum's (whose
     # relative errors are O(1) per unit of w / h(0))
