@@ -115,6 +115,12 @@ def _ensemble_welch(mdl, k0: int, n: int, trials: int, L: int, seed: int = 11):
     return pr, r, f, P
 
 
+def _band_power(P: np.ndarray, band: np.ndarray):
+    """The trials' mean power in the band's bins and its standard error (from the trials' spread)."""
+    per_trial = P[:, band].sum(axis=1)
+    return per_trial.mean(), per_trial.std(ddof=1) / np.sqrt(P.shape[0])
+
+
 def _predicted_welch(pr, L: int) -> np.ndarray:
     """The predicted expected Welch spectrum of output 0, all effects summed."""
     return sum(v[:, 0] for v in pr.expected_welch(L).values() if v is not None)
@@ -158,20 +164,16 @@ def test_ar1_actuator_noise_through_a_saturation_the_command_reaches_has_the_gai
     trials, L = 100, 1000
     pr, r, f, P = _ensemble_welch(mdl, 1000, 10000, trials, L)
 
-    def predicted(p):
-        return _predicted_welch(p, L)
-
     rms_only = mdl.predictor()
     rms_only._gain_shadows = lambda gain: {}           # the rms gain on n's own spectrum
-    new, old = predicted(pr), predicted(rms_only)
+    new, old = _predicted_welch(pr, L), _predicted_welch(rms_only, L)
     assert any("gain switches" in s for s in pr.steady_state().notes)
     bands = ((0.2, 0.6), (0.6, 1.2), (1.2, 2.0), (2.0, 3.0), (3.0, 5.0))
     z = z_bound(len(bands) + 1)
     off_before = []
     for lo, hi in bands:
         s = (f >= lo) & (f < hi)
-        per_trial = P[:, s].sum(axis=1)
-        emp, se = per_trial.mean(), per_trial.std(ddof=1) / np.sqrt(trials)
+        emp, se = _band_power(P, s)
         tol = 0.10 * new[s].sum() + z * se
         assert abs(emp - new[s].sum()) < tol, (lo, hi, emp / new[s].sum())
         off_before.append(abs(emp / old[s].sum() - 1.0))
@@ -228,19 +230,15 @@ def test_the_distortion_of_a_colored_noise_through_a_saturation_is_colored():
     trials, L = 60, 1000
     pr, r, f, P = _ensemble_welch(mdl, 2000, 12000, trials, L)
 
-    def predicted(p):
-        return _predicted_welch(p, L)
-
     white = mdl.predictor()
     white._distortion_colors = lambda u, dvar: {}        # the distortion as white noise (before)
-    new, old = predicted(pr), predicted(white)
+    new, old = _predicted_welch(pr, L), _predicted_welch(white, L)
     assert any("distortion of input 0's colored noise is colored" in s for s in pr.steady_state().notes)
     bands = ((5.0, 8.0), (8.0, 12.0), (12.0, 20.0), (20.0, 35.0), (35.0, 60.0), (60.0, 100.0))
     z = z_bound(len(bands) + 1)
     for lo, hi in bands:
         s = (f >= lo) & (f < hi)
-        per_trial = P[:, s].sum(axis=1)
-        emp, se = per_trial.mean(), per_trial.std(ddof=1) / np.sqrt(trials)
+        emp, se = _band_power(P, s)
         assert abs(emp - new[s].sum()) < 0.05 * new[s].sum() + z * se, (lo, hi, emp / new[s].sum())
         if lo >= 20.0:
             assert abs(emp / old[s].sum() - 1.0) > 0.15, (lo, hi, emp / old[s].sum())

@@ -853,7 +853,7 @@ def _chunk_records(f, ci, path: str) -> bytes:
                                     f"({type(e).__name__}); {_salvage(path)}") from None
     if ucrc and zlib.crc32(dec) != ucrc:
         raise CorruptRecordingError(f"{path}: finished file with a chunk at byte {ci.chunk_start_offset} that fails its CRC; "
-                                    f"{_salvage(path)}")
+                                    + _salvage(path))
     return dec
 
 
