@@ -1035,22 +1035,19 @@ def _nnls(A: np.ndarray, b: np.ndarray) -> np.ndarray:
         return lsq_linear(A, b, bounds=(0.0, np.inf), method="bvls").x
 
 
-_COS_TABLES: dict = {}
-
-
-def _cos_table(w: np.ndarray, N: int, Ts: float, D: int) -> np.ndarray:
-    """cos(w d), d = 1..D, (w.size, D) for the frequencies w of (N, Ts): one table per (N, Ts),
-    grown to the longest D asked (most of a fit's time at D in the thousands). Read-only."""
-    key = (N, Ts)
-    got = _COS_TABLES.get(key)
-    if got is None or got.shape[1] < D:
-        if len(_COS_TABLES) > 8:
-            _COS_TABLES.clear()
-        got = np.cos(np.outer(w, np.arange(1, D + 1)))
-        got.setflags(write=False)
-        if got.nbytes <= 16 << 20:
-            _COS_TABLES[key] = got
-    return got[:, :D]
+def _cosine_sums(w: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """sum_(d=1..D) c_d cos(w d) at each frequency w (rad/sample), c = (c_1, ..., c_D). The
+    angle-addition split d = q B + r (B ~ sqrt(D)) needs cos and sin at (B + Q) multiples of w per
+    frequency, not D: at D in the thousands the table of cos(w d) was most of a fit's time."""
+    D = c.size
+    B = max(1, int(np.ceil(np.sqrt(D + 1))))
+    Q = -(-(D + 1) // B)
+    H = np.zeros(Q * B)
+    H[1:D + 1] = c
+    H = H.reshape(Q, B)
+    wr = np.outer(np.arange(B), w)                      # (B, F)
+    wq = np.outer(np.arange(Q) * B, w)                  # (Q, F)
+    return np.einsum("qf,qf->f", np.cos(wq), H @ np.cos(wr)) - np.einsum("qf,qf->f", np.sin(wq), H @ np.sin(wr))
 
 
 def _damped_cosines(h: np.ndarray, rad: float, N: int, Ts: float, j: int, m: int, white: bool = False,
@@ -1062,7 +1059,6 @@ def _damped_cosines(h: np.ndarray, rad: float, N: int, Ts: float, j: int, m: int
     the variance sum w = h(0) held exactly (a row weighted far above the spectrum's). Poles r from
     ``rad`` (the slowest source's) to about 1/20 (a few samples), theta from 0 to Nyquist.
     (white variance, [block (F, G, C, D) of m input channels]); a block's variance is in its G."""
-    D = h.size - 1
     f = np.geomspace(1.0 / (N * Ts), 0.5 / Ts, 160)
     w = 2 * np.pi * f * Ts
     r = rad ** np.geomspace(1.0, np.log(0.05) / np.log(rad), 7)
@@ -1074,7 +1070,7 @@ def _damped_cosines(h: np.ndarray, rad: float, N: int, Ts: float, j: int, m: int
                + (1 - R**2) / (1 - 2 * R * np.cos(w[:, None] + T) + R**2))
     if white:
         B = np.hstack([B, np.ones((f.size, 1))])
-    S = h[0] + 2.0 * _cos_table(w, N, Ts, D) @ h[1:]
+    S = h[0] + 2.0 * _cosine_sums(w, h[1:])
     scale = 1.0 / (np.abs(S) + 1e-3 * np.max(np.abs(S)))
     # the variance held: sum w / h(0) = 1 as one row weighted far above the spectrum's (whose
     # relative errors are O(1) per unit of w / h(0))
