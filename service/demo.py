@@ -14,11 +14,13 @@
      finds them, adds them one by one (the model error after each step), and the predicted
      mean-square residual of each model is set beside the measured one.
 4. Writes ``demo-seed-diagnosis.rrd`` (one revision per step), its PNG and the fitted model
-   ``demo-seed-fitted.toml``.
+   ``demo-seed-fitted.toml``, and the whole summary (what ``--json`` prints) as
+   ``demo-seed-summary.json``, for scripts that ran the demo without ``--json``.
 """
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -36,7 +38,8 @@ def outputs(out_dir: Path) -> dict:
     stem = out_dir / "demo-seed"
     return {"recording": stem.with_suffix(".mcap"), "live_rrd": stem.with_suffix(".rrd"),
             "live_png": stem.with_suffix(".png"), "rrd": out_dir / "demo-seed-diagnosis.rrd",
-            "png": out_dir / "demo-seed-diagnosis.png", "fitted": out_dir / "demo-seed-fitted.toml"}
+            "png": out_dir / "demo-seed-diagnosis.png", "fitted": out_dir / "demo-seed-fitted.toml",
+            "summary": out_dir / "demo-seed-summary.json"}
 
 
 def _lesson_check(nominal, y: np.ndarray, u: np.ndarray) -> dict:
@@ -130,6 +133,7 @@ def run_demo(out_dir: Path, *, duration: float, speed: float, seed: int, force: 
         "diagnosis": diagnosis_json(rep, series),
         "files": {k: str(v) for k, v in outs.items()},
     }
+    outs["summary"].write_text(json.dumps(summary))
     return summary, _lines(summary, rep)
 
 
@@ -172,12 +176,11 @@ def _lines(s: dict, rep: dict) -> list[str]:
         L.append("   nothing missing found (the record may be too short for the walk: try --duration 1200)")
     L.append(f"model error {rep['error_before']:.3g} -> {rep['error_after']:.3g} (about 1 when the model explains the data)")
     f = s["files"]
-    L.append(f"wrote {f['rrd']}, {f['png']} and the fitted model {f['fitted']}")
+    L.append(f"wrote {f['rrd']}, {f['png']}, the fitted model {f['fitted']} and the summary {f['summary']}")
     return L
 
 
 def cmd_demo(args) -> int:
-    import json
     summary, lines = run_demo(Path(args.out), duration=args.duration, speed=args.speed, seed=args.seed,
                               force=args.force, max_effects=args.max_effects)
     if args.json:

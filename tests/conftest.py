@@ -6,6 +6,8 @@ import contextlib
 import fcntl
 import json
 import os
+import re
+import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -71,3 +73,43 @@ def run_once(tmp_path_factory, name: str, make):
             d.mkdir(exist_ok=True)
             done.write_text(json.dumps(make(d)))
     return d, json.loads(done.read_text())
+
+
+# -- the README's main command ---------------------------------------------------------------------------------
+ROOT = Path(__file__).resolve().parents[1]
+README = (ROOT / "README.md").read_text()
+
+
+def readme_blocks(lang: str) -> list[str]:
+    return re.findall(rf"```{lang}\n(.*?)```", README, flags=re.S)
+
+
+def main_command_steps() -> list[str]:
+    """The noiselab steps of the README's main command (its venv/pip steps are what CI itself runs)."""
+    first = readme_blocks("sh")[0].strip()
+    steps = [s.strip() for s in first.split("&&")]
+    return [s.replace(".venv/bin/noiselab", "noiselab") for s in steps if ".venv/bin/noiselab" in s]
+
+
+def run_noiselab(cmd: str, cwd: Path):
+    """A README line ``noiselab ...`` run as ``python -m service.cli ...`` in ``cwd``."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    return subprocess.run([sys.executable, "-m", "service.cli", *cmd.split()[1:]], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=900)
+
+
+def readme_main_command(tmp_path_factory):
+    """The README's main command (``noiselab demo`` with its defaults, about 90 s), run once per
+    test run in one directory: (the directory, [{cmd, returncode, stdout, stderr}] per step, up to
+    the first that fails). test_readme checks the run as a user sees it, test_demo what it wrote."""
+    def make(d: Path) -> list[dict]:
+        (d / "service").symlink_to(ROOT / "service")       # README paths like service/scenarios/...
+        runs = []
+        for cmd in main_command_steps():
+            res = run_noiselab(cmd, d)
+            runs.append({"cmd": cmd, "returncode": res.returncode, "stdout": res.stdout, "stderr": res.stderr})
+            if res.returncode:
+                break
+        return runs
+
+    return run_once(tmp_path_factory, "readme-main", make)

@@ -5,16 +5,10 @@ import os
 import re
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-README = (ROOT / "README.md").read_text()
-
-
-def blocks(lang):
-    return re.findall(rf"```{lang}\n(.*?)```", README, flags=re.S)
+from conftest import ROOT, main_command_steps, readme_blocks as blocks, readme_main_command, run_noiselab
 
 
 def console_commands():
@@ -23,19 +17,6 @@ def console_commands():
 
 def console_blocks():
     return [[ln.strip() for ln in b.splitlines() if ln.strip().startswith("noiselab ")] for b in blocks("console")]
-
-
-def main_command_steps():
-    first = blocks("sh")[0].strip()
-    steps = [s.strip() for s in first.split("&&")]
-    return [s.replace(".venv/bin/noiselab", "noiselab") for s in steps if ".venv/bin/noiselab" in s]
-
-
-def run_noiselab(cmd: str, cwd: Path):
-    args = cmd.split()[1:]
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    return subprocess.run([sys.executable, "-m", "service.cli", *args], cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=900)
 
 
 @pytest.fixture()
@@ -64,15 +45,18 @@ def test_console_examples(block, scratch):
             assert target.exists() and (target.is_dir() or target.stat().st_size > 0), out
 
 
-def test_main_command_steps(scratch):
-    for cmd in main_command_steps():
-        res = run_noiselab(cmd, scratch)
-        assert res.returncode == 0, (cmd, res.stderr)
-    rec = scratch / "recordings"
+def test_main_command_steps(tmp_path_factory):
+    """The main command as a user runs it, from a fresh directory (run once per test run: test_demo
+    checks what it wrote)."""
+    d, runs = readme_main_command(tmp_path_factory)
+    assert [r["cmd"] for r in runs] == main_command_steps()
+    for r in runs:
+        assert r["returncode"] == 0, (r["cmd"], r["stderr"])
+    rec = d / "recordings"
     for name in ("demo-seed.mcap", "demo-seed.rrd", "demo-seed.png", "demo-seed-diagnosis.rrd",
-                 "demo-seed-diagnosis.png", "demo-seed-fitted.toml"):
+                 "demo-seed-diagnosis.png", "demo-seed-fitted.toml", "demo-seed-summary.json"):
         assert (rec / name).stat().st_size > 0, name
-    out = res.stdout
+    out = runs[-1]["stdout"]
     assert "the lesson's check" in out and "x off" in out and "model error" in out, out
 
 
