@@ -479,7 +479,7 @@ def cmd_analyze(args) -> int:
     burn = auto_burn(series.starts_at_rest, series.u) if args.burn == "auto" else \
         int(round(float(args.burn) / model.Ts))
     cmp = compare(model, series.t, series.y, series.u, truth=series.truth, burn=burn,
-                  level=series.starts_at_rest)
+                  level=series.starts_at_rest, free_start=not series.starts_at_rest)
     extra = {}
     if args.rrd:
         from viewers.rerun_log import log_comparisons

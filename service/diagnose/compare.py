@@ -55,6 +55,7 @@ from __future__ import annotations
 import threading
 from collections import OrderedDict
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
 from functools import lru_cache
 
 import numpy as np
@@ -63,7 +64,7 @@ from scipy.signal import get_window
 from scipy.special import digamma, polygamma
 
 from ..model import ModelError
-from ..model.predict import LEAK, allan_from_variogram
+from ..model.predict import LEAK, allan_from_variogram, free_response_fit
 from ..stats import oadev, welch
 from ..stats.psd import window_autocorrelation
 from ..stats.psd import log_bin_groups
@@ -1005,13 +1006,16 @@ def check_samples(model, t, y, u=None):
 
 def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *, truth=None,
             burn: int | None = 0, settings: dict | None = None, revision: int = 0,
-            notes: list | None = None, level: bool = False) -> Comparison:
+            notes: list | None = None, level: bool = False, free_start: bool = False) -> Comparison:
     """Compare samples y (N, p) at times t (N,) (regular, period model.Ts) with ``model``.
 
     ``u`` (N, m): the recorded command (None: the model's own command generator). ``burn``:
     samples to skip at the start (None: the model's transient from rest, capped at half the
     record). ``settings`` override :func:`default_settings`. ``level``: the record starts at rest
     (sample 0 of a noiselab stream), so its absolute level is predicted: add the level view.
+    ``free_start``: the record does not start at rest (cut mid-stream, or the longest run after a
+    gap); under a command, the mean state after the burn is fitted
+    (:func:`service.model.predict.free_response_fit`).
     """
     y, t = check_samples(model, t, y, u)
     pr = predictor_of(model)
@@ -1022,6 +1026,10 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
     n = len(y)
     if burn is None:
         burn = min(_cached(model, "transient", 0, lambda: transient_samples(model)), n // 2)
+    fitted_start = bool(free_start and u is not None and np.any(u) and model.n_x)
+    if fitted_start:
+        my, myd = free_response_fit(model, y, mean.y, mean.ydot, burn, model.out_gain)
+        mean = replace(mean, y=my, ydot=myd)
     y_mean = mean.y
     qmo = quantizer_moments(model, mean.y) if "sensor.quantization" in model.effects else None
     if qmo is not None:
@@ -1108,7 +1116,10 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
         # a quantizer's variance follows the mean's place between its levels (the walk included)
         y_sd[:, qmo.active] = np.sqrt(qmo.var_y[:, qmo.active])
     nts = list(notes or [])
-    if burn:
+    if fitted_start:
+        nts.append(f"the record does not start at rest: analysis starts at t = {t[burn]:.3g} s ({burn} samples), "
+                   f"the command's mean response from the mean state fitted there ({model.n_x} states, least squares)")
+    elif burn:
         nts.append(f"analysis starts at t = {t[burn]:.3g} s, after the model's transient from rest ({burn} samples)")
     return Comparison(model_name=model.name, model_source=model.source, revision=revision, Ts=model.Ts,
                       t=t, y=y, y_mean=y_mean, y_sd=y_sd, truth=truth, views=views, error=error,

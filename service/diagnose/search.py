@@ -65,7 +65,7 @@ import scipy.fft as sfft
 from .. import parallel
 from ..model import ModelError
 from ..model.effects import CATALOGUE
-from ..model.predict import mean_key as _mean_key
+from ..model.predict import free_response_fit, mean_key as _mean_key
 from ..model.simulate import lsim
 from . import whittle as W
 
@@ -126,6 +126,8 @@ class Data:
         # from sample 0 is a step at t = 0 for a plant at rest (the default step, time_s = 0)
         self.has_command = self.u is not None and self.u.size > 0 and bool(
             np.any(np.ptp(self.u, axis=0) > 0) or (self.at_rest and np.any(self.u != 0)))
+        # not from rest under a command: the mean state at k0 is fitted (:meth:`Evaluator.mean`)
+        self.free_start = not self.at_rest and self.u is not None and bool(np.any(self.u != 0))
         self.umax = float(np.max(np.abs(self.u))) if self.u is not None and self.u.size else 0.0
         # per input (a limit searched per input ranges over its own command's)
         self.umax_in = np.max(np.abs(self.u), axis=0) if self.u is not None and self.u.size else np.zeros(0)
@@ -374,7 +376,10 @@ class Evaluator:
         if got is None:
             if len(self._mean) > 16:
                 self._mean.clear()
-            got = self._mean[key] = mean_response(model, self.data, gain=False)
+            got = mean_response(model, self.data, gain=False)
+            if self.data.free_start:
+                got = free_response_fit(model, self.data.y, *got, self.data.k0)
+            self._mean[key] = got
         y, yd = got
         g = model.out_gain
         return (y, yd) if np.all(g == 1.0) else (y * g, yd * g)

@@ -202,7 +202,7 @@ class LiveAnalyzer:
                           "model": self.model}
         try:
             return compare(self.model, t, y, u, burn=burn, revision=self.revision, level=first == 0,
-                           notes=[] if not bad.size else [f"analysed seq {first}..{top} (incomplete samples before)"])
+                           free_start=first != 0, notes=[] if not bad.size else [f"analysed seq {first}..{top} (incomplete samples before)"])
         except AnalysisError as exc:
             print(f"noiselab analyze: {exc}", file=self.log, flush=True)
             return None
