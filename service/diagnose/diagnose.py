@@ -257,6 +257,12 @@ def _step(c, model, error, Ts: float) -> dict:
             "params": _report_params(c.effect, model.effects[c.effect].param_dict(), Ts)}
 
 
+def _compare(S, model, t, y, u, burn, revision: int):
+    """:func:`compare` as the diagnosis runs it on its record: the level view when it starts at
+    rest; else, under a command, the mean state fitted where the analysis starts."""
+    return compare(model, t, y, u, burn=burn, level=S.data.at_rest, free_start=not S.data.at_rest, revision=revision)
+
+
 def _by_error(S, cur, accepted, steps, comps, step_models, max_effects, t, y, u, burn, say):
     """Nothing passes the Delta BIC threshold, but the views still see the model fail (model error
     above :data:`ERROR_OK`): the best candidate by :meth:`.search.Search.choice` is added when
@@ -295,7 +301,7 @@ def _by_error(S, cur, accepted, steps, comps, step_models, max_effects, t, y, u,
                 f"{100 * BY_ERROR_ALPHA:g} % over {len(cands)} candidates)")
             break
         new = c.fit if c.full else S.refit_all(c.fit, thorough=True)
-        cmp = compare(new.model, t, y, u, burn=burn, level=S.data.at_rest, free_start=not S.data.at_rest, revision=len(comps))
+        cmp = _compare(S, new.model, t, y, u, burn, revision=len(comps))
         if cmp.error > max(ERROR_FALL * comps[-1].error, ERROR_OK):
             say(f"model error {comps[-1].error:.3g}; {c.mode} {c.effect} (Delta BIC {c.score:.1f}) would "
                 f"leave it at {cmp.error:.3g}: not added")
@@ -384,7 +390,7 @@ def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MA
     # children of their own, a third process on two cores, slowed the maps by as much as they gained)
     bg = ThreadPoolExecutor(max_workers=1) if S.workers > 1 and not parallel.can_fork() else None
     try:
-        before = _later(bg, lambda: compare(model, t, y, u, burn=burn, level=S.data.at_rest, free_start=not S.data.at_rest, revision=0))
+        before = _later(bg, lambda: _compare(S, model, t, y, u, burn, revision=0))
         try:
             return _diagnose(model, t, y, u, S, data, before, burn, say, bg, max_effects, t0)
         except Exception:
@@ -435,7 +441,7 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0)
         # a leader's fit is already the joint thorough refit: not repeated
         new = best.fit if best.full else S.refit_all(best.fit, thorough=True)
         pending.append((len(steps), _later(bg, lambda m=new.model, rev=len(comps):
-                                            compare(m, t, y, u, burn=burn, level=S.data.at_rest, free_start=not S.data.at_rest, revision=rev))))
+                                            _compare(S, m, t, y, u, burn, revision=rev))))
         comps.append(None)
         steps.append(_step(best, new.model, None, model.Ts))
         accepted.append(best)
@@ -456,7 +462,7 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0)
         steps, comps, step_models = [], [before], [model]
         for i, fit in enumerate(_replay(S, start, cur, accepted), 1):
             c = accepted[i - 1]
-            cmp = compare(fit.model, t, y, u, burn=burn, level=S.data.at_rest, free_start=not S.data.at_rest, revision=i)
+            cmp = _compare(S, fit.model, t, y, u, burn, revision=i)
             cmp.model_name = f"+ {c.effect}"
             comps.append(cmp)
             step_models.append(fit.model)
@@ -468,7 +474,7 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0)
     if accepted and comps[-1] is not None and _same_model(final, step_models[-1]):
         after_f = _later(None, lambda c=comps[-1]: c)   # the last step's comparison is of this model (same revision)
     elif accepted:
-        after_f = _later(bg, lambda: compare(final, t, y, u, burn=burn, level=S.data.at_rest, free_start=not S.data.at_rest, revision=len(comps) - 1))
+        after_f = _later(bg, lambda: _compare(S, final, t, y, u, burn, revision=len(comps) - 1))
     missing = []
     # the profile-likelihood intervals of the effects found, concurrently on long records
     tasks = [(i, key, f) for i, c in enumerate(accepted) for key, f in interval_tasks(S.H, cur, c.effect)]

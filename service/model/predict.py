@@ -170,16 +170,19 @@ def free_response_fit(model, y: np.ndarray, ym: np.ndarray, yd: np.ndarray, k0: 
         return ym, yd
     g = np.ones(p) if gain is None else np.broadcast_to(np.asarray(gain, float), (p,))
     C = np.vstack([model.Cy, model.Cy @ model.Ac])
-    imp = np.zeros((n + 1, 1))
+    # the free response only where it is not yet rounding (a stable plant's: up to rho^K = 1e-16)
+    rho = float(np.max(np.abs(np.linalg.eigvals(model.Ad))))
+    K = n if rho >= 1.0 - 1e-12 else min(n, int(np.ceil(np.log(1e-16) / np.log(max(rho, 1e-300)))) + 1)
+    imp = np.zeros((K + 1, 1))
     imp[0] = 1.0
-    basis = np.empty((n, 2 * p, model.n_x))
+    basis = np.empty((K, 2 * p, model.n_x))
     for i in range(model.n_x):      # x_1 = e_i from an impulse through Bd = e_i: then Cy Ad^j e_i
         basis[:, :, i] = lsim(model.Ad, np.eye(model.n_x)[:, i:i + 1], C, np.zeros((2 * p, 1)), imp)[1:]
     basis *= np.concatenate([g, g])[None, :, None]
-    Phi = basis[:, :p].reshape(n * p, model.n_x)
-    x0 = np.linalg.lstsq(Phi, (y[k0:] - ym[k0:]).ravel(), rcond=1e-10)[0]
-    ym[k0:] += basis[:, :p] @ x0
-    yd[k0:] += basis[:, p:] @ x0
+    Phi = basis[:, :p].reshape(K * p, model.n_x)
+    x0 = np.linalg.lstsq(Phi, (y[k0:k0 + K] - ym[k0:k0 + K]).ravel(), rcond=1e-10)[0]
+    ym[k0:k0 + K] += basis[:, :p] @ x0
+    yd[k0:k0 + K] += basis[:, p:] @ x0
     return ym, yd
 
 
