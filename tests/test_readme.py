@@ -49,9 +49,9 @@ def test_main_command_steps(tmp_path_factory):
     """The main command as a user runs it, from a fresh directory (run once per test run: test_demo
     checks what it wrote)."""
     d, runs = readme_main_command(tmp_path_factory)
-    assert [r["cmd"] for r in runs] == main_command_steps()
     for r in runs:
         assert r["returncode"] == 0, (r["cmd"], r["stderr"])
+    assert [r["cmd"] for r in runs] == main_command_steps()
     rec = d / "recordings"
     for name in ("demo-seed.mcap", "demo-seed.rrd", "demo-seed.png", "demo-seed-diagnosis.rrd",
                  "demo-seed-diagnosis.png", "demo-seed-fitted.toml", "demo-seed-summary.json"):
