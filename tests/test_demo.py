@@ -12,26 +12,16 @@ error falls to about 1.
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from conftest import readme_main_command
+from conftest import readme_main_command, run_noiselab
 from service.diagnose.load import load_noiselab
 from service.model import load_model, parse_model
 
-ROOT = Path(__file__).resolve().parents[1]
 DURATION, SPEED, SEED = 1200.0, 20.0, 1          # the demo's defaults, which the README's command uses
-
-
-def cli(*args, cwd=None):
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    return subprocess.run([sys.executable, "-m", "service.cli", *map(str, args)], capture_output=True, text=True,
-                          env=env, cwd=cwd, timeout=600)
 
 
 @pytest.fixture(scope="module")
@@ -116,6 +106,6 @@ def test_demo_files(demo):
 def test_demo_refuses_to_overwrite(demo):
     out, s = demo
     before = Path(s["recording"]).stat().st_size
-    r = cli("demo", "--duration", 1, "--out", out)
+    r = run_noiselab(f"noiselab demo --duration 1 --out {out}", out.parent)
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "exists" in r.stderr, r.stderr
     assert Path(s["recording"]).stat().st_size == before

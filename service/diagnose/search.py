@@ -378,6 +378,8 @@ class Evaluator:
                 self._mean.clear()
             got = mean_response(model, self.data, gain=False)
             if self.data.free_start:
+                # fitted to the record as it is (the sensor gain in it): the start state is fitted
+                # per mean response, not per gain, and a gain's part of a decaying transient is small
                 got = free_response_fit(model, self.data.y, *got, self.data.k0)
             self._mean[key] = got
         y, yd = got
