@@ -619,6 +619,9 @@ def _inv_logdet(E: np.ndarray):
     return np.linalg.inv(E), np.linalg.slogdet(E)[1]
 
 
+BLIND = 1e-30             # a source whose part is below this share of the data's power: not seen (:class:`Inner`)
+
+
 class Inner:
     """l(v) = -sum_b G_b sum_j [ln E_bj + I_bj / E_bj] + l_mod(v_jitter), E = E0 + sum_a v_a U_a,
     v_a >= 0, maximized by projected Fisher scoring (the expected information
@@ -639,9 +642,19 @@ class Inner:
         self.mod, self.mod_index = mod, mod_index
         tr = (lambda A: np.einsum("...ii->...", A).real) if self.multi else (lambda A: A)
         tot = float(np.sum(self.G * tr(I)))
-        # a source with (almost) no power in these bins: its reference capped, so its bound stays finite
-        self.vref = np.minimum([tot / max(float(np.sum(self.G * tr(u))), 1e-300) for u in self.U], 1e290)
-        self.hi = self.vref * 1e4
+        # a source these data cannot see (a noise behind a saturation that clips the whole record:
+        # its part is 0, or rounding of 1e-40 that need not even be positive definite) would take a
+        # variance 1e30 times its reference to carry their power: held where it starts (its part
+        # zeroed, no score, no information), not run up to 1e290 where E overflows
+        power = np.array([float(np.sum(self.G * tr(u))) for u in self.U])
+        blind = ~(power > BLIND * tot)
+        if blind.any():
+            self.U = self.U.copy()
+            self.U[blind] = 0.0
+            self.Uf = self.U.reshape(len(self.U), I.size)
+        self.blind = blind
+        self.vref = np.where(blind, 1.0, tot / np.where(blind, 1.0, power))
+        self.hi = np.where(blind, np.inf, self.vref * 1e4)
         level = E0 + np.tensordot(self.vref, self.U, axes=1) if len(self.U) else E0
         # an output's expected power that rounds to <= 0 is set to 1e-12 of its mean over the bins:
         # a part summed from exponentials of nearly equal modes (a long-memory noise through an
@@ -718,6 +731,9 @@ class Inner:
         starts = [np.clip(self.vref * 1e-2, 0, self.hi)]
         if v0 is not None:
             starts.insert(0, np.clip(np.asarray(v0, float), 0, self.hi))
+        for s in starts:
+            # a source the data cannot see stays at the model's value (its reference without one)
+            s[self.blind] = 1.0 if v0 is None else starts[0][self.blind]
         best = None
         for v in starts:
             v = v.copy()

@@ -568,8 +568,10 @@ class Predictor:
             if Fi.shape[0] == 0:
                 continue
             rad = float(np.max(np.abs(np.linalg.eigvals(Fi))))
-            # the fluctuation is worth more blocks only where it is a visible share of the gain's power
-            active = c0 > 1e-6 * np.mean(gain**2, axis=0)
+            # the fluctuation is worth more blocks only where it is a visible share of the gain's power,
+            # and of the source's own power (the gain is at most 1: a saturation that clips the whole
+            # record leaves gains of 1e-68, whose fluctuation's spectrum is all underflow)
+            active = (c0 > 1e-6 * np.mean(gain**2, axis=0)) & (c0 > 1e-12)
             if not active.any() or not 0.0 < rad < 1.0:
                 continue
             D = int(min(N - 1, np.ceil(np.log(1e-9) / np.log(rad)) + 1))
