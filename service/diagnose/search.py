@@ -982,6 +982,11 @@ def godambe_factor(H: "Hypotheses", fit: "Fit", a: int) -> float:
         for j in range(x.shape[1]):
             xj = x[:, j] / max(float(np.mean(x[:, j])), 1e-300)
             cols += [xj, w2 * xj]
+    if any(gated(fit.model, e) for e in set(fit.scale_ids)):
+        # a noise behind a switching gain: the score's mean follows the squared gain (the power
+        # passed), a deterministic pattern whose block sums are not the score's spread
+        for gj in _gain_squares(fit.model, H.data, M):
+            cols += [gj, w2 * gj]
     B = np.stack(cols, axis=1)
     coef = np.linalg.lstsq(B, infl, rcond=None)[0]
     res = infl - B @ coef
@@ -992,6 +997,48 @@ def godambe_factor(H: "Hypotheses", fit: "Fit", a: int) -> float:
     S = res[:nb * L].reshape(nb, L).sum(axis=1)
     K = float(np.sum(S**2)) * nb / (nb - 1) * M / (nb * L)
     return K / Fi[0, 0]
+
+
+def gated(model, eid: str) -> bool:
+    """Whether ``eid`` is an actuator noise that reaches the plant through a gain that switches over
+    the record (a saturation or a dead zone the command reaches part of the time; the gate of
+    :meth:`service.model.predict.Predictor._gain_shadows`): its power arrives modulated, and the
+    stationary likelihood takes its periodogram as less spread than it is (the modulation's
+    kurtosis: a noise clipped a third of the time has 1.5x the variance in its mean power). Its
+    interval is adjusted by :func:`godambe_factor`, as the jitter's."""
+    eff = model.effects.get(eid)
+    if eff is None or not hasattr(eff, "drive_linear"):
+        return False
+    pr = model.predictor()
+    if not pr._nonlin:
+        return False
+    gain = pr._own_mean().gain
+    c0 = np.var(gain, axis=0)
+    return bool(np.any((c0 > 1e-6 * np.mean(gain**2, axis=0)) & (c0 > 1e-12)))
+
+
+def _gain_squares(model, data: "Data", M: int) -> list:
+    """The squared Bussgang gain of each input whose gain switches, over the last M samples of the
+    record's command (the differenced residual's), relative to its mean."""
+    pr = model.predictor()
+    N = data.N
+    u = np.asarray(data.u if data.u is not None else model.command.values(0, N, model.Ts), float).reshape(N, -1)
+    g2 = pr.drive_stats(u, pr.drive_noise_var(N))[1][N - M:] ** 2
+    out = []
+    for j in range(g2.shape[1]):
+        mj = float(np.mean(g2[:, j]))
+        if np.var(g2[:, j]) > 1e-12 and mj > 0:
+            out.append(g2[:, j] / mj)
+    return out
+
+
+def _scale_chi2(H: "Hypotheses", fit: "Fit", eid: str, a: int) -> float:
+    """The profile threshold of variance ``a`` (``eid``'s): 3.84, times the sandwich factor (never
+    below 1) for a variance whose likelihood overstates its evidence: the jitter's (modulated by the
+    slope) and an actuator noise's behind a switching gain (:func:`gated`)."""
+    if CATALOGUE[eid].fit.kind == "modulated" or gated(fit.model, eid):
+        return CHI2_95 * max(godambe_factor(H, fit, a), 1.0)
+    return CHI2_95
 
 
 # -- hypotheses ---------------------------------------------------------------------------------------------
@@ -2102,10 +2149,7 @@ def interval_tasks(H: Hypotheses, fit: Fit, eid: str) -> list:
                     vals = np.atleast_1d(np.asarray(eff.params[name], float))
                     j = int(np.argmax(np.broadcast_to(vals, (n_channels(fit.model, eid),))))
                     a = next(i for i, (e, c) in enumerate(zip(fit.scale_ids, fit.scale_ch)) if e == eid and c == j)
-                # a modulated variance (jitter): the likelihood overstates its evidence, so the
-                # profile's threshold is scaled by the sandwich factor (never below the plain one)
-                chi2 = CHI2_95 * (max(godambe_factor(H, fit, a), 1.0) if spec.kind == "modulated" else 1.0)
-                lo, hi = fit.inner.profile(a, fit.v, fit.loglik - _extra(H, fit), chi2)
+                lo, hi = fit.inner.profile(a, fit.v, fit.loglik - _extra(H, fit), _scale_chi2(H, fit, eid, a))
                 vhat = max(fit.v[a], 1e-300)
                 return [val * (lo / vhat) ** (1 / power), val * (hi / vhat) ** (1 / power)]
             out.append((name, scale_iv))
@@ -2155,11 +2199,17 @@ def _profile_scale_shaped(H: Hypotheses, fit: Fit, eid: str, name: str, val: flo
     largest channel's alone, the other channels' variances re-optimized with the searched parameters
     (scaled along with it, their data counted as evidence on it)."""
     free = dict(fit.free)
-    target = fit.loglik - CHI2_95 / 2
     nc = n_channels(fit.model, eid)
     vec = np.broadcast_to(np.asarray(fit.model.effects[eid].params[name], float), (nc,)).copy()
     per_channel = nc > 1 and COMMON not in fit.free[eid]
     j = int(np.argmax(vec))
+    chi2 = CHI2_95
+    if gated(fit.model, eid):
+        # the variance's sandwich factor (the shape held) for the profile over the shape too
+        pairs = list(zip(fit.scale_ids, fit.scale_ch))
+        a = pairs.index((eid, j)) if per_channel and (eid, j) in pairs else fit.scale_ids.index(eid)
+        chi2 = _scale_chi2(H, fit, eid, a)
+    target = fit.loglik - chi2 / 2
     # the others' variances stay free (re-optimized at every value), channel j's is held
     free[eid] = list(fit.free[eid]) + [f"hold:{j}"] if per_channel else [n for n in fit.free[eid] if n != name]
 
