@@ -65,7 +65,7 @@ import scipy.fft as sfft
 from .. import parallel
 from ..model import ModelError
 from ..model.effects import CATALOGUE
-from ..model.predict import free_response_fit, mean_key as _mean_key
+from ..model.predict import free_response_fit, gain_switches, mean_key as _mean_key
 from ..model.simulate import lsim
 from . import whittle as W
 
@@ -1012,9 +1012,7 @@ def gated(model, eid: str) -> bool:
     pr = model.predictor()
     if not pr._nonlin:
         return False
-    gain = pr._own_mean().gain
-    c0 = np.var(gain, axis=0)
-    return bool(np.any((c0 > 1e-6 * np.mean(gain**2, axis=0)) & (c0 > 1e-12)))
+    return bool(np.any(gain_switches(pr._own_mean().gain)))
 
 
 def _gain_squares(model, data: "Data", M: int) -> list:

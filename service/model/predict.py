@@ -563,15 +563,12 @@ class Predictor:
         Ts, m = mdl.Ts, mdl.m
         gbar = gain.mean(axis=0)
         dev = gain - gbar
-        c0 = np.mean(dev**2, axis=0)
+        # the fluctuation is worth more blocks only where the gain switches (:func:`gain_switches`)
+        active = gain_switches(gain)
         for i, (Fi, Ga, Ci, Da) in enumerate(self._act_blocks):
             if Fi.shape[0] == 0:
                 continue
             rad = float(np.max(np.abs(np.linalg.eigvals(Fi))))
-            # the fluctuation is worth more blocks only where it is a visible share of the gain's power,
-            # and of the source's own power (the gain is at most 1: a saturation that clips the whole
-            # record leaves gains of 1e-68, whose fluctuation's spectrum is all underflow)
-            active = (c0 > 1e-6 * np.mean(gain**2, axis=0)) & (c0 > 1e-12)
             if not active.any() or not 0.0 < rad < 1.0:
                 continue
             D = int(min(N - 1, np.ceil(np.log(1e-9) / np.log(rad)) + 1))
@@ -1084,6 +1081,15 @@ def _cosine_sums(w: np.ndarray, c: np.ndarray) -> np.ndarray:
     wr = np.outer(np.arange(B), w)                      # (B, F)
     wq = np.outer(np.arange(Q) * B, w)                  # (Q, F)
     return np.einsum("qf,qf->f", np.cos(wq), H @ np.cos(wr)) - np.einsum("qf,qf->f", np.sin(wq), H @ np.sin(wr))
+
+
+def gain_switches(gain: np.ndarray) -> np.ndarray:
+    """Per input (m,): whether the nonlinearity's gain (N, m) fluctuates over the record: its
+    variance a visible share of its mean square, and of the source's own power (the gain is at most
+    1: a saturation that clips the whole record leaves gains of 1e-68, whose fluctuation's
+    spectrum is all underflow)."""
+    c0 = np.var(gain, axis=0)
+    return (c0 > 1e-6 * np.mean(gain**2, axis=0)) & (c0 > 1e-12)
 
 
 def _damped_cosines(h: np.ndarray, rad: float, N: int, Ts: float, j: int, m: int, white: bool = False,
