@@ -982,7 +982,7 @@ def godambe_factor(H: "Hypotheses", fit: "Fit", a: int) -> float:
         for j in range(x.shape[1]):
             xj = x[:, j] / max(float(np.mean(x[:, j])), 1e-300)
             cols += [xj, w2 * xj]
-    if any(gated(fit.model, e) for e in set(fit.scale_ids)):
+    if any(gated(fit.model, e, H.data) for e in set(fit.scale_ids)):
         # a noise behind a switching gain: the score's mean follows the squared gain (the power
         # passed), a deterministic pattern whose block sums are not the score's spread
         for gj in _gain_squares(fit.model, H.data, M):
@@ -999,42 +999,46 @@ def godambe_factor(H: "Hypotheses", fit: "Fit", a: int) -> float:
     return K / Fi[0, 0]
 
 
-def gated(model, eid: str) -> bool:
+def gated(model, eid: str, data: "Data | None" = None) -> bool:
     """Whether ``eid`` is an actuator noise that reaches the plant through a gain that switches over
-    the record (a saturation or a dead zone the command reaches part of the time; the gate of
-    :meth:`service.model.predict.Predictor._gain_shadows`): its power arrives modulated, and the
-    stationary likelihood takes its periodogram as less spread than it is (the modulation's
-    kurtosis: a noise clipped a third of the time has 1.5x the variance in its mean power). Its
-    interval is adjusted by :func:`godambe_factor`, as the jitter's."""
+    the record (a saturation or a dead zone the command reaches part of the time:
+    :func:`service.model.predict.gain_switches`): its power arrives modulated, and the stationary
+    likelihood takes its periodogram as less spread than it is (the modulation's kurtosis: a noise
+    clipped a third of the time has 1.5x the variance in its mean power). Its interval is adjusted
+    by :func:`godambe_factor`, as the jitter's. The gain over ``data``'s command (the model's own
+    without data: an external command's record has one the model does not)."""
+    return _behind_nonlinearity(model, eid) and bool(np.any(gain_switches(_gains(model, data))))
+
+
+def _behind_nonlinearity(model, eid: str) -> bool:
+    """An actuator noise of a model with a saturation or a dead zone."""
     eff = model.effects.get(eid)
-    if eff is None or not hasattr(eff, "drive_linear"):
-        return False
+    return eff is not None and hasattr(eff, "drive_linear") and bool(model.predictor()._nonlin)
+
+
+def _gains(model, data: "Data | None") -> np.ndarray:
+    """The nonlinearities' Bussgang gain (N, m) over the record's command (the model's own over its
+    horizon without data)."""
     pr = model.predictor()
-    if not pr._nonlin:
-        return False
-    return bool(np.any(gain_switches(pr._own_mean().gain)))
+    if data is None:
+        return pr._own_mean().gain
+    N = data.N
+    u = np.asarray(data.u if data.u is not None else model.command.values(0, N, model.Ts), float).reshape(N, -1)
+    return pr.drive_stats(u, pr.drive_noise_var(N))[1]
 
 
 def _gain_squares(model, data: "Data", M: int) -> list:
-    """The squared Bussgang gain of each input whose gain switches, over the last M samples of the
-    record's command (the differenced residual's), relative to its mean."""
-    pr = model.predictor()
-    N = data.N
-    u = np.asarray(data.u if data.u is not None else model.command.values(0, N, model.Ts), float).reshape(N, -1)
-    g2 = pr.drive_stats(u, pr.drive_noise_var(N))[1][N - M:] ** 2
-    out = []
-    for j in range(g2.shape[1]):
-        mj = float(np.mean(g2[:, j]))
-        if np.var(g2[:, j]) > 1e-12 and mj > 0:
-            out.append(g2[:, j] / mj)
-    return out
+    """The squared gain of each input whose gain switches, over the last M samples of the record
+    (the differenced residual's), relative to its mean."""
+    g = _gains(model, data)
+    return [g[-M:, j] ** 2 / np.mean(g[-M:, j] ** 2) for j in np.flatnonzero(gain_switches(g))]
 
 
 def _scale_chi2(H: "Hypotheses", fit: "Fit", eid: str, a: int) -> float:
     """The profile threshold of variance ``a`` (``eid``'s): 3.84, times the sandwich factor (never
     below 1) for a variance whose likelihood overstates its evidence: the jitter's (modulated by the
     slope) and an actuator noise's behind a switching gain (:func:`gated`)."""
-    if CATALOGUE[eid].fit.kind == "modulated" or gated(fit.model, eid):
+    if CATALOGUE[eid].fit.kind == "modulated" or gated(fit.model, eid, H.data):
         return CHI2_95 * max(godambe_factor(H, fit, a), 1.0)
     return CHI2_95
 
@@ -2202,8 +2206,9 @@ def _profile_scale_shaped(H: Hypotheses, fit: Fit, eid: str, name: str, val: flo
     per_channel = nc > 1 and COMMON not in fit.free[eid]
     j = int(np.argmax(vec))
     chi2 = CHI2_95
-    if gated(fit.model, eid):
-        # the variance's sandwich factor (the shape held) for the profile over the shape too
+    if _behind_nonlinearity(fit.model, eid):
+        # the variance's sandwich factor where its gain switches (the shape held), for the
+        # profile over the shape too
         pairs = list(zip(fit.scale_ids, fit.scale_ch))
         a = pairs.index((eid, j)) if per_channel and (eid, j) in pairs else fit.scale_ids.index(eid)
         chi2 = _scale_chi2(H, fit, eid, a)
