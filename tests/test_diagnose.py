@@ -1235,6 +1235,32 @@ def test_a_profile_the_data_do_not_bound_ends_at_zero_or_the_largest_value_tried
         assert S._profile_scale_shaped(H0, none, "actuator.ar1", "std", 0.0, +1) == pytest.approx(1.96 * width, rel=0.02)
 
 
+def test_a_profile_crossing_from_the_estimate_lands_on_a_quadratic_profiles_end_in_one_fit():
+    """The profile's edge searched from its peak by regula falsi on the squared distance from the
+    estimate: a profile quadratic in ln x (or in x) is a straight line there, so the first fit lands
+    on 2 Delta l = 3.84 (the bisection of the shape parameters took 12 fits, regula falsi on ln x
+    4-5); without the peak, the plain regula falsi needs more than one."""
+    from service.diagnose import search as S
+
+    for log, z, back in ((True, math.log, math.exp), (False, (lambda v: v), (lambda v: v))):
+        x_hat, sd = 0.3, 0.05
+        calls = []
+
+        def l_at(x):
+            calls.append(x)
+            return -0.5 * ((z(x) - z(x_hat)) / sd) ** 2
+        target = -S.CHI2_95 / 2
+        for direction in (+1, -1):
+            want = back(z(x_hat) + direction * sd * math.sqrt(S.CHI2_95))
+            out = back(z(x_hat) + direction * 3 * sd)
+            calls.clear()
+            got = S._crossing(l_at, x_hat, 0.0, out, l_at(out), target, log=log, peak=x_hat)
+            assert len(calls) == 2 and got == pytest.approx(want, rel=1e-9), (log, direction, calls, got, want)
+            calls.clear()
+            plain = S._crossing(l_at, x_hat, 0.0, out, l_at(out), target, log=log)
+            assert len(calls) > 2 and abs(l_at(plain) - target) < 0.02
+
+
 def test_an_exact_add_refit_tie_goes_to_the_addition_whichever_candidate_leads():
     """Actuator white noise hidden on a plant whose process noise enters through the same input (L
     = B): adding it and refitting the process noise are the same spectra (scores equal to 1e-9).
