@@ -982,7 +982,7 @@ def godambe_factor(H: "Hypotheses", fit: "Fit", a: int) -> float:
         for j in range(x.shape[1]):
             xj = x[:, j] / max(float(np.mean(x[:, j])), 1e-300)
             cols += [xj, w2 * xj]
-    if any(gated(fit.model, e, H.data) for e in set(fit.scale_ids)):
+    if any(_behind_nonlinearity(fit.model, e) for e in set(fit.scale_ids)):
         # a noise behind a switching gain: the score's mean follows the squared gain (the power
         # passed), a deterministic pattern whose block sums are not the score's spread
         for gj in _gain_squares(fit.model, H.data, M):
@@ -1030,8 +1030,8 @@ def _gains(model, data: "Data | None") -> np.ndarray:
 def _gain_squares(model, data: "Data", M: int) -> list:
     """The squared gain of each input whose gain switches, over the last M samples of the record
     (the differenced residual's), relative to its mean."""
-    g = _gains(model, data)
-    return [g[-M:, j] ** 2 / np.mean(g[-M:, j] ** 2) for j in np.flatnonzero(gain_switches(g))]
+    g = _gains(model, data)[-M:]          # a gain that switches only before the residual starts: none
+    return [g[:, j] ** 2 / np.mean(g[:, j] ** 2) for j in np.flatnonzero(gain_switches(g))]
 
 
 def _scale_chi2(H: "Hypotheses", fit: "Fit", eid: str, a: int) -> float:
