@@ -999,29 +999,25 @@ def godambe_factor(H: "Hypotheses", fit: "Fit", a: int) -> float:
     return K / Fi[0, 0]
 
 
-def gated(model, eid: str, data: "Data | None" = None) -> bool:
+def gated(model, eid: str, data: "Data") -> bool:
     """Whether ``eid`` is an actuator noise that reaches the plant through a gain that switches over
     the record (a saturation or a dead zone the command reaches part of the time:
     :func:`service.model.predict.gain_switches`): its power arrives modulated, and the stationary
     likelihood takes its periodogram as less spread than it is (the modulation's kurtosis: a noise
     clipped a third of the time has 1.5x the variance in its mean power). Its interval is adjusted
-    by :func:`godambe_factor`, as the jitter's. The gain over ``data``'s command (the model's own
-    without data: an external command's record has one the model does not)."""
+    by :func:`godambe_factor`, as the jitter's. The gain over ``data``'s command (an external
+    command's record has one the model's own command does not)."""
     return _behind_nonlinearity(model, eid) and bool(np.any(gain_switches(_gains(model, data))))
 
 
 def _behind_nonlinearity(model, eid: str) -> bool:
     """An actuator noise of a model with a saturation or a dead zone."""
-    eff = model.effects.get(eid)
-    return eff is not None and hasattr(eff, "drive_linear") and bool(model.predictor()._nonlin)
+    return hasattr(model.effects.get(eid), "drive_linear") and any(hasattr(e, "knots") for e in model.effects.values())
 
 
-def _gains(model, data: "Data | None") -> np.ndarray:
-    """The nonlinearities' Bussgang gain (N, m) over the record's command (the model's own over its
-    horizon without data)."""
+def _gains(model, data: "Data") -> np.ndarray:
+    """The nonlinearities' Bussgang gain (N, m) over the record's command."""
     pr = model.predictor()
-    if data is None:
-        return pr._own_mean().gain
     N = data.N
     u = np.asarray(data.u if data.u is not None else model.command.values(0, N, model.Ts), float).reshape(N, -1)
     return pr.drive_stats(u, pr.drive_noise_var(N))[1]
