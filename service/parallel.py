@@ -21,7 +21,7 @@ import sys
 import threading
 
 ENABLED = True            # False: never fork (the callers' threads or serial paths run)
-FORKS = {"maps": 0, "child_items": 0, "recomputed": 0, "bytes": 0}   # what the forked maps did (tests)
+FORKS = {"maps": 0, "child_items": 0, "recomputed": 0, "bytes": 0, "side": 0}   # what the forked maps did (tests)
 
 
 def can_fork() -> bool:
@@ -47,12 +47,61 @@ def _flush_stdio() -> None:
             pass
 
 
-def fork_map(fn, items: list, order: list | None = None, portable=None) -> list:
+class Task:
+    """fn() to be run once: as an extra item of a :func:`fork_map` it is handed to (``side``), in
+    whichever process comes free for it, or in this process when its result is asked for first.
+    Its value crosses from the child pickled, like the map's results; an exception it raises
+    (caught where it ran) is raised by :meth:`result`."""
+
+    def __init__(self, fn):
+        self.fn = fn
+        self.done = False
+        self._out = None
+
+    def run(self):
+        """(True, value) or (False, exception): what crosses from the child."""
+        try:
+            return True, self.fn()
+        except Exception as exc:
+            return False, exc
+
+    def settle(self, out) -> None:
+        self._out, self.done, self.fn = out, True, None
+
+    def _get(self):
+        if not self.done:
+            self.settle(self.run())
+        return self._out
+
+    def result(self):
+        ok, v = self._get()
+        if not ok:
+            raise v
+        return v
+
+    def exception(self):
+        ok, v = self._get()
+        return None if ok else v
+
+
+def fork_map(fn, items: list, order: list | None = None, portable=None, side=()) -> list:
     """``[fn(x) for x in items]``, in this process and one forked child. Both take the next item of
     ``order`` (default: as given; the costliest first balances best) from a pipe that holds the
     items' indices, 4 bytes each (a pipe read of 4 bytes is atomic). ``portable``: applied to
-    each of the child's results before it is pickled (e.g. to drop a closure). The caller checks
-    :func:`can_fork` first."""
+    each of the child's results before it is pickled (e.g. to drop a closure). ``side``:
+    :class:`Task` objects run first, as extra items (each settled here when the map returns). The
+    caller checks :func:`can_fork` first."""
+    side = [s for s in side if not s.done]
+    if side:
+        k = len(side)
+        order = list(range(len(items))) if order is None else list(order)
+        got = fork_map(lambda it: it[1].run() if it[0] else fn(it[1]),
+                       [(True, s) for s in side] + [(False, x) for x in items],
+                       list(range(k)) + [k + i for i in order], portable)
+        for s, r in zip(side, got[:k]):
+            s.settle(r)
+        FORKS["side"] += k
+        return got[k:]
     n = len(items)
     order = list(range(n)) if order is None else list(order)
     tokens = b"".join(i.to_bytes(4, "little") for i in order)

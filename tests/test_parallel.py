@@ -52,6 +52,8 @@ def test_forked_candidate_maps_give_the_report_the_threads_give():
     # the fork ran every map (screens, full fits, the backward pass, exchanges, intervals), and every
     # item the child took came back from it
     assert f["maps"] >= 8 and f["child_items"] >= 8 and f["recomputed"] == 0, f
+    # the model comparisons (before, after each step) rode along with the maps, not run between them
+    assert f["side"] >= 1 + len(forked["report"]["steps"]), f
     assert threads["forks"]["maps"] == 0
     assert [m["effect"] for m in forked["report"]["missing"]], "the case has effects to find"
     # the same report, intervals and notes included, to rounding: a value the caches share (a
@@ -137,6 +139,38 @@ _TOY = """
         out[name] = {{"ok": res == [x * x for x in items],
                      **{{k: parallel.FORKS[k] - before[k] for k in parallel.FORKS}}}}
 
+    # side tasks ride along with a map: each run once, in whichever process came free for it, its
+    # value or its exception settled when the map returns; one no map took runs when asked for
+    runs_r, runs_w = os.pipe()
+
+    def side_value(v):
+        os.write(runs_w, b"r")
+        return v, os.getpid()
+
+    def side_error():
+        os.write(runs_w, b"r")
+        raise ValueError("side task")
+
+    tasks = [parallel.Task(lambda: side_value(1)), parallel.Task(side_error), parallel.Task(lambda: side_value(2))]
+    done = parallel.Task(lambda: side_value(0))
+    done.result()                             # already done: the map does not run it again
+    lone = parallel.Task(lambda: side_value(3))
+    before = dict(parallel.FORKS)
+    res = parallel.fork_map(lambda x: x * x, items, order, side=tasks + [done])
+    settled = [t.done for t in tasks]
+    os.set_blocking(runs_r, False)
+    runs = len(os.read(runs_r, 100))
+    vals = [tasks[0].result(), tasks[2].result()]
+    try:
+        tasks[1].result()
+        err = "no error"
+    except ValueError as exc:
+        err = str(exc)
+    out["side"] = {{"ok": res == [x * x for x in items], "settled": settled, "runs": runs,
+                   "values": [v for v, _ in vals],
+                   "error": err, "exception": str(tasks[1].exception()), "lone": list(lone.result()) == [3, parent],
+                   **{{k: parallel.FORKS[k] - before[k] for k in parallel.FORKS}}}}
+
     def parent_fails(x):
         if os.getpid() == parent:
             raise ValueError("parent item")
@@ -178,6 +212,11 @@ def test_a_forked_map_computes_here_what_the_child_did_not_deliver():
         r = out[name]
         # the child took at least one item (the parent's first waited for it) and delivered none
         assert r["ok"] and r["child_items"] == 0 and r["recomputed"] >= 1, (name, r)
+    sd = out["side"]
+    # the side tasks ran once each (the done one not again), in the map: settled when it returned
+    assert sd["ok"] and sd["settled"] == [True, True, True] and sd["runs"] == 4, sd
+    assert sd["values"] == [1, 2] and sd["error"] == sd["exception"] == "side task", sd
+    assert sd["maps"] == 1 and sd["side"] == 3 and sd["recomputed"] == 0 and sd["lone"], sd
     assert out["parent_fails"] == "parent item"               # raised here, by the item that causes it
     assert out["children_left"] is False                      # and the child was reaped
     # no process to be had (EAGAIN): this one computes everything, and closes its pipes

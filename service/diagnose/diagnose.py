@@ -383,12 +383,19 @@ def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MA
     burn = auto_burn(at_rest, u) if compare_burn == "auto" else compare_burn
     data = Data(y, u, model.Ts, at_rest, k0)
     S = Search(model, data, log=say)
-    # the comparisons (before, after each step, after all) run beside the fits on long records (one
-    # more thread: the candidate maps leave a core idle at their ends), unless the maps fork a
-    # second process (parallel.can_fork: only while this process runs a single thread; a fork there
-    # gains more than the overlap, 33 s -> 25 s on 10^6 samples; the comparisons in forked
-    # children of their own, a third process on two cores, slowed the maps by as much as they gained)
-    bg = ThreadPoolExecutor(max_workers=1) if S.workers > 1 and not parallel.can_fork() else None
+    # the comparisons (before, after each step, after all) run beside the fits on long records: as
+    # one more item of the next candidate map when the maps fork a second process (parallel.can_fork:
+    # only while this process runs a single thread; a fork there gains more than threads, 33 s -> 25
+    # s on 10^6 samples; a comparison in a forked child of its own, a third process on two cores,
+    # slowed the maps by as much as it gained, and run here before the map it left a core idle for
+    # 0.9 s each, 3.4 s of that record's 24 s), else in one more thread (the candidate maps leave a
+    # core idle at their ends)
+    if S.workers <= 1:
+        bg = None
+    elif parallel.can_fork():
+        bg = S
+    else:
+        bg = ThreadPoolExecutor(max_workers=1)
     try:
         before = _later(bg, lambda: _compare(S, model, t, y, u, burn, revision=0))
         try:
@@ -400,14 +407,18 @@ def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MA
                 raise exc from None
             raise
     finally:
-        if bg is not None:
+        if isinstance(bg, ThreadPoolExecutor):
             bg.shutdown(wait=True)
 
 
 def _later(bg, fn):
-    """fn() in the background thread when there is one, else now; .result() either way."""
-    if bg is not None:
+    """fn() in the background thread (``bg`` an executor), beside the search's next forked map
+    (``bg`` the :class:`.search.Search`: :meth:`~.search.Search.beside`), or now (None);
+    .result() and .exception() in every case."""
+    if isinstance(bg, ThreadPoolExecutor):
         return bg.submit(fn)
+    if bg is not None:
+        return bg.beside(fn)
     f = Future()
     f.set_result(fn())
     return f

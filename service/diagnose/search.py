@@ -1771,6 +1771,7 @@ class Search:
         # a long record: candidates are screened on its first SCREEN_N samples (a valid likelihood of
         # that part), then scored on the whole record at the screened values; the leaders are fitted
         # on the whole record (see :meth:`candidates`)
+        self._side: list[parallel.Task] = []   # tasks that ride along with the next map (:meth:`beside`)
         self.Hs = self.H
         if data.N >= 2 * SCREEN_N:
             part = Data(data.y[:SCREEN_N + 1], None if data.u is None else data.u[:SCREEN_N + 1], data.Ts,
@@ -1935,6 +1936,14 @@ class Search:
                     bias.append(c)
         return max(bias, key=key) if bias else first
 
+    def beside(self, fn) -> parallel.Task:
+        """fn() as one more item of the next :meth:`_map` that forks (a process comes free for it
+        there, where a process of its own would be a third on two cores), or when its result is
+        asked for, whichever comes first (:class:`service.parallel.Task`)."""
+        s = parallel.Task(fn)
+        self._side.append(s)
+        return s
+
     def _map(self, fn, items: list, cost=None) -> list:
         """fn over items, two at a time on long records: in this process and a forked copy of it
         where that is safe (:func:`service.parallel.can_fork`; the fits are mostly Python, which
@@ -1942,11 +1951,14 @@ class Search:
         arithmetic release the GIL; the caches they share are get-then-set); results in order.
         ``cost``: an item's expected cost, the costliest started first (no worker idles at the
         end while the other runs a long fit)."""
-        if self.workers <= 1 or len(items) < 2:
+        side, self._side = [s for s in self._side if not s.done], []
+        if self.workers <= 1 or len(items) + len(side) < 2:
+            self._side = side
             return [fn(x) for x in items]
         order = sorted(range(len(items)), key=lambda i: -cost(items[i])) if cost else list(range(len(items)))
         if parallel.can_fork():
-            return parallel.fork_map(fn, items, order, portable=_portable)
+            return parallel.fork_map(fn, items, order, portable=_portable, side=side)
+        self._side = side
         from concurrent.futures import ThreadPoolExecutor
         out = [None] * len(items)
         with ThreadPoolExecutor(max_workers=self.workers) as pool:
