@@ -21,7 +21,7 @@ import sys
 import threading
 
 ENABLED = True            # False: never fork (the callers' threads or serial paths run)
-FORKS = {"maps": 0, "child_items": 0, "recomputed": 0, "bytes": 0, "side": 0}   # what the forked maps did (tests)
+FORKS = {"maps": 0, "child_items": 0, "recomputed": 0, "bytes": 0, "side": 0, "calls": 0}   # what the forks did (tests)
 
 
 def can_fork() -> bool:
@@ -68,6 +68,9 @@ class Task:
     def settle(self, out) -> None:
         self._out, self.done, self.fn = out, True, None
 
+    def cancel(self) -> None:
+        """Not wanted after all (a forked call's child is stopped: :func:`fork_call`)."""
+
     def _get(self):
         if not self.done:
             self.settle(self.run())
@@ -82,6 +85,68 @@ class Task:
     def exception(self):
         ok, v = self._get()
         return None if ok else v
+
+
+def fork_call(fn) -> Task:
+    """fn() computed in a forked child while this process goes on (e.g. reading a recording while
+    this one imports the analysis): a :class:`Task` whose result() waits for the child's value.
+    Whatever the child does not deliver (fn raised there, the child was killed, the value would not
+    pickle) is computed here by fn when the result is asked for, so an error is raised here, by fn,
+    in the caller's order. Without :func:`can_fork`, or no process to be had: fn runs when asked."""
+    if not can_fork():
+        return Task(fn)
+    _flush_stdio()
+    r, w = os.pipe()
+    try:
+        pid = os.fork()
+    except OSError:
+        os.close(r)
+        os.close(w)
+        return Task(fn)
+    if pid == 0:                                  # the child: never returns
+        code = 1
+        try:
+            os.close(r)
+            blob = pickle.dumps(fn(), protocol=pickle.HIGHEST_PROTOCOL)
+            with os.fdopen(w, "wb") as f:
+                f.write(blob)
+            code = 0
+        except BaseException:                     # the parent computes it
+            pass
+        finally:
+            os._exit(code)
+    os.close(w)
+    task = Task(None)
+
+    def cancel():
+        """The child's work is not wanted (the caller failed first): stop it, now."""
+        if not task.done:
+            os.close(r)
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except OSError:
+                pass
+            os.waitpid(pid, 0)
+            task.settle((False, RuntimeError("cancelled")))
+
+    def collect():
+        blob = b""
+        try:
+            with os.fdopen(r, "rb") as f:
+                blob = f.read()
+        finally:
+            _, status = os.waitpid(pid, 0)
+        FORKS["calls"] += 1
+        if blob and os.waitstatus_to_exitcode(status) == 0:
+            try:
+                return pickle.loads(blob)
+            except Exception:
+                pass
+        FORKS["recomputed"] += 1
+        return fn()
+
+    task.fn, task.cancel = collect, cancel
+    return task
 
 
 def fork_map(fn, items: list, order: list | None = None, portable=None, side=()) -> list:

@@ -171,6 +171,28 @@ _TOY = """
                    "error": err, "exception": str(tasks[1].exception()), "lone": list(lone.result()) == [3, parent],
                    **{{k: parallel.FORKS[k] - before[k] for k in parallel.FORKS}}}}
 
+    # a call computed in a forked child while this process goes on: its value comes back; what the
+    # child does not deliver (it raised there) is computed here; a call not wanted is stopped
+    before = dict(parallel.FORKS)
+    got = parallel.fork_call(lambda: (os.getpid(), list(range(100000)))).result()
+    once = parallel.fork_call(lambda: os.getpid() if os.getpid() == parent else 1 / 0).result()
+    hold_r, hold_w = os.pipe()
+    stuck = parallel.fork_call(lambda: os.read(hold_r, 1))        # blocks until cancelled
+    stuck.cancel()
+    try:
+        stuck.result()
+        cancelled = "no error"
+    except RuntimeError as exc:
+        cancelled = str(exc)
+    os.close(hold_r)
+    os.close(hold_w)
+    parallel.ENABLED = False
+    here = parallel.fork_call(os.getpid).result()
+    parallel.ENABLED = True
+    out["call"] = {{"child": got[0] != parent, "value": got[1] == list(range(100000)), "redone": once == parent,
+                   "cancelled": cancelled, "disabled_here": here == parent,
+                   **{{k: parallel.FORKS[k] - before[k] for k in parallel.FORKS}}}}
+
     def parent_fails(x):
         if os.getpid() == parent:
             raise ValueError("parent item")
@@ -217,6 +239,9 @@ def test_a_forked_map_computes_here_what_the_child_did_not_deliver():
     assert sd["ok"] and sd["settled"] == [True, True, True] and sd["runs"] == 4, sd
     assert sd["values"] == [1, 2] and sd["error"] == sd["exception"] == "side task", sd
     assert sd["maps"] == 1 and sd["side"] == 3 and sd["recomputed"] == 0 and sd["lone"], sd
+    assert out["call"] == {"child": True, "value": True, "redone": True, "cancelled": "cancelled",
+                           "disabled_here": True, "maps": 0, "child_items": 0, "recomputed": 1, "bytes": 0,
+                           "side": 0, "calls": 2}, out["call"]
     assert out["parent_fails"] == "parent item"               # raised here, by the item that causes it
     assert out["children_left"] is False                      # and the child was reaped
     # no process to be had (EAGAIN): this one computes everything, and closes its pipes
@@ -310,3 +335,63 @@ def test_no_fork_beside_a_librarys_own_threads():
     if "openblas" in blas.lower():          # numpy's wheels: OpenBLAS, which starts its workers here
         assert tasks == 2, tasks
     assert can is (tasks == 1)              # a library's worker: no fork
+
+
+_CLI = """
+    import contextlib, io, json, sys
+    from service import cli, parallel
+
+    d = sys.argv[1]
+    assert cli.main(["simulate", "hidden/sensor.bias_walk", "--duration", "60", "--seed", "3",
+                     "--out", d + "/walk.mcap"]) == 0
+    with open(d + "/walk.mcap", "rb") as f:
+        head = f.read(4096)
+    with open(d + "/cut.mcap", "wb") as f:                   # read (unfinished), but no sample whole
+        f.write(head)
+    with open(d + "/bad.mcap", "wb") as f:                   # the reader rejects it
+        f.write(b"not an mcap file")
+    out = {}
+    for on in (True, False):
+        parallel.ENABLED = on
+        runs = {}
+        for name, args in (("walk", [d + "/walk.mcap", "--model", "hidden/sensor.bias_walk-nominal", "--json"]),
+                           ("cut", [d + "/cut.mcap", "--model", "hidden/sensor.bias_walk-nominal", "--json"]),
+                           ("bad", [d + "/bad.mcap", "--model", "hidden/sensor.bias_walk-nominal", "--json"]),
+                           ("bad_model", [d + "/walk.mcap", "--model", "nope-model", "--json"])):
+            before = dict(parallel.FORKS)
+            so, se = io.StringIO(), io.StringIO()
+            with contextlib.redirect_stdout(so), contextlib.redirect_stderr(se):
+                code = cli.main(["diagnose", *args])
+            rep = json.loads(so.getvalue()) if code == 0 else None
+            if rep is not None:
+                rep.pop("seconds", None)
+            runs[name] = {"code": code, "report": rep, "stderr": se.getvalue(),
+                          "forks": {k: parallel.FORKS[k] - before[k] for k in ("calls", "recomputed")}}
+        out[str(on)] = runs
+    print(json.dumps(out))
+"""
+
+
+def test_the_command_line_reads_the_recording_in_a_child_while_it_imports(tmp_path):
+    """`noiselab diagnose` reads a noiselab recording in a forked child while it imports the
+    analysis (:func:`service.parallel.fork_call`): the same report as read in this process; a file
+    the reader rejects, or one it reads with no whole sample, gives the same one-line error (the
+    child's failure redone here); a bad model
+    is reported first, as before, and the child's reading stopped."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT), OPENBLAS_NUM_THREADS="1")
+    r = subprocess.run([sys.executable, "-c", textwrap.dedent(_CLI), str(tmp_path)], capture_output=True,
+                       text=True, cwd=ROOT, env=env, timeout=600)
+    assert r.returncode == 0, r.stderr[-3000:]
+    out = json.loads(r.stdout.strip().splitlines()[-1])
+    forked, here = out["True"], out["False"]
+    assert forked["walk"]["code"] == 0 and forked["walk"]["forks"] == {"calls": 1, "recomputed": 0}, forked["walk"]
+    assert here["walk"]["forks"] == {"calls": 0, "recomputed": 0}
+    assert [m["effect"] for m in forked["walk"]["report"]["missing"]] == ["sensor.bias_walk"]
+    _same(forked["walk"]["report"], here["walk"]["report"])
+    for name, redone in (("cut", 0), ("bad", 1)):
+        got = forked[name]
+        assert got["code"] == 2 and got["forks"] == {"calls": 1, "recomputed": redone}, (name, got)
+        assert len(got["stderr"].strip().splitlines()) == 1 and got["stderr"] == here[name]["stderr"], (got, here[name])
+    bad = forked["bad_model"]
+    assert bad["code"] == 2 and "no such model" in bad["stderr"] and bad["stderr"] == here["bad_model"]["stderr"]
+    assert bad["forks"] == {"calls": 0, "recomputed": 0}          # stopped, never collected

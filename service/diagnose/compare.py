@@ -68,14 +68,10 @@ from ..model.predict import LEAK, allan_from_variogram, free_response_fit
 from ..stats import oadev, welch
 from ..stats.psd import window_autocorrelation
 from ..stats.psd import log_bin_groups
-from .results import VIEW_NAMES, Comparison, Region, View
+from .results import VIEW_NAMES, AnalysisError, Comparison, Region, View
 
 FAMILY_ALPHA = 0.05
 JITTER_LEVEL_STEP = 0.005     # the jitter's level over the record is applied on a grid of this step in ln
-
-
-class AnalysisError(ValueError):
-    """Data that cannot be analysed against the model (one-line message)."""
 
 
 # -- settings ----------------------------------------------------------------------------------

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..nodes import mcapio
-from .compare import AnalysisError
+from .results import AnalysisError
 
 
 @dataclass
@@ -63,8 +63,16 @@ def _split_spec(spec: str) -> tuple[str, list[str]]:
     return topic, [f.strip() for f in fields.split(",") if f.strip()]
 
 
-def load_noiselab(path: str, device: str | None = None, truth: bool = True, Ts: float | None = None) -> Series:
-    rec = mcapio.read_recording(path, kinds=("measurement", "command", "truth") if truth else ("measurement", "command"))
+def noiselab_kinds(truth: bool = True) -> tuple[str, ...]:
+    """The topics :func:`load_noiselab` reads."""
+    return ("measurement", "command", "truth") if truth else ("measurement", "command")
+
+
+def load_noiselab(path: str, device: str | None = None, truth: bool = True, Ts: float | None = None,
+                  rec: mcapio.Recording | None = None) -> Series:
+    """``rec``: the file already read (``mcapio.read_recording(path, kinds=noiselab_kinds(truth))``)."""
+    if rec is None:
+        rec = mcapio.read_recording(path, kinds=noiselab_kinds(truth))
     if not rec.devices:
         raise AnalysisError(f"{path}: no measurement topic (a topic ending in /measurement); for other "
                             "recordings give --measurement TOPIC:FIELD")
