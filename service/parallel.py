@@ -1,5 +1,7 @@
 """A second process for work that is mostly Python: a forked copy of this process takes half of a
-list of items, so two cores run what two threads could not (the GIL).
+list of items (:func:`fork_map`, with :class:`Task` objects riding along as extra items), or
+computes one call while this process goes on (:func:`fork_call`), so two cores run what two
+threads could not (the GIL).
 
 Only where that is safe (:func:`can_fork`): on Linux, and while this process runs a single thread,
 in Python and in its libraries (a fork copies the memory but only the calling thread: a lock another

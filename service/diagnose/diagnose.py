@@ -388,8 +388,9 @@ def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MA
     # only while this process runs a single thread; a fork there gains more than threads, 33 s -> 25
     # s on 10^6 samples; a comparison in a forked child of its own, a third process on two cores,
     # slowed the maps by as much as it gained, and run here before the map it left a core idle for
-    # 0.9 s each, 3.4 s of that record's 24 s), else in one more thread (the candidate maps leave a
-    # core idle at their ends)
+    # 0.9 s each, 3.4 s of that record's 24 s; riding along, each takes 1.3-1.9 s beside the other
+    # process, which shares the memory bandwidth: 1.0 +- 0.6 s gained over 9 paired runs), else in
+    # one more thread (the candidate maps leave a core idle at their ends)
     if S.workers <= 1:
         bg = None
     elif parallel.can_fork():

@@ -16,6 +16,7 @@ class AnalysisError(ValueError):
     """Data that cannot be analysed against the model (one-line message). Here, not in
     :mod:`.compare`, so that reading a recording (:mod:`.load`) does not import the analysis."""
 
+
 VIEW_NAMES = ("variance", "acf", "psd", "allan", "level")   # level: records from rest only
 VIEW_UNITS = {"variance": "s", "acf": "s", "psd": "Hz", "allan": "s", "level": "s"}   # of each view's x
 
