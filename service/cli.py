@@ -457,6 +457,18 @@ def _read_early(args, truth: bool):
     return parallel.fork_call(lambda: mcapio.read_recording(path, kinds=kinds))
 
 
+def _reading_early(args, body) -> int:
+    """``body(args, png, read)`` of a command that reads a recording (the truth only for the views:
+    an .rrd or a PNG), its reading begun first (:func:`_read_early`) and stopped if not used."""
+    png = args.png or (str(Path(args.rrd).with_suffix(".png")) if args.rrd else None)
+    read = _read_early(args, truth=bool(args.rrd or png))
+    try:
+        return body(args, png, read)
+    finally:
+        if read is not None:
+            read.cancel()                   # not asked for (an error came first): the child stops
+
+
 def _check_recording(path: str):
     p = Path(path)
     if p.is_dir():
@@ -486,18 +498,21 @@ def _check_out(path: str | None, force: bool):
 
 
 def cmd_analyze(args) -> int:
-    from .diagnose.compare import auto_burn, compare
-
     if args.live:
         from .nodes.analyzer import cmd_analyze_live
         return cmd_analyze_live(args)
     if not args.recording:
         raise UsageError("give a RECORDING.mcap (or --live)")
+    return _reading_early(args, _analyze_cmd)
+
+
+def _analyze_cmd(args, png, read) -> int:
+    from .diagnose.compare import auto_burn, compare
+
     model = load_model(args.model)
-    png = args.png or (str(Path(args.rrd).with_suffix(".png")) if args.rrd else None)
     _check_out(args.rrd, args.force)
     _check_out(png, args.force)
-    series = load_series(args, model, truth=bool(args.rrd or png))    # truth only for the views
+    series = load_series(args, model, truth=bool(args.rrd or png), read=read)
     burn = auto_burn(series.starts_at_rest, series.u) if args.burn == "auto" else \
         int(round(float(args.burn) / model.Ts))
     cmp = compare(model, series.t, series.y, series.u, truth=series.truth, burn=burn,
@@ -519,13 +534,7 @@ def cmd_analyze(args) -> int:
 
 # -- diagnosis ----------------------------------------------------------------------------------------
 def cmd_diagnose(args) -> int:
-    png = args.png or (str(Path(args.rrd).with_suffix(".png")) if args.rrd else None)
-    read = _read_early(args, truth=bool(args.rrd or png))
-    try:
-        return _diagnose_cmd(args, png, read)
-    finally:
-        if read is not None:
-            read.cancel()                   # not asked for (an error came first): the child stops
+    return _reading_early(args, _diagnose_cmd)
 
 
 def _diagnose_cmd(args, png, read) -> int:

@@ -354,14 +354,16 @@ _CLI = """
     for on in (True, False):
         parallel.ENABLED = on
         runs = {}
-        for name, args in (("walk", [d + "/walk.mcap", "--model", "hidden/sensor.bias_walk-nominal", "--json"]),
-                           ("cut", [d + "/cut.mcap", "--model", "hidden/sensor.bias_walk-nominal", "--json"]),
-                           ("bad", [d + "/bad.mcap", "--model", "hidden/sensor.bias_walk-nominal", "--json"]),
-                           ("bad_model", [d + "/walk.mcap", "--model", "nope-model", "--json"])):
+        for name, cmd, args in (("walk", "diagnose", [d + "/walk.mcap", "--model", "hidden/sensor.bias_walk-nominal"]),
+                                ("cut", "diagnose", [d + "/cut.mcap", "--model", "hidden/sensor.bias_walk-nominal"]),
+                                ("bad", "diagnose", [d + "/bad.mcap", "--model", "hidden/sensor.bias_walk-nominal"]),
+                                ("bad_model", "diagnose", [d + "/walk.mcap", "--model", "nope-model"]),
+                                ("analyze", "analyze", [d + "/walk.mcap", "--model", "hidden/sensor.bias_walk-nominal"]),
+                                ("analyze_bad", "analyze", [d + "/bad.mcap", "--model", "hidden/sensor.bias_walk-nominal"])):
             before = dict(parallel.FORKS)
             so, se = io.StringIO(), io.StringIO()
             with contextlib.redirect_stdout(so), contextlib.redirect_stderr(se):
-                code = cli.main(["diagnose", *args])
+                code = cli.main([cmd, *args, "--json"])
             rep = json.loads(so.getvalue()) if code == 0 else None
             if rep is not None:
                 rep.pop("seconds", None)
@@ -373,11 +375,11 @@ _CLI = """
 
 
 def test_the_command_line_reads_the_recording_in_a_child_while_it_imports(tmp_path):
-    """`noiselab diagnose` reads a noiselab recording in a forked child while it imports the
-    analysis (:func:`service.parallel.fork_call`): the same report as read in this process; a file
-    the reader rejects, or one it reads with no whole sample, gives the same one-line error (the
-    child's failure redone here); a bad model
-    is reported first, as before, and the child's reading stopped."""
+    """`noiselab diagnose` and `noiselab analyze` read a noiselab recording in a forked child while
+    they import the analysis (:func:`service.parallel.fork_call`): the same report as read in this
+    process; a file the reader rejects, or one it reads with no whole sample, gives the same
+    one-line error (the child's failure redone here); a bad model is reported first, as before,
+    and the child's reading stopped."""
     env = dict(os.environ, PYTHONPATH=str(ROOT), OPENBLAS_NUM_THREADS="1")
     r = subprocess.run([sys.executable, "-c", textwrap.dedent(_CLI), str(tmp_path)], capture_output=True,
                        text=True, cwd=ROOT, env=env, timeout=600)
@@ -388,7 +390,11 @@ def test_the_command_line_reads_the_recording_in_a_child_while_it_imports(tmp_pa
     assert here["walk"]["forks"] == {"calls": 0, "recomputed": 0}
     assert [m["effect"] for m in forked["walk"]["report"]["missing"]] == ["sensor.bias_walk"]
     _same(forked["walk"]["report"], here["walk"]["report"])
-    for name, redone in (("cut", 0), ("bad", 1)):
+    ana = forked["analyze"]
+    assert ana["code"] == 0 and ana["forks"] == {"calls": 1, "recomputed": 0}, ana
+    _same(ana["report"], here["analyze"]["report"])
+    assert ana["report"]["error"] > 2, ana["report"]["error"]          # the nominal misses the walk
+    for name, redone in (("cut", 0), ("bad", 1), ("analyze_bad", 1)):
         got = forked[name]
         assert got["code"] == 2 and got["forks"] == {"calls": 1, "recomputed": redone}, (name, got)
         assert len(got["stderr"].strip().splitlines()) == 1 and got["stderr"] == here[name]["stderr"], (got, here[name])
