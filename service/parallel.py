@@ -119,25 +119,40 @@ def fork_call(fn) -> Task:
             os._exit(code)
     os.close(w)
     task = Task(None)
+    open_ = {"fd": r, "pid": pid}                 # what is still to close and to reap
+
+    def reap(kill: bool):
+        """Close the pipe and reap the child (killed first when its work is not wanted), once."""
+        status = None
+        if open_["fd"] is not None:
+            fd, open_["fd"] = open_["fd"], None
+            os.close(fd)
+        if open_["pid"] is not None:
+            child, open_["pid"] = open_["pid"], None
+            if kill:
+                try:
+                    os.kill(child, signal.SIGKILL)
+                except OSError:
+                    pass
+            status = os.waitpid(child, 0)[1]
+        return status
 
     def cancel():
-        """The child's work is not wanted (the caller failed first): stop it, now."""
+        """The child's work is not wanted (the caller failed first, or was interrupted): stop it."""
         if not task.done:
-            os.close(r)
-            try:
-                os.kill(pid, signal.SIGKILL)
-            except OSError:
-                pass
-            os.waitpid(pid, 0)
+            reap(kill=True)
             task.settle((False, RuntimeError("cancelled")))
 
     def collect():
-        blob = b""
+        blob, read = b"", False
         try:
-            with os.fdopen(r, "rb") as f:
+            f = os.fdopen(open_["fd"], "rb")
+            open_["fd"] = None                    # the file owns it now
+            with f:
                 blob = f.read()
+            read = True
         finally:
-            _, status = os.waitpid(pid, 0)
+            status = reap(kill=not read)          # interrupted: the child is not waited for
         FORKS["calls"] += 1
         if blob and os.waitstatus_to_exitcode(status) == 0:
             try:

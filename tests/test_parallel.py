@@ -83,34 +83,34 @@ _TOY = """
     from service import parallel
 
     parent = os.getpid()
-    sync_r = sync_w = None
+    sync_r = sync_w = back_r = back_w = None
     first = []
 
     def gate():
-        # the parent's first item waits until the child has taken one (a pipe, no sleeping)
-        if os.getpid() == parent and not first:
+        # each process's first item waits until the other has taken one (pipes, no sleeping): the
+        # child cannot take them all before the parent starts, nor the parent before the child
+        if not first:
             first.append(1)
-            os.read(sync_r, 1)
+            if os.getpid() == parent:
+                os.write(back_w, b"p")
+                os.read(sync_r, 1)
+            else:
+                os.write(sync_w, b"c")
+                os.read(back_r, 1)
 
     def square(x):
         gate()
-        if os.getpid() != parent:
-            os.write(sync_w, b"x")
         return x * x
 
     def child_fails(x):
         gate()
         if os.getpid() != parent:
-            os.write(sync_w, b"x")
             raise RuntimeError("child only")
         return x * x
 
     def child_unpicklable(x):
         gate()
-        if os.getpid() != parent:
-            os.write(sync_w, b"x")
-            return lambda: x * x          # will not pickle: the child delivers nothing
-        return lambda: x * x
+        return lambda: x * x              # the child's will not pickle: the child delivers nothing
 
     out = {{"threads": threading.active_count(), "can_fork": parallel.can_fork()}}
     # a second thread, Python's or a library's, and no fork
@@ -130,11 +130,12 @@ _TOY = """
     order = items[::-1]
     for name, fn in (("square", square), ("child_fails", child_fails), ("child_unpicklable", child_unpicklable)):
         first.clear()
-        sync_r, sync_w = os.pipe()          # a fresh one per map (the last child's bytes stay in the old)
+        sync_r, sync_w = os.pipe()          # fresh ones per map (a killed child's bytes stay in the old)
+        back_r, back_w = os.pipe()
         before = dict(parallel.FORKS)
         res = parallel.fork_map(fn, items, order)
-        os.close(sync_r)
-        os.close(sync_w)
+        for fd in (sync_r, sync_w, back_r, back_w):
+            os.close(fd)
         res = [r() if callable(r) else r for r in res]
         out[name] = {{"ok": res == [x * x for x in items],
                      **{{k: parallel.FORKS[k] - before[k] for k in parallel.FORKS}}}}
@@ -184,25 +185,46 @@ _TOY = """
         cancelled = "no error"
     except RuntimeError as exc:
         cancelled = str(exc)
+    # interrupted while it waits for the child (Ctrl-C): the child is killed and reaped at once, and
+    # the caller's cancel() afterwards does nothing (it closed the pipe twice before)
+    slow = parallel.fork_call(lambda: os.read(hold_r, 1))
+
+    def interrupt(*_):
+        raise KeyboardInterrupt
+
+    import signal
+    signal.signal(signal.SIGALRM, interrupt)
+    signal.setitimer(signal.ITIMER_REAL, 0.2)          # the child never answers: result() is waiting
+    try:
+        slow.result()
+        interrupted = "no"
+    except KeyboardInterrupt:
+        interrupted = "yes"
+    slow.cancel()
     os.close(hold_r)
     os.close(hold_w)
     parallel.ENABLED = False
     here = parallel.fork_call(os.getpid).result()
     parallel.ENABLED = True
     out["call"] = {{"child": got[0] != parent, "value": got[1] == list(range(100000)), "redone": once == parent,
-                   "cancelled": cancelled, "disabled_here": here == parent,
+                   "cancelled": cancelled, "disabled_here": here == parent, "interrupted": interrupted,
                    **{{k: parallel.FORKS[k] - before[k] for k in parallel.FORKS}}}}
 
     def parent_fails(x):
         if os.getpid() == parent:
+            os.write(sync_w, b"p")
             raise ValueError("parent item")
+        os.read(sync_r, 1)        # the child's first item waits for the parent's: it cannot take them all
         return x
 
+    sync_r, sync_w = os.pipe()
     try:
         parallel.fork_map(parent_fails, items, order)
         out["parent_fails"] = "no error"
     except ValueError as exc:
         out["parent_fails"] = str(exc)
+    os.close(sync_r)
+    os.close(sync_w)
     try:
         os.waitpid(-1, os.WNOHANG)
         out["children_left"] = True
@@ -240,8 +262,8 @@ def test_a_forked_map_computes_here_what_the_child_did_not_deliver():
     assert sd["values"] == [1, 2] and sd["error"] == sd["exception"] == "side task", sd
     assert sd["maps"] == 1 and sd["side"] == 3 and sd["recomputed"] == 0 and sd["lone"], sd
     assert out["call"] == {"child": True, "value": True, "redone": True, "cancelled": "cancelled",
-                           "disabled_here": True, "maps": 0, "child_items": 0, "recomputed": 1, "bytes": 0,
-                           "side": 0, "calls": 2}, out["call"]
+                           "disabled_here": True, "interrupted": "yes", "maps": 0, "child_items": 0,
+                           "recomputed": 1, "bytes": 0, "side": 0, "calls": 2}, out["call"]
     assert out["parent_fails"] == "parent item"               # raised here, by the item that causes it
     assert out["children_left"] is False                      # and the child was reaped
     # no process to be had (EAGAIN): this one computes everything, and closes its pipes
