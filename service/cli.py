@@ -47,7 +47,7 @@ def _bad_input_types():
     from .nodes.mcapio import McapIoError, RecordingExistsError
     from .nodes.transport import TransportError
     from .nodes.wire import WireError
-    AnalysisError = _loaded("service.diagnose.compare", "AnalysisError")
+    AnalysisError = _loaded("service.diagnose.results", "AnalysisError")
     DemoError = _loaded("service.demo", "DemoError")
     StatsError = _loaded("service.stats.errors", "StatsError")
     return (ModelError, UsageError, WireError, McapIoError, RecordingExistsError, TransportError,
@@ -458,12 +458,11 @@ def _read_early(args, truth: bool):
 
 
 def _reading_early(args, body) -> int:
-    """``body(args, png, read)`` of a command that reads a recording (the truth only for the views:
-    an .rrd or a PNG), its reading begun first (:func:`_read_early`) and stopped if not used."""
-    png = args.png or (str(Path(args.rrd).with_suffix(".png")) if args.rrd else None)
-    read = _read_early(args, truth=bool(args.rrd or png))
+    """``body(args, read)`` of a command that reads a recording (the truth only for the views: an
+    .rrd or a PNG), its reading begun first (:func:`_read_early`) and stopped if not used."""
+    read = _read_early(args, truth=bool(args.rrd or args.png))
     try:
-        return body(args, png, read)
+        return body(args, read)
     finally:
         if read is not None:
             read.cancel()                   # not asked for (an error came first): the child stops
@@ -475,6 +474,18 @@ def _check_recording(path: str):
         raise UsageError(f"{path}: is a directory, not an MCAP recording")
     if not p.is_file():
         raise UsageError(f"{path}: no such file")
+
+
+def png_path(args) -> str | None:
+    """The summary PNG: ``--png``, else beside the ``--rrd`` (None without either); an .rrd path
+    with no file name (``/``, ``.``) is a usage error, not a traceback."""
+    png = getattr(args, "png", None)
+    if png or not args.rrd:
+        return png or None
+    try:
+        return str(Path(args.rrd).with_suffix(".png"))
+    except ValueError:
+        raise UsageError(f"{args.rrd}: is a directory; give a file name") from None
 
 
 def _check_out(path: str | None, force: bool):
@@ -506,10 +517,11 @@ def cmd_analyze(args) -> int:
     return _reading_early(args, _analyze_cmd)
 
 
-def _analyze_cmd(args, png, read) -> int:
+def _analyze_cmd(args, read) -> int:
     from .diagnose.compare import auto_burn, compare
 
     model = load_model(args.model)
+    png = png_path(args)
     _check_out(args.rrd, args.force)
     _check_out(png, args.force)
     series = load_series(args, model, truth=bool(args.rrd or png), read=read)
@@ -537,11 +549,12 @@ def cmd_diagnose(args) -> int:
     return _reading_early(args, _diagnose_cmd)
 
 
-def _diagnose_cmd(args, png, read) -> int:
+def _diagnose_cmd(args, read) -> int:
     from .diagnose.diagnose import diagnose
     from .diagnose.report import diagnosis_json, diagnosis_lines
 
     model = load_model(args.model)
+    png = png_path(args)
     for out in (args.fit_out, args.rrd, png):
         _check_out(out, args.force)
     series = load_series(args, model, truth=bool(args.rrd or png), read=read)
@@ -765,4 +778,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    # `python -m service.cli` runs this file as __main__: the command runs in service.cli itself, so
+    # that the UsageError a node raises (`from ..cli import UsageError`) is the one main() catches
+    from service.cli import main as _main
+    sys.exit(_main())

@@ -425,11 +425,16 @@ def bad_inputs(tmp_path_factory, seed_recording) -> dict:
         "not MCAP": ([not_mcap, "--model", "seed"], ["notes.mcap", "not an MCAP file"]),
         "directory": ([d / "a_dir.mcap", "--model", "seed"], ["a_dir.mcap", "is a directory"]),
         "unstable plant": ([seed_recording, "--model", unstable], ["unstable mode", "process.white"]),
+        # an .rrd with no file name: its PNG's name cannot be made (was a ValueError traceback)
+        "rrd without a name": ([seed_recording, "--model", "seed", "--rrd", "/"], ["/: is a directory"]),
+        # the model's error before the outputs' and the recording's (the recording is read early)
+        "model first": ([not_mcap, "--model", "nope-model", "--rrd", "/"], ["nope-model", "no such model"]),
     }
 
 
 @pytest.mark.parametrize("case", ["no measurement topic", "missing field", "NaN samples", "too short",
-                                  "Ts mismatch", "missing file", "not MCAP", "directory", "unstable plant"])
+                                  "Ts mismatch", "missing file", "not MCAP", "directory", "unstable plant",
+                                  "rrd without a name", "model first"])
 def test_bad_input_is_one_line_and_exit_2(bad_inputs, case):
     args, words = bad_inputs[case]
     r = cli("analyze", *args, "--json")
@@ -439,6 +444,23 @@ def test_bad_input_is_one_line_and_exit_2(bad_inputs, case):
     assert "Traceback" not in r.stderr and r.stdout == ""
     for w in words:
         assert w in lines[0], (w, lines[0])
+
+
+def test_live_outputs_are_checked_before_the_run(tmp_path):
+    """`analyze --live --rrd`: the .rrd and the PNG beside it (or --png) are checked before any
+    session opens, as offline: no file name, an existing file without --force, a directory."""
+    existing = tmp_path / "old.png"
+    existing.write_text("kept")
+    for args, words in ((["--rrd", "/"], ["/: is a directory"]),
+                        (["--rrd", tmp_path / "new.rrd", "--png", existing], ["old.png", "exists"]),
+                        (["--rrd", tmp_path / "old.rrd"], ["old.png", "exists"]),
+                        (["--rrd", tmp_path], ["is a directory"])):
+        r = cli("analyze", "--live", "--model", "seed-nominal", "--connect-timeout", "1", *args, "--json")
+        lines = r.stderr.splitlines()
+        assert r.returncode == 2 and len(lines) == 1 and "Traceback" not in r.stderr, (args, r.stderr[-2000:])
+        for w in words:
+            assert w in lines[0], (w, lines[0])
+    assert existing.read_text() == "kept" and not (tmp_path / "new.rrd").exists()
 
 
 def test_a_model_ts_slightly_off_the_records_is_noted(seed_recording, tmp_path):

@@ -1008,6 +1008,8 @@ def test_cli_nothing_missing(walk_recording):
     (["{rec}", "--model", "seed", "--fit-out", "{rec}"], "exists"),
     (["{rec}", "--model", "seed", "--fit-out", "{bad}/fitted.toml"], "bad.mcap is a file, not a directory"),
     (["{rec}", "--model", "seed", "--rrd", "{tmp}"], "is a directory"),
+    (["{rec}", "--model", "seed", "--rrd", "/"], "/: is a directory"),
+    (["{bad}", "--model", "nope-model", "--rrd", "/"], "no such model"),      # the model's error first
 ])
 def test_cli_bad_input_one_line_exit_2(walk_recording, tmp_path, args, needle):
     bad = tmp_path / "bad.mcap"

@@ -275,7 +275,8 @@ def summary_of(cmp, analyzer: LiveAnalyzer, ranking: dict | None = None) -> dict
 
 def run_live(session, model_spec: str, *, device: str | None, window_s: float, update_s: float,
              duration: float | None, stop: threading.Event, rrd: str | None, quiet: bool = False,
-             rank_s: float = 0.0, log=sys.stderr) -> dict:
+             rank_s: float = 0.0, log=sys.stderr, png: str | None = None) -> dict:
+    """``png``: the summary PNG written with the ``rrd`` (default: beside it)."""
     an = LiveAnalyzer(model_spec, device=device, window_s=window_s, log=log)
     an.warm()
     rank_stop = threading.Event()
@@ -344,7 +345,7 @@ def run_live(session, model_spec: str, *, device: str | None, window_s: float, u
             from viewers.summary_png import write_summary_png
             comps = [an.latest[r] for r in sorted(an.latest)]
             log_comparisons(comps, rrd, history=an.history)
-            png = str(Path(rrd).with_suffix(".png"))
+            png = png or str(Path(rrd).with_suffix(".png"))
             write_summary_png(comps, png)
             out["rrd"], out["png"] = rrd, png
     return out
@@ -353,17 +354,18 @@ def run_live(session, model_spec: str, *, device: str | None, window_s: float, u
 def cmd_analyze_live(args) -> int:
     import json
 
-    from ..cli import UsageError, _stop_on_signals
+    from ..cli import UsageError, _check_out, _stop_on_signals, png_path
 
     if args.recording:
         raise UsageError("--live analyses a Zenoh stream: give no RECORDING")
-    if args.rrd and Path(args.rrd).exists() and not args.force:
-        raise UsageError(f"{args.rrd}: exists (use --force to overwrite)")
+    if args.rrd:                          # checked before the run, the PNG beside it too
+        _check_out(args.rrd, args.force)
+        _check_out(png_path(args), args.force)
     stop = _stop_on_signals()
     with transport.open_session(args, "sink") as session:
         rep = run_live(session, args.model, device=args.device, window_s=args.window, update_s=args.update,
                        duration=args.duration, stop=stop, rrd=args.rrd, quiet=args.json,
-                       rank_s=args.rank_every)
+                       rank_s=args.rank_every, png=png_path(args) if args.rrd else None)
     if args.json:
         print(json.dumps(rep), flush=True)
     else:
