@@ -21,6 +21,7 @@ import pickle
 import signal
 import sys
 import threading
+import traceback
 
 ENABLED = True            # False: never fork (the callers' threads or serial paths run)
 FORKS = {"maps": 0, "child_items": 0, "recomputed": 0, "bytes": 0, "side": 0, "calls": 0}   # what the forks did (tests)
@@ -177,8 +178,18 @@ def fork_map(fn, items: list, order: list | None = None, portable=None, side=())
     if side:
         k = len(side)
         order = list(range(len(items))) if order is None else list(order)
-        got = fork_map(lambda it: it[1].run() if it[0] else fn(it[1]),
-                       [(True, s) for s in side] + [(False, x) for x in items],
+        here = os.getpid()
+
+        def one(it):
+            if not it[0]:
+                return fn(it[1])
+            out = it[1].run()
+            if not out[0] and os.getpid() != here:
+                # a pickled exception loses its traceback: where it was raised goes along as a note
+                out[1].add_note("raised in the forked child, at:\n" + "".join(traceback.format_tb(out[1].__traceback__)))
+            return out
+
+        got = fork_map(one, [(True, s) for s in side] + [(False, x) for x in items],
                        list(range(k)) + [k + i for i in order], portable)
         for s, r in zip(side, got[:k]):
             s.settle(r)

@@ -150,26 +150,47 @@ _TOY = """
 
     def side_error():
         os.write(runs_w, b"r")
-        raise ValueError("side task")
+        gate()                        # one of the two in each process
+        exc = ValueError("side task")
+        exc.pid = os.getpid()
+        raise exc
 
-    tasks = [parallel.Task(lambda: side_value(1)), parallel.Task(side_error), parallel.Task(lambda: side_value(2))]
+    tasks = [parallel.Task(side_error), parallel.Task(side_error),
+             parallel.Task(lambda: side_value(1)), parallel.Task(lambda: side_value(2))]
     done = parallel.Task(lambda: side_value(0))
     done.result()                             # already done: the map does not run it again
     lone = parallel.Task(lambda: side_value(3))
+    first.clear()
+    sync_r, sync_w = os.pipe()
+    back_r, back_w = os.pipe()
     before = dict(parallel.FORKS)
     res = parallel.fork_map(lambda x: x * x, items, order, side=tasks + [done])
+    for fd in (sync_r, sync_w, back_r, back_w):
+        os.close(fd)
     settled = [t.done for t in tasks]
     os.set_blocking(runs_r, False)
     runs = len(os.read(runs_r, 100))
-    vals = [tasks[0].result(), tasks[2].result()]
-    try:
-        tasks[1].result()
-        err = "no error"
-    except ValueError as exc:
-        err = str(exc)
-    out["side"] = {{"ok": res == [x * x for x in items], "settled": settled, "runs": runs,
-                   "values": [v for v, _ in vals],
-                   "error": err, "exception": str(tasks[1].exception()), "lone": list(lone.result()) == [3, parent],
+    vals = [tasks[2].result(), tasks[3].result()]
+    errs = []
+    for t in tasks[:2]:
+        try:
+            t.result()
+            errs.append("no error")
+        except ValueError as exc:
+            errs.append(str(exc))
+    # an exception from the child carries where it was raised as a note (its traceback does not
+    # pickle); the one raised here keeps its traceback
+    where = {{}}
+    for t in tasks[:2]:
+        exc = t.exception()
+        notes = getattr(exc, "__notes__", [])
+        if exc.pid != parent:
+            where["child"] = any("in side_error" in n for n in notes)
+        else:
+            where["here"] = exc.__traceback__ is not None and not notes
+    out["side"] = {{"ok": res == [x * x for x in items], "settled": settled, "runs": runs, "where": where,
+                   "values": [v for v, _ in vals], "errors": errs, "exception": str(tasks[0].exception()),
+                   "lone": list(lone.result()) == [3, parent],
                    **{{k: parallel.FORKS[k] - before[k] for k in parallel.FORKS}}}}
 
     # a call computed in a forked child while this process goes on: its value comes back; what the
@@ -258,9 +279,10 @@ def test_a_forked_map_computes_here_what_the_child_did_not_deliver():
         assert r["ok"] and r["child_items"] == 0 and r["recomputed"] >= 1, (name, r)
     sd = out["side"]
     # the side tasks ran once each (the done one not again), in the map: settled when it returned
-    assert sd["ok"] and sd["settled"] == [True, True, True] and sd["runs"] == 4, sd
-    assert sd["values"] == [1, 2] and sd["error"] == sd["exception"] == "side task", sd
-    assert sd["maps"] == 1 and sd["side"] == 3 and sd["recomputed"] == 0 and sd["lone"], sd
+    assert sd["ok"] and sd["settled"] == [True] * 4 and sd["runs"] == 5, sd
+    assert sd["where"] == {"child": True, "here": True}, sd
+    assert sd["values"] == [1, 2] and sd["errors"] == ["side task"] * 2 and sd["exception"] == "side task", sd
+    assert sd["maps"] == 1 and sd["side"] == 4 and sd["recomputed"] == 0 and sd["lone"], sd
     assert out["call"] == {"child": True, "value": True, "redone": True, "cancelled": "cancelled",
                            "disabled_here": True, "interrupted": "yes", "maps": 0, "child_items": 0,
                            "recomputed": 1, "bytes": 0, "side": 0, "calls": 2}, out["call"]
