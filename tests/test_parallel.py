@@ -18,10 +18,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _run(code: str) -> dict:
+def _run(code: str, *args) -> dict:
     env = dict(os.environ, PYTHONPATH=str(ROOT), OPENBLAS_NUM_THREADS="1")
-    r = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True, text=True,
-                       cwd=ROOT, env=env, timeout=600)
+    r = subprocess.run([sys.executable, "-c", textwrap.dedent(code), *map(str, args)], capture_output=True,
+                       text=True, cwd=ROOT, env=env, timeout=600)
     assert r.returncode == 0, r.stderr[-3000:]
     return json.loads(r.stdout.strip().splitlines()[-1])
 
@@ -346,11 +346,7 @@ _READ = """
 
 
 def test_a_recordings_topics_parsed_in_two_processes_are_the_same_bits(tmp_path):
-    env = dict(os.environ, PYTHONPATH=str(ROOT), OPENBLAS_NUM_THREADS="1")
-    r = subprocess.run([sys.executable, "-c", textwrap.dedent(_READ), str(tmp_path)], capture_output=True,
-                       text=True, cwd=ROOT, env=env, timeout=600)
-    assert r.returncode == 0, r.stderr[-3000:]
-    out = json.loads(r.stdout.strip().splitlines()[-1])
+    out = _run(_READ, tmp_path)
     forked, serial = out["True"], out["False"]
     assert set(forked["data"]) == {"a/truth", "a/command", "a/measurement"}
     assert forked["data"] == serial["data"]                 # seq, t, values, both times: every bit
@@ -424,11 +420,7 @@ def test_the_command_line_reads_the_recording_in_a_child_while_it_imports(tmp_pa
     process; a file the reader rejects, or one it reads with no whole sample, gives the same
     one-line error (the child's failure redone here); a bad model is reported first, as before,
     and the child's reading stopped."""
-    env = dict(os.environ, PYTHONPATH=str(ROOT), OPENBLAS_NUM_THREADS="1")
-    r = subprocess.run([sys.executable, "-c", textwrap.dedent(_CLI), str(tmp_path)], capture_output=True,
-                       text=True, cwd=ROOT, env=env, timeout=600)
-    assert r.returncode == 0, r.stderr[-3000:]
-    out = json.loads(r.stdout.strip().splitlines()[-1])
+    out = _run(_CLI, tmp_path)
     forked, here = out["True"], out["False"]
     assert forked["walk"]["code"] == 0 and forked["walk"]["forks"] == {"calls": 1, "recomputed": 0}, forked["walk"]
     assert here["walk"]["forks"] == {"calls": 0, "recomputed": 0}
