@@ -50,6 +50,22 @@ def _flush_stdio() -> None:
             pass
 
 
+def _child(r: int, w: int, compute) -> None:
+    """In a forked child: compute(), pickled into the pipe's write end ``w``, then exit (0 when
+    delivered, 1 on any error: the parent computes what is missing). Never returns."""
+    code = 1
+    try:
+        os.close(r)
+        blob = pickle.dumps(compute(), protocol=pickle.HIGHEST_PROTOCOL)
+        with os.fdopen(w, "wb") as f:
+            f.write(blob)
+        code = 0
+    except BaseException:
+        pass
+    finally:
+        os._exit(code)
+
+
 class Task:
     """fn() to be run once: as an extra item of a :func:`fork_map` it is handed to (``side``), in
     whichever process comes free for it, or in this process when its result is asked for first.
@@ -106,18 +122,8 @@ def fork_call(fn) -> Task:
         os.close(r)
         os.close(w)
         return Task(fn)
-    if pid == 0:                                  # the child: never returns
-        code = 1
-        try:
-            os.close(r)
-            blob = pickle.dumps(fn(), protocol=pickle.HIGHEST_PROTOCOL)
-            with os.fdopen(w, "wb") as f:
-                f.write(blob)
-            code = 0
-        except BaseException:                     # the parent computes it
-            pass
-        finally:
-            os._exit(code)
+    if pid == 0:
+        _child(r, w, fn)
     os.close(w)
     task = Task(None)
     open_ = {"fd": r, "pid": pid}                 # what is still to close and to reap
@@ -216,22 +222,14 @@ def fork_map(fn, items: list, order: list | None = None, portable=None, side=())
         for fd in (q_r, r, w):
             os.close(fd)
         return [fn(x) for x in items]
-    if pid == 0:                                  # the child: never returns
-        code = 1
-        try:
-            os.close(r)
+    if pid == 0:
+        def mine():
             done = {}
             while (i := take()) is not None:
                 v = fn(items[i])
                 done[i] = portable(v) if portable is not None else v
-            blob = pickle.dumps(done, protocol=pickle.HIGHEST_PROTOCOL)
-            with os.fdopen(w, "wb") as f:
-                f.write(blob)
-            code = 0
-        except BaseException:                     # the parent computes what is missing
-            pass
-        finally:
-            os._exit(code)
+            return done
+        _child(r, w, mine)
     os.close(w)
     out: dict = {}
     blob = b""
