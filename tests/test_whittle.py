@@ -113,6 +113,68 @@ def test_profile_edge_root_finder_hits_the_chi2_crossing():
         assert len(calls) - 1 <= 8, len(calls)
 
 
+def _powers_series(F, left, right, K):
+    """left F^h right for h < K by repeated products (the definition)."""
+    out, X = np.empty((K, left.shape[0], right.shape[1])), right.copy()
+    for h in range(K):
+        out[h] = left @ X
+        X = F @ X
+    return out
+
+
+def test_sums_of_exponentials_equal_the_matrix_powers():
+    """Modes.series against left F^h right by products: real and complex modes (a lightly damped
+    pair, a slow real pole, a fast one), across blocks of lags (each mode only up to its own
+    horizon), two series of one F of different lengths (the powers shared and grown), a mode the
+    weights do not reach (dropped), eigenvalues not in LAPACK's adjacent-pair order (the pairing's
+    search), and a defective F (plain products)."""
+    rng = np.random.default_rng(7)
+    r, th = 0.999, 0.05
+    blocks = [np.array([[r * math.cos(th), -r * math.sin(th)], [r * math.sin(th), r * math.cos(th)]]),
+              np.array([[0.9995]]), np.array([[0.3]]), np.array([[0.98]]),
+              np.array([[0.9 * math.cos(1.0), -0.9 * math.sin(1.0)], [0.9 * math.sin(1.0), 0.9 * math.cos(1.0)]])]
+    n = sum(b.shape[0] for b in blocks)
+    D = np.zeros((n, n))
+    i = 0
+    for b in blocks:
+        D[i:i + b.shape[0], i:i + b.shape[0]] = b
+        i += b.shape[0]
+    T = np.eye(n) + 0.3 * rng.standard_normal((n, n))
+    F = T @ D @ np.linalg.inv(T)
+    left, right = rng.standard_normal((2, n)), rng.standard_normal((n, 3))
+    m = W.Modes(F)
+    assert m.ok and m._adjacent
+    scale = np.max(np.abs(_powers_series(F, left, right, 5)))
+    for K, block in ((300, 1 << 15), (9000, 1 << 15), (9000, 2048)):    # the last: lags in 5 blocks
+        ref = _powers_series(F, left, right, K)
+        np.testing.assert_allclose(m.series(left, right, K, block=block), ref, rtol=0, atol=1e-10 * scale)
+    # weights that do not reach the fast real mode: it is dropped, the rest unchanged
+    Vi_row = np.linalg.inv(m.V)[list(np.abs(m.lam - 0.3)).index(min(np.abs(m.lam - 0.3)))]
+    proj = np.eye(n) - np.outer(m.V[:, np.argmin(np.abs(m.lam - 0.3))], Vi_row).real
+    right2 = proj @ right
+    np.testing.assert_allclose(m.series(left, right2, 400), _powers_series(F, left, right2, 400), rtol=0,
+                               atol=1e-10 * scale)
+    # the eigenvalues reordered (a conjugate before its partner): the pairing's search gives the same
+    perm = np.arange(n)[::-1]
+    m2 = W.Modes(F)
+    m2.lam, m2.V, m2.Vi, m2.hz = m2.lam[perm], m2.V[:, perm], m2.Vi[perm], m2.hz[perm]
+    m2._ridx, m2._cidx = np.flatnonzero(m2.lam.imag == 0), np.flatnonzero(m2.lam.imag > 0)
+    m2._adjacent = False
+    np.testing.assert_allclose(m2.series(left, right, 3000), _powers_series(F, left, right, 3000), rtol=0,
+                               atol=1e-10 * scale)
+    # lags beyond every mode's horizon (|lam|^h < DECAY): zeros
+    Ff = np.array([[0.5, 0.2], [0.0, -0.4]])
+    mf = W.Modes(Ff)
+    got = mf.series(left[:, :2], right[:2], 200, block=64)
+    np.testing.assert_allclose(got, _powers_series(Ff, left[:, :2], right[:2], 200), rtol=0, atol=1e-13)
+    assert not np.any(got[64:])                  # the blocks after the last mode's horizon: not computed
+    # a defective F (a Jordan block): products
+    J = np.array([[0.95, 1.0], [0.0, 0.95]])
+    mj = W.Modes(J)
+    assert not mj.ok
+    np.testing.assert_array_equal(mj.series(left[:, :2], right[:2], 50), _powers_series(J, left[:, :2], right[:2], 50))
+
+
 @pytest.mark.parametrize("M", [199680, 1_000_000])
 def test_group_means_without_the_full_transform_are_exact(M):
     """Groups.spectrum (chirp z transform below F_low, folded blocks above) against the group means
