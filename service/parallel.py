@@ -173,13 +173,17 @@ def fork_call(fn) -> Task:
     return task
 
 
-def fork_map(fn, items: list, order: list | None = None, portable=None, side=()) -> list:
+def fork_map(fn, items: list, order: list | None = None, portable=None, side=(), carry=None) -> list:
     """``[fn(x) for x in items]``, in this process and one forked child. Both take the next item of
     ``order`` (default: as given; the costliest first balances best) from a pipe that holds the
     items' indices, 4 bytes each (a pipe read of 4 bytes is atomic). ``portable``: applied to
     each of the child's results before it is pickled (e.g. to drop a closure). ``side``:
-    :class:`Task` objects run first, as extra items (each settled here when the map returns). The
-    caller checks :func:`can_fork` first."""
+    :class:`Task` objects run first, as extra items (each settled here when the map returns).
+    ``carry``: (mark, take, give), what the child's work left in caches brought back to this
+    process: mark() here before the fork returns a token, the child sends take(token) (picklable:
+    e.g. the cache entries it added) beside its results, and give(payload) merges it here (a later
+    map's fits then find what this one's child computed). The caller checks :func:`can_fork`
+    first."""
     side = [s for s in side if not s.done]
     if side:
         k = len(side)
@@ -196,7 +200,7 @@ def fork_map(fn, items: list, order: list | None = None, portable=None, side=())
             return out
 
         got = fork_map(one, [(True, s) for s in side] + [(False, x) for x in items],
-                       list(range(k)) + [k + i for i in order], portable)
+                       list(range(k)) + [k + i for i in order], portable, carry=carry)
         for s, r in zip(side, got[:k]):
             s.settle(r)
         FORKS["side"] += k
@@ -214,6 +218,7 @@ def fork_map(fn, items: list, order: list | None = None, portable=None, side=())
         b = os.read(q_r, 4)
         return int.from_bytes(b, "little") if len(b) == 4 else None
 
+    mark = carry[0]() if carry is not None else None
     _flush_stdio()
     r, w = os.pipe()
     try:
@@ -228,7 +233,7 @@ def fork_map(fn, items: list, order: list | None = None, portable=None, side=())
             while (i := take()) is not None:
                 v = fn(items[i])
                 done[i] = portable(v) if portable is not None else v
-            return done
+            return done, (carry[1](mark) if carry is not None else None)
         _child(r, w, mine)
     os.close(w)
     out: dict = {}
@@ -249,9 +254,11 @@ def fork_map(fn, items: list, order: list | None = None, portable=None, side=())
                 pass
         os.waitpid(pid, 0)
     try:
-        child = pickle.loads(blob) if blob else {}
+        child, brought = pickle.loads(blob) if blob else ({}, None)
     except Exception:
-        child = {}
+        child, brought = {}, None
+    if brought is not None:
+        carry[2](brought)
     FORKS["maps"] += 1
     FORKS["bytes"] += len(blob)
     for i, v in child.items():

@@ -193,6 +193,33 @@ _TOY = """
                    "lone": list(lone.result()) == [3, parent],
                    **{{k: parallel.FORKS[k] - before[k] for k in parallel.FORKS}}}}
 
+    # what the child left in a cache comes back (``carry``): after the map this process holds every
+    # item's entry, the child's included, whether the map has side tasks or not
+    carried = {{}}
+    for with_side in (False, True):
+        cache = {{"old": os.getpid()}}
+
+        def fill(x):
+            gate()
+            cache[x] = (x * x, os.getpid())
+            return x
+
+        carry = (lambda: set(cache), lambda mark: {{k: v for k, v in cache.items() if k not in mark}},
+                 cache.update)
+        first.clear()
+        sync_r, sync_w = os.pipe()
+        back_r, back_w = os.pipe()
+        before = dict(parallel.FORKS)
+        res = parallel.fork_map(fill, items, order, carry=carry,
+                                side=[parallel.Task(lambda: 0)] if with_side else ())
+        for fd in (sync_r, sync_w, back_r, back_w):
+            os.close(fd)
+        carried[str(with_side)] = {{"ok": res == items, "all": all(cache[x][0] == x * x for x in items),
+                                   "from_child": sum(cache[x][1] != parent for x in items),
+                                   "old_kept": cache["old"] == parent,
+                                   "child_items": parallel.FORKS["child_items"] - before["child_items"]}}
+    out["carry"] = carried
+
     # a call computed in a forked child while this process goes on: its value comes back; what the
     # child does not deliver (it raised there) is computed here; a call not wanted is stopped
     before = dict(parallel.FORKS)
@@ -286,6 +313,10 @@ def test_a_forked_map_computes_here_what_the_child_did_not_deliver():
     assert out["call"] == {"child": True, "value": True, "redone": True, "cancelled": "cancelled",
                            "disabled_here": True, "interrupted": "yes", "maps": 0, "child_items": 0,
                            "recomputed": 1, "bytes": 0, "side": 0, "calls": 2}, out["call"]
+    for with_side, c in out["carry"].items():
+        # every entry here after the map, the child's items' from the child (its work not redone)
+        assert c["ok"] and c["all"] and c["old_kept"] and c["from_child"] >= 1, (with_side, c)
+        assert c["from_child"] <= c["child_items"], c             # (the side task may be one of them)
     assert out["parent_fails"] == "parent item"               # raised here, by the item that causes it
     assert out["children_left"] is False                      # and the child was reaped
     # no process to be had (EAGAIN): this one computes everything, and closes its pipes

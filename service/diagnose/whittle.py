@@ -585,6 +585,19 @@ def linear_part(F, G, H, J, Pe, M: int, k0: int, at_rest: bool, groups: Groups |
     return E if groups is None else groups.mean(E)
 
 
+PARTS_CACHE = 1024         # parts kept per record by :func:`expected_parts`' cache (the oldest go first)
+
+
+def cache_put(cache: dict, new: dict, limit: int = PARTS_CACHE) -> None:
+    """Entries ``new`` into ``cache``, the oldest dropped beyond ``limit`` (a part is a group mean
+    per output, ~1000 groups even at 10^6 samples: 1024 of them take a few MB)."""
+    for k, v in new.items():
+        cache.pop(k, None)
+        cache[k] = v
+    while len(cache) > limit:
+        del cache[next(iter(cache))]
+
+
 def expected_parts(model, M: int, k0: int, at_rest: bool, ydot_sq: np.ndarray | None = None,
                    skip: tuple = ("sensor.tone",), cache: dict | None = None,
                    groups: Groups | None = None, cross: bool = False) -> dict:
@@ -625,9 +638,7 @@ def expected_parts(model, M: int, k0: int, at_rest: bool, ydot_sq: np.ndarray | 
                 continue
         E = linear_part(F, G, H, J, Ps, M, k0, at_rest, groups, cross, Ds)
         if cache is not None:
-            if len(cache) > 256:
-                cache.clear()
-            cache[key] = E
+            cache_put(cache, {key: E})
         parts[eid] = E
     if ydot_sq is None:
         mean = pr.mean_response()
