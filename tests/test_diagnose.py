@@ -666,6 +666,27 @@ def test_a_gauss_markov_bias_beats_a_walk_when_its_likelihood_ratio_test_passes(
     assert "sensor.bias_walk" in [a["effect"] for a in rep["missing"][0]["alternatives"]]
 
 
+def test_a_walk_first_taken_for_a_gauss_markov_bias_is_exchanged_once_it_leads():
+    """A sensor's white noise and bias walk on a quiet plant, both missing (bench_noise_density's
+    case O2, seed 502: N = 0.002 sqrt(s), K = 0.00346 / sqrt(s), 30 min at 20 ms). With the white
+    noise still missing, a Gauss-Markov bias led step 1; once the white noise was in, its tau ran to
+    644 s, a walk in all but name, and the walk led it by 1.7 in the choice units (its extra
+    parameter fails the likelihood-ratio test: 2 Delta l = 1.0 < 2.71). The exchange pass kept
+    the incumbent within its margin of 2, and the model error stayed at 2.04. Between these two
+    nested drift models the choice units decide, as in a step's ranking."""
+    sigma = 0.002 / math.sqrt(0.02)
+    truth = parse_model("name = \"quiet\"\n[sampling]\nTs = 0.02\n[plant]\nA = [[-1.0]]\nB = [[1.0]]\nC = [[1.0]]\n"
+                        f"L = [[1.0]]\n[command]\nkind = \"none\"\n[process.white]\nstd = {0.05 * sigma!r}\n"
+                        f"[sensor.white]\nstd = {sigma!r}\n[sensor.bias_walk]\nstd = {math.sqrt(3.0) * 0.002!r}\n")
+    rep, logs = _diagnose_hidden(truth, ("sensor.white", "sensor.bias_walk"), 90_000, 502)
+    assert any(x.startswith("exchange: sensor.bias_walk in place of sensor.bias_markov") for x in logs), logs
+    got = {m["effect"]: m for m in rep["missing"]}
+    assert set(got) == {"sensor.white", "sensor.bias_walk"}
+    assert "sensor.bias_markov" in [a["effect"] for a in got["sensor.bias_walk"]["alternatives"]]
+    assert got["sensor.bias_walk"]["params"]["std"] == pytest.approx(math.sqrt(3.0) * 0.002, rel=0.3)
+    assert rep["error_after"] <= 1.5
+
+
 def test_a_slow_drift_stays_the_sensor_bias_when_the_ar1_leads_within_its_spread():
     """Generated case 323 (a Gauss-Markov bias of tau 26 s and a quantization hidden; no command;
     plant time constant 0.12 s): after the quantization, an actuator AR(1) of tau 17 s led the
