@@ -162,17 +162,36 @@ def test_sums_of_exponentials_equal_the_matrix_powers():
     m2._adjacent = False
     np.testing.assert_allclose(m2.series(left, right, 3000), _powers_series(F, left, right, 3000), rtol=0,
                                atol=1e-10 * scale)
-    # lags beyond every mode's horizon (|lam|^h < DECAY): zeros
+    # lags beyond every mode's horizon (|lam|^h < DECAY): zeros, written into the caller's array
+    # (NaN before: every row is written)
     Ff = np.array([[0.5, 0.2], [0.0, -0.4]])
     mf = W.Modes(Ff)
-    got = mf.series(left[:, :2], right[:2], 200, block=64)
+    got = np.full((200, 2, 3), np.nan)
+    assert mf.series(left[:, :2], right[:2], 200, block=64, out=got) is got
     np.testing.assert_allclose(got, _powers_series(Ff, left[:, :2], right[:2], 200), rtol=0, atol=1e-13)
     assert not np.any(got[64:])                  # the blocks after the last mode's horizon: not computed
+    with pytest.raises(ValueError, match="C-contiguous"):       # a strided ``out`` would be written to a copy
+        mf.series(left[:, :2], right[:2], 200, out=np.full((200, 2, 4), np.nan)[:, :, :3])
     # a defective F (a Jordan block): products
     J = np.array([[0.95, 1.0], [0.0, 0.95]])
     mj = W.Modes(J)
     assert not mj.ok
     np.testing.assert_array_equal(mj.series(left[:, :2], right[:2], 50), _powers_series(J, left[:, :2], right[:2], 50))
+
+
+def test_the_parts_cache_drops_its_oldest_beyond_a_count_or_a_size():
+    """cache_put: entries beyond ``limit`` or beyond ``nbytes`` of arrays go, the oldest first (a
+    re-put entry is new again); an entry larger than the whole budget is not kept at all."""
+    c: dict = {}
+    W.cache_put(c, {i: np.zeros(10) for i in range(5)}, limit=4, nbytes=10_000)
+    assert list(c) == [1, 2, 3, 4]                               # the count: 0 went
+    W.cache_put(c, {1: np.zeros(10)}, limit=4, nbytes=10_000)    # 1 used again: now the newest
+    W.cache_put(c, {"big": np.zeros(1225)}, limit=4, nbytes=10_000)
+    # 2 goes for the count, then 3 for the bytes: 9800 + 3 x 80 > 10000
+    assert list(c) == [4, 1, "big"]
+    assert sum(v.nbytes for v in c.values()) <= 10_000
+    W.cache_put(c, {"huge": np.zeros(2000)}, limit=4, nbytes=10_000)
+    assert c == {}                                               # larger than the budget: nothing kept
 
 
 @pytest.mark.parametrize("M", [199680, 1_000_000])

@@ -434,6 +434,8 @@ class Modes:
         a, b = left.shape[0], right.shape[1]
         if out is None:
             out = np.empty((K, a, b))
+        elif out.shape != (K, a, b) or not out.flags.c_contiguous:
+            raise ValueError(f"series: out must be C-contiguous of shape {(K, a, b)}")   # (a reshape would copy)
         if self.n == 0:
             out[:] = 0.0
             return out
@@ -585,17 +587,21 @@ def linear_part(F, G, H, J, Pe, M: int, k0: int, at_rest: bool, groups: Groups |
     return E if groups is None else groups.mean(E)
 
 
-PARTS_CACHE = 1024         # parts kept per record by :func:`expected_parts`' cache (the oldest go first)
+PARTS_CACHE = 1024         # parts kept per record by :func:`expected_parts`' cache (the oldest go first) ...
+PARTS_CACHE_BYTES = 128 << 20     # ... and at most this many bytes of them
 
 
-def cache_put(cache: dict, new: dict, limit: int = PARTS_CACHE) -> None:
-    """Entries ``new`` into ``cache``, the oldest dropped beyond ``limit`` (a part is a group mean
-    per output, ~1000 groups even at 10^6 samples: 1024 of them take a few MB)."""
+def cache_put(cache: dict, new: dict, limit: int = PARTS_CACHE, nbytes: int = PARTS_CACHE_BYTES) -> None:
+    """Entries ``new`` into ``cache``, the oldest dropped beyond ``limit`` entries or ``nbytes``
+    bytes of arrays. A part is mostly a group mean per output, ~1000 groups even at 10^6 samples
+    (8.7 kB for one output; 154 kB as a 3-output cross-spectral matrix), but the tone screen's
+    are per frequency bin (4 MB per output at 10^6 samples): the count alone does not bound them."""
     for k, v in new.items():
         cache.pop(k, None)
         cache[k] = v
-    while len(cache) > limit:
-        del cache[next(iter(cache))]
+    total = sum(getattr(v, "nbytes", 0) for v in cache.values())
+    while cache and (len(cache) > limit or total > nbytes):
+        total -= getattr(cache.pop(next(iter(cache))), "nbytes", 0)
 
 
 def expected_parts(model, M: int, k0: int, at_rest: bool, ydot_sq: np.ndarray | None = None,
