@@ -595,10 +595,12 @@ def cache_put(cache: dict, new: dict, limit: int = PARTS_CACHE, nbytes: int = PA
     """Entries ``new`` into ``cache``, the oldest dropped beyond ``limit`` entries or ``nbytes``
     bytes of arrays. A part is mostly a group mean per output, ~1000 groups even at 10^6 samples
     (8.7 kB for one output; 154 kB as a 3-output cross-spectral matrix), but the tone screen's
-    are per frequency bin (4 MB per output at 10^6 samples): the count alone does not bound them."""
+    are per frequency bin (4 MB per output at 10^6 samples): the count alone does not bound them.
+    An entry larger than the whole budget is not kept (it would push out every other)."""
     for k, v in new.items():
         cache.pop(k, None)
-        cache[k] = v
+        if getattr(v, "nbytes", 0) <= nbytes:
+            cache[k] = v
     total = sum(getattr(v, "nbytes", 0) for v in cache.values())
     while cache and (len(cache) > limit or total > nbytes):
         total -= getattr(cache.pop(next(iter(cache))), "nbytes", 0)
