@@ -219,6 +219,156 @@ def test_refuses_to_overwrite_unless_forced(tmp_path):
     assert read_recording(path).device("d").measurement.values.tolist() == [[1.0]]
 
 
+def one_message(w, value, seq=0, name="d"):
+    w.write(wire.key(name, "measurement"), "measurement", seq, seq * 10_000_000, seq * 10_000_000,
+            wire.encode(seq, seq * Ts, [value], kind="measurement"))
+
+
+def test_a_forced_write_that_fails_leaves_the_old_file_as_it_was(tmp_path):
+    """--force replaces the old file only once the new one is finished (write-then-rename): a body
+    that raises keeps the old file, and the new messages in PATH.partial, named in a note."""
+    path = tmp_path / "run.mcap"
+    write_sample(path, 30)
+    old = path.read_bytes()
+    with pytest.raises(RuntimeError, match="boom") as err:
+        with RecordingWriter(path, force=True) as w:
+            one_message(w, 7.0)
+            raise RuntimeError("boom")
+    assert path.read_bytes() == old
+    partial = tmp_path / "run.mcap.partial"
+    assert w.writing_path == str(partial) == str(path) + mcapio.PARTIAL_SUFFIX
+    rec = read_recording(partial)
+    assert rec.complete and rec.device("d").measurement.values.tolist() == [[7.0]]
+    assert any(str(partial) in note and "1 messages" in note for note in err.value.__notes__)
+    partial.unlink()
+    # a writer that fails before its first message leaves nothing behind
+    with pytest.raises(RuntimeError, match="early"):
+        with RecordingWriter(path, force=True):
+            raise RuntimeError("early")
+    assert path.read_bytes() == old and not partial.exists()
+    # a finished forced write replaces it, and no .partial stays
+    with RecordingWriter(path, force=True) as w:
+        one_message(w, 8.0)
+    assert read_recording(path).device("d").measurement.values.tolist() == [[8.0]]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.mcap"]
+
+
+def test_an_unfinished_partial_of_an_earlier_run_is_not_overwritten(tmp_path):
+    path = tmp_path / "run.mcap"
+    write_sample(path, 5)
+    old = path.read_bytes()
+    partial = tmp_path / "run.mcap.partial"
+    partial.write_bytes(b"what a killed recorder left")
+    with pytest.raises(mcapio.McapIoError) as e:
+        RecordingWriter(path, force=True)
+    msg = str(e.value)
+    assert "\n" not in msg and str(partial) in msg and f"noiselab recover {partial}" in msg
+    assert partial.read_bytes() == b"what a killed recorder left" and path.read_bytes() == old
+
+
+def test_disk_full_is_one_line_naming_the_file(tmp_path):
+    """/dev/full fails every write with ENOSPC: an McapIoError (exit 2), and the device stays."""
+    if not os.path.exists("/dev/full"):
+        pytest.skip("no /dev/full")
+    with pytest.raises(mcapio.McapIoError) as e:
+        with RecordingWriter("/dev/full", force=True, chunk_size=1024) as w:
+            for k in range(2000):
+                one_message(w, float(k), seq=k)
+    msg = str(e.value)
+    assert msg.startswith("/dev/full: cannot write it (No space left on device)") and "\n" not in msg
+    assert "recover" not in msg                      # nothing of it is on any disk
+    assert not Path("/dev/full").is_file() and os.path.exists("/dev/full")
+    with pytest.raises(mcapio.McapIoError, match="No space left"):
+        one_message(w, 0.0)                          # the writer stays ended, with the same reason
+
+
+def test_write_errors_of_a_regular_file_keep_the_old_file_and_what_was_written(tmp_path):
+    """A real OS write error on a regular file (EFBIG past RLIMIT_FSIZE, in a child process)
+    while --force replaces a recording: one line naming the .partial file and the old file's
+    fate; the old file intact; the .partial holds what reached the disk, and recover reads it."""
+    path = tmp_path / "run.mcap"
+    write_sample(path, 40)
+    old = path.read_bytes()
+    script = textwrap.dedent(f"""
+        import resource, signal, sys
+        from service.nodes import mcapio, wire
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)     # EFBIG instead of the signal
+        resource.setrlimit(resource.RLIMIT_FSIZE, (20000, 20000))
+        try:
+            with mcapio.RecordingWriter({str(path)!r}, force=True, chunk_size=1024) as w:
+                for k in range(5000):
+                    w.write("noiselab/d/measurement", "measurement", k, k, k,
+                            wire.encode(k, k * 0.01, [float(k)], kind="measurement"))
+        except mcapio.McapIoError as e:
+            print(e)
+            sys.exit(3)
+    """)
+    proc = subprocess.run([sys.executable, "-c", script], cwd=REPO, timeout=60,
+                          env={**os.environ, "PYTHONPATH": str(REPO)}, capture_output=True, text=True)
+    assert path.read_bytes() == old
+    assert proc.returncode == 3, proc.stderr
+    partial = str(path) + ".partial"
+    line = proc.stdout.strip()
+    assert "\n" not in line and line.startswith(f"{partial}: cannot write it (File too large)")
+    assert f"{path} is as it was" in line and f"noiselab recover {partial}" in line
+    assert path.read_bytes() == old
+    rec = read_recording(partial)
+    assert not rec.complete
+    m = rec.device("d").measurement
+    assert len(m) > 0 and m.values[:, 0].tolist() == list(range(len(m)))
+    assert recover(partial, tmp_path / "fixed.mcap").total == len(m)
+
+
+def test_bad_output_paths_are_one_line_errors(tmp_path):
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    cases = [(tmp_path, "is a directory"), (afile / "x.mcap", "Not a directory"),
+             (tmp_path / "no" / "such" / "x.mcap", "No such file or directory")]
+    if os.path.isdir("/sys/kernel"):
+        cases.append((Path("/sys/noiselab-test.mcap"), "Permission denied"))  # EACCES, even for root
+    for path, why in cases:
+        for force in (False, True):
+            with pytest.raises(mcapio.McapIoError) as e:
+                RecordingWriter(path, force=force)
+            assert str(e.value).startswith(f"{path}: ") and why in str(e.value), (path, force)
+            assert "\n" not in str(e.value)
+    assert afile.read_text() == "x"
+
+
+def test_killed_forced_writer_leaves_the_old_file_and_a_recoverable_partial(tmp_path):
+    """SIGKILL while --force replaces a recording: the old file is intact and the new messages
+    flushed so far are in PATH.partial (the name RecordingWriter.writing_path gives), which
+    recover turns into the finished file."""
+    path = tmp_path / "run.mcap"
+    write_sample(path, 10)
+    old = path.read_bytes()
+    script = textwrap.dedent(f"""
+        import os, signal
+        import numpy as np
+        from service.nodes import mcapio, wire
+        w = mcapio.RecordingWriter({str(path)!r}, force=True, chunk_size=1 << 20)
+        print(getattr(w, "writing_path", None), flush=True)
+        t, pub = wire.sample_times(0, 65, 0.01)
+        key = wire.key("dev", "measurement")
+        p = wire.encode_batch("measurement", 0, t, np.arange(65.0).reshape(65, 1))
+        w.write_batch(key, "measurement", 0, pub[:40], pub[:40], p[:40])
+        w.flush()
+        w.write_batch(key, "measurement", 40, pub[40:], pub[40:], p[40:])
+        os.kill(os.getpid(), signal.SIGKILL)
+    """)
+    proc = subprocess.run([sys.executable, "-c", script], cwd=REPO, timeout=60,
+                          env={**os.environ, "PYTHONPATH": str(REPO)}, capture_output=True, text=True)
+    assert proc.returncode == -signal.SIGKILL, proc.stderr
+    assert path.read_bytes() == old
+    partial = str(path) + ".partial"
+    assert proc.stdout.strip() == partial
+    rec = read_recording(partial)
+    assert not rec.complete and rec.device("dev").measurement.seq.tolist() == list(range(40))
+    stats = recover(partial, path, force=True)
+    assert stats.total == 40 and read_recording(path).complete
+    assert read_recording(path).device("dev").measurement.values[:, 0].tolist() == list(range(40))
+
+
 # --------------------------------------------------------------- foreign topic spellings
 
 

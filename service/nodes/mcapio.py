@@ -18,13 +18,21 @@ A writer that is killed (SIGKILL, power loss) leaves a file with no footer and n
 :func:`read_recording` still reads every message of every chunk that was fully written, with
 the non-seeking stream reader, and says so in ``Recording.complete`` / ``Recording.note``;
 :func:`recover` rewrites those messages into a finished file.
+
+Where a writer's bytes go (:class:`RecordingWriter`): straight to the named file when nothing is
+there, so a killed writer's unfinished file has the name the user gave; when ``force`` replaces
+an existing file, to ``<name>.partial`` beside it, renamed over the old file only once finished
+(``RecordingWriter.writing_path`` says which). A failed or interrupted write never spoils the old
+file, and what it wrote stays where a ``noiselab recover`` finds it.
 """
 
 from __future__ import annotations
 
 import operator
 import os
+import stat
 import struct
+from contextlib import contextmanager
 from collections import defaultdict
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -57,6 +65,7 @@ __all__ = [
     "DeviceData",
     "McapIoError",
     "NotMcapError",
+    "PARTIAL_SUFFIX",
     "RecordingExistsError",
     "RecordingWriter",
     "Recording",
@@ -151,12 +160,89 @@ def _check_u64(value, what: str) -> int:
     return value
 
 
-def _open_new(path: str, force: bool):
-    """Open ``path`` for binary writing; refuse an existing file unless ``force``."""
-    try:
-        return open(path, "wb" if force else "xb")
-    except FileExistsError:
-        raise RecordingExistsError(17, "File exists", path) from None
+PARTIAL_SUFFIX = ".partial"
+"""Suffix of the file a writer fills while an older file of the same name is kept (see
+:class:`_Output`): ``run.mcap`` is written as ``run.mcap.partial`` and renamed when finished."""
+
+
+def _os_error(path: str, exc: OSError, doing: str) -> McapIoError:
+    """An OSError as a one-line McapIoError naming the path and the OS error (errno text)."""
+    why = exc.strerror or type(exc).__name__
+    return McapIoError(f"{path}: {doing} ({why})")
+
+
+class _Output:
+    """The file a writer fills, and what happens to it at the end.
+
+    Nothing is ever lost: when ``path`` does not exist (always so without ``force``), the bytes go
+    straight to ``path`` (created exclusively), so a writer killed mid-way leaves its unfinished
+    file under the name the user gave, for :func:`recover`. When ``force`` replaces an existing
+    regular file, the bytes go to ``path + PARTIAL_SUFFIX`` beside it and :meth:`commit` renames
+    that over ``path`` (``os.replace``: atomic) only once the file is finished, so a write that
+    fails leaves the old file as it was; a killed writer leaves the ``.partial`` file. A
+    ``.partial`` that already exists is refused, not overwritten: it may be an unfinished recording
+    of an earlier run (``suffix``: :func:`recover` uses its own, since the unfinished file it
+    reads is often ``path.partial``). A ``path`` that is not a regular file (``/dev/null``, a FIFO) is written
+    in place. OSErrors come out as one-line :class:`McapIoError` naming the path.
+    """
+
+    def __init__(self, path: str, force: bool, suffix: str = PARTIAL_SUFFIX) -> None:
+        self.path = self.target = self.writing = path
+        self.created = True
+        if os.path.isdir(path):
+            raise McapIoError(f"{path}: is a directory; give a file name")
+        try:
+            st = os.stat(path) if force else None
+        except FileNotFoundError:
+            st = None
+        except OSError as e:
+            raise _os_error(path, e, "cannot write it") from None
+        if st is not None and stat.S_ISREG(st.st_mode):
+            self.target = os.path.realpath(path) if os.path.islink(path) else path
+            self.writing = self.target + suffix
+        mode = "wb" if st is not None and self.writing == path else "xb"
+        self.created = mode == "xb"
+        try:
+            self.file = open(self.writing, mode)
+        except FileExistsError:
+            if self.writing == path:
+                raise RecordingExistsError(17, "File exists", path) from None
+            raise McapIoError(f"{self.writing}: exists (an unfinished recording of an earlier run?); "
+                              f"salvage it with `noiselab recover {self.writing} -o FIXED.mcap` or "
+                              f"delete it, then write {path} again") from None
+        except OSError as e:
+            raise _os_error(self.writing, e, "cannot write it") from None
+
+    @property
+    def replaces(self) -> bool:
+        """An older file at ``path`` is kept until :meth:`commit`."""
+        return self.writing != self.target
+
+    def commit(self) -> None:
+        """Close the finished file (on disk first when it replaces one) and give it its name."""
+        try:
+            if self.replaces:
+                self.file.flush()
+                os.fsync(self.file.fileno())
+            self.file.close()
+            if self.replaces:
+                os.replace(self.writing, self.target)
+        except OSError as e:
+            self.abandon(keep=False)
+            raise _os_error(self.writing, e, "cannot finish it") from None
+
+    def abandon(self, keep: bool) -> None:
+        """Close without committing; the file stays where it is if ``keep`` (else it is removed
+        when this writer created it). An old file at ``path`` is never touched."""
+        try:
+            self.file.close()
+        except OSError:
+            pass
+        if not keep and self.created:
+            try:
+                os.unlink(self.writing)
+            except OSError:
+                pass
 
 
 # ------------------------------------------------------------------------------ writer
@@ -169,7 +255,9 @@ class RecordingWriter:
     ----------
     path : str or os.PathLike
         Output file. An existing file is refused (:class:`RecordingExistsError`) unless
-        ``force``.
+        ``force``; with ``force`` it is replaced only when the new file is finished: until then
+        the bytes go to :attr:`writing_path` (``path`` + :data:`PARTIAL_SUFFIX`), see
+        :class:`_Output`.
     chunk_size : int
         Bytes of uncompressed records per chunk (default 64 KiB). A chunk reaches the disk when
         it is full or on :meth:`flush`; a killed writer loses at most the chunk in progress.
@@ -179,7 +267,11 @@ class RecordingWriter:
         Written at once as a metadata record named ``"noiselab"`` (e.g. model name, Ts).
 
     Schemas and channels are registered lazily, on the first message of a topic. On exit, even
-    on an exception, the summary and footer are written, so the file is complete.
+    on an exception, the summary and footer are written, so the file is complete; but after an
+    exception the file replaces no older one (it stays at :attr:`writing_path`, the exception
+    says so in a note) and a file that holds no message is removed. An OSError while writing
+    (disk full, ...) ends the writer with a one-line :class:`McapIoError` naming the file; the
+    unfinished file is then kept if it holds messages, for :func:`recover`.
     """
 
     def __init__(self, path: str | os.PathLike, *, force: bool = False,
@@ -196,28 +288,81 @@ class RecordingWriter:
             raise McapIoError(f"chunk_size={chunk_size!r} must be an integer >= 1 (bytes)")
         meta = None if metadata is None else _check_str_dict(metadata, "metadata")
         self.compression = compression
-        self._file = _open_new(self.path, force)
-        try:
-            self._writer = Writer(self._file, chunk_size=chunk_size,
-                                  compression=_COMPRESSION_TYPES[compression])
-            self._writer.start(profile="", library=_library())
-        except BaseException:
-            self._file.close()
-            os.unlink(self.path)
-            raise
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, tuple[int, str]] = {}
         self._counts: dict[str, int] = defaultdict(int)
         self._closed = False
+        self._failure = ""                      # why the writer ended early (an OSError), if it did
+        self._out = _Output(self.path, force)
+        self._file = self._out.file
+        try:
+            with self._io():
+                self._writer = Writer(self._file, chunk_size=chunk_size,
+                                      compression=_COMPRESSION_TYPES[compression])
+                self._writer.start(profile="", library=_library())
+        except BaseException:
+            if not self._closed:
+                self._closed = True
+                self._out.abandon(keep=False)
+            raise
         if meta is not None:
             self.add_metadata("noiselab", meta)
+
+    @property
+    def writing_path(self) -> str:
+        """The file the bytes go to until :meth:`close`: ``path`` itself, or ``path`` +
+        :data:`PARTIAL_SUFFIX` while an older file at ``path`` is kept (``force=True``). A
+        killed writer leaves its unfinished file there, for :func:`recover`."""
+        return self._out.writing
+
+    @contextmanager
+    def _io(self):
+        """Run file writes; an OSError (disk full, a vanished directory, ...) ends the writer and
+        comes out as one line naming the file. The unfinished file is kept when it holds messages
+        (what reached the disk is salvaged by :func:`recover`), else removed; an older file at
+        ``path`` is never touched."""
+        try:
+            yield
+        except OSError as e:
+            self._closed = True
+            held = sum(self._counts.values())
+            self._out.abandon(keep=held > 0)
+            where = f"; {self.path} is as it was" if self._out.replaces else ""
+            kept = (f"; what reached the disk of its {held} messages is salvaged by "
+                    f"`noiselab recover {self.writing_path} -o FIXED.mcap`") if held and self._out.created else ""
+            self._failure = (f"{self.writing_path}: cannot write it "
+                             f"({e.strerror or type(e).__name__}){where}{kept}")
+            raise McapIoError(self._failure) from None
 
     # -- context manager
     def __enter__(self) -> RecordingWriter:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:
-        self.close()
+        if exc is None:
+            self.close()
+            return
+        # the body failed: the file is still finished (nothing written is lost) but it does not
+        # replace an older file, and a file without a message is not left behind
+        if self._closed:
+            return
+        self._closed = True
+        held = sum(self._counts.values())
+        try:
+            self._writer.finish()
+        except OSError:
+            self._out.abandon(keep=held > 0)
+            return
+        if self._out.replaces or not held:
+            self._out.abandon(keep=held > 0)
+            if held and hasattr(exc, "add_note"):
+                exc.add_note(f"{self.writing_path}: the {held} messages written are kept there; "
+                             f"{self.path} is as it was")
+        else:
+            try:
+                self._out.commit()
+            except McapIoError:
+                pass                            # the body's own exception is the one to see
 
     @property
     def closed(self) -> bool:
@@ -230,7 +375,7 @@ class RecordingWriter:
 
     def _check_open(self) -> None:
         if self._closed:
-            raise McapIoError(f"{self.path}: recording is already finished")
+            raise McapIoError(self._failure or f"{self.path}: recording is already finished")
 
     def channel(self, topic: str, kind: str) -> int:
         """Channel id of ``topic`` (registering its schema and channel on first use).
@@ -251,14 +396,15 @@ class RecordingWriter:
             raise McapIoError(f"topic {topic!r} must look like <prefix>/{kind} "
                               f"(e.g. {wire.key('dev', kind)})")
         schema_id = self._schemas.get(kind)
-        if schema_id is None:
-            schema_id = self._writer.register_schema(
-                name=wire.SCHEMA_NAMES[kind], encoding=wire.SCHEMA_ENCODING,
-                data=wire.schema_bytes(kind))
-            self._schemas[kind] = schema_id
-        channel_id = self._writer.register_channel(
-            topic=topic, message_encoding=wire.MESSAGE_ENCODING, schema_id=schema_id,
-            metadata={"noiselab.kind": kind})
+        with self._io():
+            if schema_id is None:
+                schema_id = self._writer.register_schema(
+                    name=wire.SCHEMA_NAMES[kind], encoding=wire.SCHEMA_ENCODING,
+                    data=wire.schema_bytes(kind))
+                self._schemas[kind] = schema_id
+            channel_id = self._writer.register_channel(
+                topic=topic, message_encoding=wire.MESSAGE_ENCODING, schema_id=schema_id,
+                metadata={"noiselab.kind": kind})
         self._channels[topic] = (channel_id, kind)
         return channel_id
 
@@ -267,13 +413,11 @@ class RecordingWriter:
         """Append one message: ``seq`` (payload seq), times in integer ns, JSON ``payload``."""
         channel_id = self.channel(topic, kind)
         seq = _check_u64(seq, "seq")
-        self._writer.add_message(
-            channel_id=channel_id,
-            log_time=_check_u64(log_time_ns, "log_time_ns"),
-            data=bytes(payload),
-            publish_time=_check_u64(publish_time_ns, "publish_time_ns"),
-            sequence=seq % SEQUENCE_MODULUS,
-        )
+        log_time_ns = _check_u64(log_time_ns, "log_time_ns")
+        publish_time_ns = _check_u64(publish_time_ns, "publish_time_ns")
+        with self._io():
+            self._writer.add_message(channel_id=channel_id, log_time=log_time_ns, data=bytes(payload),
+                                     publish_time=publish_time_ns, sequence=seq % SEQUENCE_MODULUS)
         self._counts[topic.lstrip("/")] += 1
 
     def write_batch(self, topic: str, kind: str, seq0: int, publish_ns: np.ndarray,
@@ -297,9 +441,10 @@ class RecordingWriter:
         if not all(type(p) is bytes for p in payloads):
             raise McapIoError(f"{topic}: payloads must all be bytes")
         add = self._writer.add_message
-        for i, (p, lg, data) in enumerate(zip(pub.tolist(), log.tolist(), payloads)):
-            add(channel_id=channel_id, log_time=lg, data=data, publish_time=p,
-                sequence=(seq0 + i) % SEQUENCE_MODULUS)
+        with self._io():
+            for i, (p, lg, data) in enumerate(zip(pub.tolist(), log.tolist(), payloads)):
+                add(channel_id=channel_id, log_time=lg, data=data, publish_time=p,
+                    sequence=(seq0 + i) % SEQUENCE_MODULUS)
         self._counts[topic.lstrip("/")] += n
 
     def write_interleaved(self, streams: Sequence[tuple[str, str, int, np.ndarray, np.ndarray,
@@ -328,9 +473,10 @@ class RecordingWriter:
             cols.append((cid, list(zip(pub.tolist(), log.tolist(), payloads, seqs))))
         add = self._writer.add_message
         cids = [c for c, _ in cols]
-        for row in zip(*[rows for _, rows in cols]):
-            for cid, (p, lg, data, sq) in zip(cids, row):
-                add(channel_id=cid, log_time=lg, data=data, publish_time=p, sequence=sq)
+        with self._io():
+            for row in zip(*[rows for _, rows in cols]):
+                for cid, (p, lg, data, sq) in zip(cids, row):
+                    add(channel_id=cid, log_time=lg, data=data, publish_time=p, sequence=sq)
         for topic, *_ in streams:
             self._counts[topic.lstrip("/")] += n
 
@@ -351,7 +497,9 @@ class RecordingWriter:
         self._check_open()
         if not isinstance(name, str) or not name:
             raise McapIoError(f"metadata name {name!r} must be a non-empty str")
-        self._writer.add_metadata(name, _check_str_dict(data, f"metadata {name!r}"))
+        data = _check_str_dict(data, f"metadata {name!r}")
+        with self._io():
+            self._writer.add_metadata(name, data)
 
     def flush(self, *, fsync: bool = False) -> None:
         """Write the chunk in progress to the file now (bounds what a kill can lose).
@@ -363,19 +511,20 @@ class RecordingWriter:
         flush = getattr(self._writer, "flush", None)
         if flush is None:  # pragma: no cover - older mcap releases lack it
             raise McapIoError("this mcap version cannot flush a chunk early; upgrade mcap")
-        flush()
-        if fsync:
-            os.fsync(self._file.fileno())
+        with self._io():
+            flush()
+            if fsync:
+                os.fsync(self._file.fileno())
 
     def close(self) -> None:
-        """Write summary, footer and closing magic, and close the file (idempotent)."""
+        """Write summary, footer and closing magic, close the file and give it its name (it
+        replaces an older file only now); idempotent."""
         if self._closed:
             return
-        self._closed = True
-        try:
+        with self._io():
             self._writer.finish()
-        finally:
-            self._file.close()
+        self._closed = True
+        self._out.commit()
 
 
 # --------------------------------------------------------------------------- scanning
@@ -1133,7 +1282,8 @@ def recover(broken_path: str | os.PathLike, out_path: str | os.PathLike, force: 
     truncated or damaged record, whether or not it has a footer. Schemas, channels (topic,
     encodings, metadata), metadata records, sequence, log_time and publish_time (ns) are
     copied unchanged, in file order. ``out_path`` must differ from the input and must not
-    exist unless ``force``. On failure the partial output is removed.
+    exist unless ``force`` (an existing one is replaced only once the new file is finished, as
+    :class:`RecordingWriter` does). On failure the partial output is removed.
     """
     src = os.fspath(broken_path)
     dst = os.fspath(out_path)
@@ -1145,9 +1295,9 @@ def recover(broken_path: str | os.PathLike, out_path: str | os.PathLike, force: 
         raise McapIoError(f"{dst}: output is the input file; write the recovery elsewhere")
     report = ScanReport()
     counts: dict[str, int] = defaultdict(int)
-    out = _open_new(dst, force)
+    target = _Output(dst, force, ".recovering")    # not .partial: that may be the input
     try:
-        writer = Writer(out, chunk_size=chunk_size, compression=_COMPRESSION_TYPES[compression])
+        writer = Writer(target.file, chunk_size=chunk_size, compression=_COMPRESSION_TYPES[compression])
         writer.start(profile="", library=_library())
         schema_ids: dict[int, int] = {}
         channel_ids: dict[int, int] = {}
@@ -1168,11 +1318,13 @@ def recover(broken_path: str | os.PathLike, out_path: str | os.PathLike, force: 
         for name, data in report.metadata.items():
             writer.add_metadata(name, data)
         writer.finish()
+    except OSError as e:            # the output's disk or directory; the input is only read
+        target.abandon(keep=False)
+        raise _os_error(target.writing, e, "cannot write it") from None
     except BaseException:
-        out.close()
-        os.unlink(dst)
+        target.abandon(keep=False)
         raise
-    out.close()
+    target.commit()
     return RecoverStats(messages=dict(counts),
                         already_complete=bool(report.complete and report.intact),
                         note=report.note)
