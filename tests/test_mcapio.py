@@ -20,6 +20,8 @@ from mcap.records import Chunk, Message
 from mcap.data_stream import ReadDataStream
 from mcap.writer import Writer
 
+from service.diagnose.load import load_noiselab
+from service.diagnose.results import AnalysisError
 from service.nodes import mcapio, wire
 from service.nodes.mcapio import (
     NotMcapError,
@@ -438,6 +440,126 @@ def test_out_of_order_messages_are_sorted_and_gaps_reported(tmp_path):
     assert m.values[:, 0].tolist() == sorted(order)
     assert m.log_ns.tolist() == sorted(order)
     assert m.gaps() == [(3, 3), (8, 3)]
+
+
+# ------------------------------------------------------ repeats, conflicts, restarts
+
+
+def write_stream(path, items, name="dev", kinds=("measurement",)):
+    """``items``: (seq, value) in file order; every kind gets the sample (value, and -value for a
+    2-vector), log_time grows by 1 ms per message as a recorder's receive time does."""
+    with RecordingWriter(path) as w:
+        for i, (seq, value) in enumerate(items):
+            for kind in kinds:
+                vec = [value] if DIMS[kind] == 1 else [value, -value]
+                w.write(wire.key(name, kind), kind, seq, seq * 10_000_000, 1_000_000 * i,
+                        wire.encode(seq, seq * Ts, vec, kind=kind))
+
+
+def test_exact_repeats_are_one_sample_and_not_gaps(tmp_path):
+    """A message read twice (same seq, same sample: a re-sent or twice-routed message) is one
+    sample: no gap, no data dropped; the first copy is kept and the repeats are counted."""
+    path = tmp_path / "rep.mcap"
+    items = [(k, float(k) * 0.5) for k in range(100)]
+    items.insert(11, (10, 5.0))            # right after itself
+    items.insert(72, (50, 25.0))           # re-sent 20 messages later
+    items.append((0, 0.0))                 # the first message again, at the end
+    write_stream(path, items)
+    m = read_recording(path).device("dev").measurement
+    assert m.seq.tolist() == list(range(100)) and m.values[:, 0].tolist() == [k * 0.5 for k in range(100)]
+    assert m.duplicates == 3 and m.gaps() == [] and m.segments == [(0, 100)]
+    assert m.log_ns[50] == 1_000_000 * 51              # the first copy's receive time
+    series = load_noiselab(str(path))
+    assert series.y.shape == (100, 2)                    # all of it analysed, not the longest run
+    assert not any("gap" in n for n in series.notes)
+    assert "noiselab/dev/measurement: 3 repeated messages (same seq, same sample) counted once" in series.notes
+
+
+def test_a_seq_that_comes_twice_with_different_data_is_an_error(tmp_path, capsys):
+    path = tmp_path / "conflict.mcap"
+    items = [(k, float(k)) for k in range(100)]
+    items.insert(60, (40, 123.0))
+    items.insert(80, (70, 7.5))
+    write_stream(path, items)
+    with pytest.raises(mcapio.McapIoError) as e:
+        read_recording(path)
+    msg = str(e.value)
+    assert msg.startswith(f"{path}: topic 'noiselab/dev/measurement': seq 40 comes twice with different data")
+    assert "1 more" in msg and "\n" not in msg
+    from service.cli import main
+    assert main(["analyze", str(path), "--model", "seed"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "seq 40 comes twice" in err
+
+
+def test_a_restarted_source_is_read_as_stream_segments(tmp_path):
+    """The source restarted mid-file (seq back to 0, e.g. the emulator restarted while the recorder
+    ran): two segments in file order, each sorted, gaps counted inside a segment only."""
+    path = tmp_path / "restart.mcap"
+    first = [(k, float(k)) for k in range(120)]
+    second = [(k, 1000.0 + k) for k in range(80) if not 30 <= k < 33]
+    second[5], second[6] = second[6], second[5]          # reordered inside the segment: sorted
+    write_stream(path, first + second)
+    m = read_recording(path).device("dev").measurement
+    assert m.segments == [(0, 120), (120, 197)] and m.duplicates == 0
+    assert m.seq.tolist() == list(range(120)) + [k for k in range(80) if not 30 <= k < 33]
+    assert m.values[120:, 0].tolist() == [1000.0 + k for k in range(80) if not 30 <= k < 33]
+    assert m.gaps() == [(29, 3)]
+    assert m.log_ns[120] == 1_000_000 * 120
+    seg = m.segment(1)
+    assert seg.seq.tolist() == m.seq[120:].tolist() and seg.segments == [(0, 77)]
+    # a source restarted with the same seed sends the same samples again: still a restart
+    same = tmp_path / "same.mcap"
+    write_stream(same, [(k, float(k)) for k in range(10)] + [(k, float(k)) for k in range(5)])
+    m = read_recording(same).device("dev").measurement
+    assert m.segments == [(0, 10), (10, 15)] and m.duplicates == 0
+    # but the first message sent again and nothing after it is a repeat
+    again = tmp_path / "again.mcap"
+    write_stream(again, [(k, float(k)) for k in range(10)] + [(0, 0.0)])
+    m = read_recording(again).device("dev").measurement
+    assert m.segments == [(0, 10)] and m.duplicates == 1
+
+
+def test_analysis_of_a_restarted_recording_takes_one_segment_and_says_so(tmp_path):
+    """load_noiselab analyses one stream segment (the longest gap-free run's, or the one asked
+    for), with the command and truth of that same segment, and a note names the restart."""
+    path = tmp_path / "restart.mcap"
+    first = [(k, float(k)) for k in range(300)]
+    second = [(k, 1000.0 + k) for k in range(500)]
+    write_stream(path, first + second, kinds=("truth", "command", "measurement"))
+    s = load_noiselab(str(path))
+    assert s.y[:, 0].tolist() == [1000.0 + k for k in range(500)]
+    assert s.u[:, 0].tolist() == s.y[:, 0].tolist() and s.truth[:, 0].tolist() == s.y[:, 0].tolist()
+    assert s.starts_at_rest
+    note, = [n for n in s.notes if "restarted" in n]
+    assert note == ("noiselab/dev/measurement: the source restarted once (seq back to 0 at log time +0.300 s "
+                    "from the first message): 2 stream segments of 300, 500 samples; analysed segment 2 "
+                    "(the one with the longest gap-free run)")
+    s1 = load_noiselab(str(path), segment=1)
+    assert s1.y[:, 0].tolist() == [float(k) for k in range(300)] and s1.u[:, 0].tolist() == s1.y[:, 0].tolist()
+    assert any(n.endswith("analysed segment 1") for n in s1.notes)
+    with pytest.raises(AnalysisError, match=r"segment 3 asked for, but noiselab/dev/measurement has 2 stream "
+                                            r"segments \(1\.\.2\)"):
+        load_noiselab(str(path), segment=3)
+
+
+def test_without_a_command_topic_the_assumed_command_is_named(tmp_path):
+    from service.model import load_model
+
+    seed = load_model("seed")
+    bare = tmp_path / "bare.mcap"
+    write_stream(bare, [(k, float(k)) for k in range(50)])
+    s = load_noiselab(str(bare), model=seed)
+    assert s.u is None
+    assert s.command == {"source": "model", "kind": "sine", "amplitude": 0.8, "frequency_hz": 0.7,
+                         "offset": 0.0, "phase_rad": 0.0}
+    assert ("no command topic in the recording: the analysis assumes the model's own command ([command] "
+            "kind = 'sine', amplitude = 0.8, frequency_hz = 0.7, offset = 0.0, phase_rad = 0.0)") in s.notes
+    full = tmp_path / "full.mcap"
+    write_stream(full, [(k, float(k)) for k in range(50)], kinds=("command", "measurement"))
+    s = load_noiselab(str(full), model=seed)
+    assert s.command == {"source": "recording", "topic": "noiselab/dev/command"}
+    assert not any("command" in n for n in s.notes)
 
 
 # ---------------------------------------------------------------------------- gaps()

@@ -8,7 +8,13 @@
   from the MCAP publish_time; several FIELDs may be given comma-separated for a vector.
 
 Gaps (a missing seq, or a time step over 1.5 Ts) are never silently ignored: the analysis uses
-the longest gap-free run and the notes say what was left out. Irregular timing (steps that differ
+the longest gap-free run and the notes say what was left out. A noiselab stream whose source
+restarted (its seq went back to 0: :class:`mcapio.TopicData` segments) is analysed one stream
+segment at a time: the one with the longest gap-free run unless ``segment`` names another, and a
+note gives every segment's length and when it began. Repeated messages (same seq, same sample) are
+counted once and noted; the reader refuses a seq that comes twice with different data. Without a
+recorded command the analysis runs the model's own ``[command]``: ``Series.command`` and a note
+say which. Irregular timing (steps that differ
 from Ts by more than 0.1 % of Ts, or by more than 4 resolutions of the time field when that is
 coarser) is reported; a recording whose median step differs from the model's Ts by more than 1 %
 is rejected (wrong model or wrong field), noiselab recordings (payload ``t``) included.
@@ -37,6 +43,7 @@ class Series:
     source: str
     notes: list = field(default_factory=list)
     starts_at_rest: bool = False   # a noiselab stream from seq 0 (the emulator starts at rest)
+    command: dict | None = None    # the command analysed (command_used), None when no model was given
 
 
 _PATH_RE = re.compile(r"([^.\[\]]+)|\[(\d+)\]")
@@ -69,11 +76,18 @@ def noiselab_kinds(truth: bool = True) -> tuple[str, ...]:
 
 
 def load_noiselab(path: str, device: str | None = None, truth: bool = True, Ts: float | None = None,
-                  rec: mcapio.Recording | None = None) -> Series:
-    """``rec``: the file already read (``mcapio.read_recording(path, kinds=noiselab_kinds(truth))``)."""
+                  rec: mcapio.Recording | None = None, *, segment: int | None = None, model=None) -> Series:
+    """``rec``: the file already read (``mcapio.read_recording(path, kinds=noiselab_kinds(truth))``).
+    ``segment``: the stream segment to analyse (1-based, in file order) when the source restarted;
+    None takes the one with the longest gap-free run. ``model``: the model the data are compared
+    with (its Ts when ``Ts`` is None; its command is named when the recording has none)."""
+    if Ts is None and model is not None:
+        Ts = model.Ts
     if rec is None:
         rec = mcapio.read_recording(path, kinds=noiselab_kinds(truth))
     if not rec.devices:
+        if not rec.complete:
+            raise AnalysisError(_unfinished_without_measurement(path, rec))
         raise AnalysisError(f"{path}: no measurement topic (a topic ending in /measurement); for other "
                             "recordings give --measurement TOPIC:FIELD")
     try:
@@ -81,22 +95,105 @@ def load_noiselab(path: str, device: str | None = None, truth: bool = True, Ts: 
     except (KeyError, ValueError, mcapio.McapIoError):
         names = ", ".join(sorted(rec.devices))
         raise AnalysisError(f"{path}: device {device!r} not found or ambiguous (devices: {names})") from None
-    meas = dev.measurement
     notes = [] if rec.complete else [f"the recording is unfinished: {rec.note}"]
+    notes += [f"{td.topic}: {td.duplicates} repeated message{'s' if td.duplicates > 1 else ''} "
+              "(same seq, same sample) counted once" for td in dev.streams.values() if td.duplicates]
+    if len(dev.measurement) < 2:
+        raise AnalysisError(f"{path}: only {len(dev.measurement)} measurement samples")
+    k, meas = _pick_segment(path, dev.measurement, segment, notes)
     seq = meas.seq
-    if seq.size < 2:
-        raise AnalysisError(f"{path}: only {seq.size} measurement samples")
     keep = _longest_run(seq, notes, "measurement seq")
     y = meas.values[keep]
     t = meas.t[keep]
     if Ts is not None and t.size >= 2:
         _check_period(np.diff(t), Ts, f"{path}: {meas.topic}", notes)
-    u = _aligned(dev.command, seq[keep], notes, "command")
-    x = _aligned(dev.truth, seq[keep], notes, "truth")
+    u = _aligned(_same_segment(path, dev.command, dev.measurement, k, notes), seq[keep], notes, "command")
+    x = _aligned(_same_segment(path, dev.truth, dev.measurement, k, notes), seq[keep], notes, "truth")
     if u is not None and np.isnan(u).any():
         raise AnalysisError(f"{path}: the command topic misses samples inside the analysed run")
+    command = command_used(model, None if u is None else dev.command.topic, notes)
     return Series(t=t - t[0], y=y, u=u, truth=x, source=f"{path} [{dev.name}]", notes=notes,
-                  starts_at_rest=bool(seq[keep][0] == 0))
+                  starts_at_rest=bool(seq[keep][0] == 0), command=command)
+
+
+def _unfinished_without_measurement(path: str, rec: mcapio.Recording) -> str:
+    """Why an unfinished file gives nothing to analyse: the reader's note (where it stopped), and
+    the way to keep what it did read."""
+    keep = (f"; `noiselab recover {path} -o FIXED.mcap` keeps the {rec.messages} messages read"
+            if rec.messages else "")
+    return f"{rec.note}; none of them is a measurement (a topic ending in /measurement){keep}"
+
+
+def command_used(model, topic: str | None, notes: list) -> dict | None:
+    """What the analysis takes as the plant's command, JSON-ready: ``{"source": "recording",
+    "topic": ...}``, or ``{"source": "model", "kind": ..., <the [command] table's parameters>}``
+    when the recording has no command topic (a sensor at rest has none); the latter is also said
+    in ``notes``, since the model's own command then stands in for what was applied. None without
+    a model, or when the model has no input."""
+    if topic is not None:
+        return {"source": "recording", "topic": topic}
+    if model is None or model.m == 0:
+        return None
+    table = dict(model.to_dict().get("command") or {"kind": "none"})
+    kind = table.pop("kind", "none")
+    if kind in ("none", "external"):
+        said = f"no command (zero input; the model's [command] kind = {kind!r})"
+    else:
+        said = f"the model's own command ([command] kind = {kind!r}, " + ", ".join(
+            f"{k} = {v}" for k, v in table.items()) + ")"
+    notes.append(f"no command topic in the recording: the analysis assumes {said}")
+    return {"source": "model", "kind": kind, **table}
+
+
+def _pick_segment(path: str, meas: mcapio.TopicData, segment: int | None, notes: list):
+    """(index, TopicData) of the stream segment to analyse; a note when the source restarted."""
+    segs = meas.segments
+    if segment is not None and not (isinstance(segment, int) and 1 <= segment <= len(segs)):
+        raise AnalysisError(f"{path}: segment {segment!r} asked for, but {meas.topic} has "
+                            f"{len(segs)} stream segment{'s' if len(segs) > 1 else ''} (1..{len(segs)})")
+    if len(segs) == 1:
+        return 0, meas
+    if segment is None:        # the longest gap-free run of all: a restart is a break (seq steps back)
+        a = _best_run(meas.seq)[0]
+        k = int(np.searchsorted(meas.starts, a, side="right")) - 1
+    else:
+        k = segment - 1
+    notes.append(_restart_note(meas, k, chosen=segment is None))
+    return k, meas.segment(k)
+
+
+def _restart_note(td: mcapio.TopicData, k: int, chosen: bool) -> str:
+    """One line: how often the source restarted, when (log time from the stream's first message),
+    every segment's length, and which one is analysed."""
+    starts = td.starts
+    lens = np.diff(np.append(starts, len(td))).tolist()
+    first_log = np.minimum.reduceat(td.log_ns, starts)          # each segment's first arrival, ns
+    at = ((first_log[1:] - first_log[0]) / 1e9).tolist()
+    back = td.seq[starts[1:]].tolist()
+
+    def listed(xs, fmt=str, most=6):
+        shown = ", ".join(fmt(x) for x in xs[:most])
+        return shown + (f", ... ({len(xs)} in all)" if len(xs) > most else "")
+    times = "once" if len(at) == 1 else f"{len(at)} times"
+    return (f"{td.topic}: the source restarted {times} (seq back to {listed(back)} at log time "
+            f"{listed(at, lambda s: f'{s:+.3f} s')} from the first message): {len(lens)} stream segments "
+            f"of {listed(lens)} samples; analysed segment {k + 1}"
+            + (" (the one with the longest gap-free run)" if chosen else ""))
+
+
+def _same_segment(path: str, td: mcapio.TopicData | None, meas: mcapio.TopicData, k: int, notes: list):
+    """``td``'s segment ``k``, which goes with the measurement's segment ``k`` (a source restarts all
+    its topics together)."""
+    if td is None or len(meas.segments) == 1 and len(td.segments) == 1:
+        return td
+    if len(td.segments) == len(meas.segments):
+        return td.segment(k)
+    why = (f"{td.topic} has {len(td.segments)} stream segments, {meas.topic} {len(meas.segments)}: "
+           "which of its samples go with the analysed ones is unclear")
+    if td.kind == "truth":
+        notes.append(f"{why}; the truth is not used")
+        return None
+    raise AnalysisError(f"{path}: {why}")
 
 
 def _aligned(td, seq, notes, what):
@@ -116,20 +213,31 @@ def _aligned(td, seq, notes, what):
     return td.values[idx]
 
 
+def _best_run(seq: np.ndarray) -> tuple[int, int]:
+    """(start, stop) of the longest run of consecutive seqs (the first of equal ones)."""
+    breaks = np.flatnonzero(np.diff(seq) != 1)
+    starts = np.concatenate([[0], breaks + 1])
+    ends = np.concatenate([breaks + 1, [seq.size]])
+    i = int(np.argmax(ends - starts))
+    return int(starts[i]), int(ends[i])
+
+
 def _longest_run(seq: np.ndarray, notes: list, what: str) -> slice:
     breaks = np.flatnonzero(np.diff(seq) != 1)
     if breaks.size == 0:
         return slice(0, seq.size)
-    starts = np.concatenate([[0], breaks + 1])
-    ends = np.concatenate([breaks + 1, [seq.size]])
-    i = int(np.argmax(ends - starts))
+    a, b = _best_run(seq)
     missing = int(np.sum(np.clip(np.diff(seq)[breaks] - 1, 0, None)))
     notes.append(f"{what}: {breaks.size} gaps ({missing} samples missing); analysed the longest gap-free run, "
-                 f"samples {starts[i]}..{ends[i] - 1} of {seq.size}")
-    return slice(int(starts[i]), int(ends[i]))
+                 f"samples {a}..{b - 1} of {seq.size}")
+    return slice(a, b)
 
 
-def load_foreign(path: str, spec: str, time_field: str | None, Ts: float) -> Series:
+def load_foreign(path: str, spec: str, time_field: str | None, Ts: float | None = None, *, model=None) -> Series:
+    """``model``: as for :func:`load_noiselab` (a foreign recording's command is never read: the
+    model's own command is named in a note)."""
+    if Ts is None:
+        Ts = model.Ts
     topic, fields = _split_spec(spec)
     getters = [_field_getter(f)[0] for f in fields]
     tget = _field_getter(time_field)[0] if time_field else None
@@ -180,7 +288,8 @@ def load_foreign(path: str, spec: str, time_field: str | None, Ts: float) -> Ser
         t, y = t[order], y[order]
     keep = _regular_run(t, Ts, notes, topic, resolution)
     t, y = t[keep], y[keep]
-    return Series(t=t - t[0], y=y, u=None, truth=None, source=f"{path} [{spec}]", notes=notes)
+    return Series(t=t - t[0], y=y, u=None, truth=None, source=f"{path} [{spec}]", notes=notes,
+                  command=command_used(model, None, notes))
 
 
 def _check_period(dt: np.ndarray, Ts: float, what: str, notes: list) -> None:

@@ -858,11 +858,18 @@ def gaps(seq_array) -> list[tuple[int, int]]:
 
 @dataclass(frozen=True, eq=False)
 class TopicData:
-    """One stream of a recording, sorted by payload seq (stable; duplicates kept).
+    """One stream of a recording: its stream segments in file order, each sorted by payload seq
+    (stable), every sample once.
 
     ``seq`` int64 (N,) payload seq; ``t`` float64 (N,) payload sample time in s;
     ``publish_ns`` int64 (N,) MCAP publish_time (sample time, ns); ``log_ns`` int64 (N,) MCAP
     log_time (receive time in ns, any clock); ``values`` float64 (N, dim): x, u or y.
+
+    ``starts`` int64: the index where each stream segment begins (``[0]`` for a stream that never
+    restarted). A segment begins where the source restarted: its seq went back, in file order, to
+    a value no higher than any before it (a restarted emulator counts from 0 again), see
+    :func:`_streams`. ``duplicates``: messages dropped as repeats of a sample already read
+    (same seq, same ``t`` and values, bit for bit); the first one read is kept.
     """
 
     topic: str
@@ -872,6 +879,8 @@ class TopicData:
     publish_ns: np.ndarray
     log_ns: np.ndarray
     values: np.ndarray
+    starts: np.ndarray = field(default_factory=lambda: np.zeros(1, np.int64))
+    duplicates: int = 0
 
     def __len__(self) -> int:
         return int(self.seq.shape[0])
@@ -880,9 +889,77 @@ class TopicData:
     def dim(self) -> int:
         return int(self.values.shape[1])
 
+    @property
+    def segments(self) -> list[tuple[int, int]]:
+        """``[(start, stop), ...]``: the index range of each stream segment, in file order."""
+        ends = [*self.starts.tolist()[1:], len(self)]
+        return list(zip(self.starts.tolist(), ends))
+
+    def segment(self, i: int) -> TopicData:
+        """Segment ``i`` (0-based) as a TopicData of one segment."""
+        a, b = self.segments[i]
+        return TopicData(self.topic, self.kind, self.seq[a:b], self.t[a:b], self.publish_ns[a:b],
+                         self.log_ns[a:b], self.values[a:b])
+
     def gaps(self) -> list[tuple[int, int]]:
-        """:func:`gaps` of ``seq``."""
-        return gaps(self.seq)
+        """:func:`gaps` of ``seq``, segment by segment (a restart is not a gap)."""
+        return [g for a, b in self.segments for g in gaps(self.seq[a:b])]
+
+
+def _streams(path: str, topic: str, kind: str, seq: np.ndarray, t: np.ndarray, values: np.ndarray,
+             pub: np.ndarray, log: np.ndarray) -> TopicData:
+    """The TopicData of one topic's messages in file order: split where the source restarted,
+    each segment sorted by seq, exact repeats dropped; a seq that comes twice with different data
+    raises McapIoError (the recording cannot say which sample is the real one).
+
+    A restart is a step back, in file order, to a seq no higher than any before it (a restarted
+    source counts from 0 again; a late or reordered message lands between seqs already read and is
+    sorted into its segment). One exception: a message that repeats the earliest sample exactly
+    and is not followed by the next seq is a repeat, not a restart (a re-sent first message).
+    Vectorised: a stream without restarts, repeats or reordering (every seq step > 0) costs one
+    np.diff; the others one stable lexsort.
+    """
+    n = seq.size
+    d = np.diff(seq)
+    if n < 2 or d.min() > 0:
+        return TopicData(topic, kind, seq, t, pub, log, values)
+    tb = np.ascontiguousarray(t, np.float64).view(np.uint64)
+    vb = np.ascontiguousarray(values, np.float64).reshape(n, -1).view(np.uint64)
+
+    def same(a, b):                              # rows a and b hold the same sample, bit for bit
+        return (tb[a] == tb[b]) & (vb[a] == vb[b]).all(axis=1)
+
+    low = np.minimum.accumulate(seq)
+    back = np.flatnonzero((d < 0) & (seq[1:] <= low[:-1])) + 1
+    if back.size:
+        v = seq[back]
+        at_low = v == low[back - 1]
+        first = np.searchsorted(-low, -v, side="left")      # first index of v (low is non-increasing)
+        first = np.minimum(first, n - 1)
+        nxt = np.minimum(back + 1, n - 1)
+        goes_on = (back + 1 < n) & (seq[nxt] == v + 1)
+        repeat = at_low & (seq[first] == v) & same(back, first) & ~goes_on
+        back = back[~repeat]
+    seg = np.zeros(n, np.int64)
+    seg[back] = 1
+    np.cumsum(seg, out=seg)
+    order = np.lexsort((seq, seg))                # stable: equal seqs keep their file order
+    s2, g2 = seq[order], seg[order]
+    twin = np.flatnonzero((s2[1:] == s2[:-1]) & (g2[1:] == g2[:-1]))
+    if twin.size:
+        a, b = order[twin], order[twin + 1]
+        differ = ~same(a, b)
+        if differ.any():
+            bad = np.unique(seq[a[differ]])
+            more = f" (and {bad.size - 1} more such seqs)" if bad.size > 1 else ""
+            raise McapIoError(f"{path}: topic {topic!r}: seq {int(bad[0])} comes twice with different "
+                              f"data{more}; the recording is ambiguous (two sources on one key?)")
+        keep = np.ones(n, bool)
+        keep[twin + 1] = False
+        order, g2 = order[keep], g2[keep]
+    starts = np.concatenate([[0], np.flatnonzero(np.diff(g2)) + 1]).astype(np.int64)
+    return TopicData(topic, kind, seq[order], t[order], pub[order], log[order], values[order],
+                     starts=starts, duplicates=int(twin.size))
 
 
 @dataclass(frozen=True)
@@ -913,7 +990,7 @@ class Recording:
     ``devices`` by device name (``noiselab/<name>/...`` gives ``name``; a foreign prefix such as
     ``/robot/imu/measurement`` gives ``robot/imu``). ``metadata``: metadata records by name.
     ``complete``: the file had a valid footer and summary. ``note``: empty if complete, else
-    why not and how far the salvage got.
+    why not and how far the salvage got. ``messages``: messages read, of every topic.
     """
 
     path: str
@@ -921,6 +998,7 @@ class Recording:
     metadata: dict[str, dict[str, str]]
     complete: bool
     note: str
+    messages: int = 0
 
     def device(self, name: str | None = None) -> DeviceData:
         """The device ``name``; without a name, the only device (error if there are several)."""
@@ -1244,15 +1322,11 @@ def read_recording(path: str | os.PathLike, kinds: Iterable[str] = wire.KINDS) -
     for (_name, prefix, kind, ktopic), (seq, t, values) in zip(jobs, decoded):
         log_a = _as_i64(raw[ktopic][1], ktopic, "log_time")
         pub_a = _as_i64(raw[ktopic][2], ktopic, "publish_time")
-        if seq.size > 1 and (np.diff(seq) < 0).any():
-            order = np.argsort(seq, kind="stable")
-            seq, t, values = seq[order], t[order], values[order]
-            log_a, pub_a = log_a[order], pub_a[order]
-        streams_of.setdefault(prefix, {})[kind] = TopicData(ktopic, kind, seq, t, pub_a, log_a, values)
+        streams_of.setdefault(prefix, {})[kind] = _streams(path, ktopic, kind, seq, t, values, pub_a, log_a)
     for prefix, name in names.items():
         devices[name] = DeviceData(name, prefix, streams_of.get(prefix, {}))
     return Recording(path=path, devices=devices, metadata=report.metadata,
-                     complete=bool(report.complete), note=report.note)
+                     complete=bool(report.complete), note=report.note, messages=report.messages)
 
 
 # --------------------------------------------------------------------------- recovery
