@@ -591,8 +591,10 @@ def test_gaps_refuses_non_integer_input():
 
 
 def top_level_chunks(path):
-    """[(start, end, [(topic, sequence, log_time, publish_time, data), ...]), ...] per chunk,
-    from the finished file's chunk index (the ground truth of what a cut keeps)."""
+    """[(start, end, [(topic, sequence, log_time, publish_time, data), ...], compression, [end byte
+    of each message record, or None]), ...] per chunk, from the finished file's chunk index (the
+    ground truth of what a cut keeps). A message record's end byte is known in an uncompressed
+    chunk only: the records lie in the file as they are, after the chunk's 49-byte header."""
     out = []
     with open(path, "rb") as f:
         summary = make_reader(f).get_summary()
@@ -602,27 +604,52 @@ def top_level_chunks(path):
             chunk = Chunk.read(ReadDataStream(f))
             msgs = [(topics[r.channel_id], r.sequence, r.log_time, r.publish_time, r.data)
                     for r in breakup_chunk(chunk) if isinstance(r, Message)]
-            out.append((ci.chunk_start_offset, ci.chunk_start_offset + ci.chunk_length, msgs))
+            ends = [None] * len(msgs)
+            if chunk.compression == "":
+                ends, pos, base = [], 0, ci.chunk_start_offset + 49
+                while pos < len(chunk.data):
+                    opcode, length = chunk.data[pos], int.from_bytes(chunk.data[pos + 1: pos + 9], "little")
+                    pos += 9 + length
+                    if opcode == 0x05:
+                        ends.append(base + pos)
+            out.append((ci.chunk_start_offset, ci.chunk_start_offset + ci.chunk_length, msgs,
+                        chunk.compression, ends))
     return out
 
 
+def expected_after_cut(chunks, cut):
+    """The messages a cut at byte ``cut`` keeps: every whole chunk's, and of the chunk it cuts the
+    messages before the cut (exactly known in an uncompressed chunk; in a compressed one those of
+    its whole compressed blocks: the count is then checked by ``is_prefix`` instead)."""
+    whole = [m for start, end, ms, _, _ in chunks if end <= cut for m in ms]
+    cut_chunk = next(((ms, comp, ends) for start, end, ms, comp, ends in chunks if start < cut < end), None)
+    return whole, cut_chunk
+
+
 @pytest.mark.parametrize("compression", mcapio.COMPRESSIONS)
-def test_cut_file_reads_exactly_the_whole_chunks_and_recovers(tmp_path, compression):
+def test_cut_file_reads_every_intact_message_and_recovers(tmp_path, compression):
+    """A file cut anywhere (as a SIGKILL or a full disk leaves it): the reader and recover give
+    every message of every whole chunk, and of the chunk the cut goes through its intact start
+    (all the messages before the cut in an uncompressed chunk; the whole blocks of a compressed
+    one): a prefix of the file's messages, nothing invented."""
     full = tmp_path / "full.mcap"
     write_sample(full, 120, chunk_size=1024, compression=compression,
                  metadata={"model": "seed"})
     blob = full.read_bytes()
     chunks = top_level_chunks(full)
     assert len(chunks) >= 6
-    all_msgs = [m for _, _, ms in chunks for m in ms]
+    all_msgs = [m for _, _, ms, _, _ in chunks for m in ms]
     assert messages(full) == all_msgs
-    ends = [e for _, e, _ in chunks]
+    ends = [c[1] for c in chunks]
+    mid0 = (chunks[0][0] + ends[0]) // 2
     cuts = sorted({
         8,                          # magic only
+        mid0,                       # the middle of the first chunk
         ends[0] - 1,                # inside the first chunk
         ends[0],                    # exactly after the first chunk
         ends[0] + 5,                # inside the message index after it
         (ends[2] + ends[3]) // 2,   # mid-file
+        ends[3] - 1,                # chunk 3 lacks one byte
         ends[-1] - 1,               # last chunk lacks one byte
         ends[-1] + 3,               # all chunks whole, message indexes / data end cut
         len(blob) - 30,             # inside the summary
@@ -631,11 +658,17 @@ def test_cut_file_reads_exactly_the_whole_chunks_and_recovers(tmp_path, compress
     for cut in cuts:
         cut_path = tmp_path / f"cut{cut}.mcap"
         cut_path.write_bytes(blob[:cut])
-        expected = [m for _, end, ms in chunks if end <= cut for m in ms]
+        whole, cut_chunk = expected_after_cut(chunks, cut)
+        got = messages(cut_path)
+        assert got == all_msgs[:len(got)] and len(got) >= len(whole), cut    # a prefix, nothing lost
+        if cut_chunk is None:
+            assert got == whole, cut
+        elif cut_chunk[1] == "":
+            assert got == whole + [m for m, e in zip(cut_chunk[0], cut_chunk[2]) if e <= cut], cut
+        expected = got
         rec = read_recording(cut_path)
         assert not rec.complete, cut
         assert "incomplete MCAP" in rec.note and f"read {len(expected)} intact" in rec.note
-        assert messages(cut_path) == expected, cut
         n_meas = sum(1 for m in expected if m[0].endswith("/measurement"))
         if n_meas:
             meas = rec.device("dev").measurement
@@ -661,6 +694,67 @@ def test_cut_file_reads_exactly_the_whole_chunks_and_recovers(tmp_path, compress
         assert got == expected
         rec2 = read_recording(out)
         assert rec2.complete and rec2.metadata == rec.metadata
+    if compression == "none":   # one byte short, chunk 3 keeps all its messages but the last
+        n3 = len(messages(tmp_path / f"cut{ends[3] - 1}.mcap"))
+        assert n3 == sum(len(c[2]) for c in chunks[:4]) - 1 and len(chunks[3][2]) >= 3
+
+
+@pytest.mark.parametrize("compression", mcapio.COMPRESSIONS)
+def test_a_cut_single_chunk_file_says_it_is_unfinished_and_its_start_is_recovered(tmp_path, compression):
+    """A one-chunk recording (simulate writes 1 MiB chunks) cut at several bytes: the reader gives
+    the messages of the chunk's intact start and says the file is unfinished; an analysis that
+    finds no measurement among them says so and names recover, not 'no measurement topic'; recover
+    writes exactly those messages into a finished file."""
+    full = tmp_path / "one.mcap"
+    write_sample(full, 3000, chunk_size=8 << 20, compression=compression, metadata={"model": "seed"})
+    blob = full.read_bytes()
+    (start, end, msgs, comp, rec_ends), = top_level_chunks(full)
+    cuts = sorted({20, start, start + 20, *(start + (end - start) * q // 100 for q in (3, 25, 50, 75, 99)),
+                   end + 5, len(blob) - 30})
+    salvaged = {}
+    for cut in cuts:
+        path = tmp_path / f"cut{cut}.mcap"
+        path.write_bytes(blob[:cut])
+        got = messages(path)
+        assert got == msgs[:len(got)], cut                      # the intact start, nothing else
+        if comp == "":
+            assert len(got) == sum(e <= cut for e in rec_ends), cut
+        if cut > end:
+            assert got == msgs
+        salvaged[cut] = len(got)
+        rec = read_recording(path)
+        assert not rec.complete and "incomplete MCAP" in rec.note, cut
+        if start < cut < end:
+            assert "the file ends inside a chunk record" in rec.note
+        n_meas = sum(m[0].endswith("/measurement") for m in got)
+        if n_meas >= 2:
+            s = load_noiselab(str(path))
+            assert len(s.y) == n_meas and any("the recording is unfinished" in n for n in s.notes)
+        elif n_meas == 0:
+            with pytest.raises(AnalysisError) as e:
+                load_noiselab(str(path))
+            msg = str(e.value)
+            assert "incomplete MCAP" in msg and "none of them is a measurement" in msg and "\n" not in msg
+            assert ("noiselab recover" in msg) == (len(got) > 0)
+        out = tmp_path / f"rec{cut}.mcap"
+        stats = recover(path, out)
+        assert stats.total == len(got) and messages(out) == got and read_recording(out).complete
+    mid = [salvaged[c] for c in cuts if start + (end - start) // 2 <= c < end]
+    assert all(k > 0 for k in mid), salvaged                  # from half the chunk on, its start is kept
+
+
+def test_analyze_of_a_cut_file_without_a_measurement_names_recover(tmp_path, capsys):
+    """The CLI's line for a file cut before its first measurement (a truth message came first)."""
+    full = tmp_path / "one.mcap"
+    write_sample(full, 300, chunk_size=8 << 20, compression="none")
+    (start, end, msgs, comp, rec_ends), = top_level_chunks(full)
+    path = tmp_path / "cut.mcap"
+    path.write_bytes(full.read_bytes()[:rec_ends[1]])          # the first truth and command messages
+    from service.cli import main
+    assert main(["analyze", str(path), "--model", "seed"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "incomplete MCAP" in err and "read 2 intact messages" in err
+    assert f"`noiselab recover {path} -o FIXED.mcap` keeps the 2 messages read" in err
 
 
 def test_recover_of_a_finished_file_copies_it(tmp_path):
@@ -678,7 +772,7 @@ def test_damaged_chunk_in_finished_file(tmp_path):
     write_sample(src, 120, chunk_size=1024)
     chunks = top_level_chunks(src)
     blob = bytearray(src.read_bytes())
-    start, end, _ = chunks[3]
+    start, end = chunks[3][:2]
     blob[(start + end) // 2] ^= 0x10
     bad = tmp_path / "bad.mcap"
     bad.write_bytes(bytes(blob))
@@ -687,7 +781,7 @@ def test_damaged_chunk_in_finished_file(tmp_path):
     # the message names the command that salvages it, as the user types it
     assert f"`noiselab recover {bad} -o FIXED.mcap`" in str(err.value)
     stats = recover(bad, tmp_path / "salvaged.mcap")
-    expected = [m for _, _, ms in chunks[:3] for m in ms]
+    expected = [m for _, _, ms, _, _ in chunks[:3] for m in ms]
     assert not stats.already_complete and stats.total == len(expected)
     assert "damaged record" in stats.note
     assert messages(tmp_path / "salvaged.mcap") == expected

@@ -626,16 +626,26 @@ def _scan_stream(path, f, size, wanted, report, finished, why):
     records = StreamReader(f, validate_crcs=True).records
     stop = "reached the footer"
     report.intact = True
+    cut_chunk = None                 # (start, end) of a chunk that the file's end cuts
     while True:
+        at = f.tell()                # where the next top-level record starts (inside a chunk: its end)
         try:
             record = next(records)
         except StopIteration:
             break
         except _CORRUPTION_ERRORS as e:
-            reason = "file ends mid-record" if isinstance(e, (McapError, EOFError,
-                                                               struct.error)) else "bad record"
-            stop = f"stopped at byte {f.tell()} of {size}: {reason} ({type(e).__name__})"
             report.intact = False
+            cut = _cut_record(f, at, size)
+            if cut is None:
+                reason = "file ends mid-record" if isinstance(e, (McapError, EOFError, struct.error)) \
+                    else "bad record"
+                stop = f"stopped at byte {f.tell()} of {size}: {reason} ({type(e).__name__})"
+                break
+            opcode, end = cut
+            stop = (f"stopped at byte {at} of {size}: the file ends inside a "
+                    f"{_OPCODE_NAMES.get(opcode, f'0x{opcode:02x}')} record that needs {end - at} bytes")
+            if opcode == 0x06:
+                cut_chunk = (at, end)
             break
         if isinstance(record, Message):
             channel = channels.get(record.channel_id)
@@ -653,12 +663,105 @@ def _scan_stream(path, f, size, wanted, report, finished, why):
             channels[record.id] = record
         elif isinstance(record, Metadata):
             report.metadata[record.name] = dict(record.metadata)
+    if cut_chunk is not None:
+        # the chunk in progress when the writer died: its records up to the cut are intact (a
+        # truncation, not a corruption), though its CRC, over the whole chunk, cannot be checked
+        before = report.messages
+        for record in _cut_chunk_records(f, cut_chunk[0], size):
+            if isinstance(record, Schema):
+                schemas[record.id] = record
+            elif isinstance(record, Channel):
+                channels[record.id] = record
+            elif record.channel_id not in channels:
+                break
+            elif wanted is None or _norm(channels[record.channel_id].topic) in wanted:
+                report.messages += 1
+                channel = channels[record.channel_id]
+                yield schemas.get(channel.schema_id), channel, record
+        stop += f" ({report.messages - before} of the messages read come from its intact start)"
     if not finished:
         report.note = (f"{path}: incomplete MCAP ({why}; unfinished recording, e.g. the writer "
                        f"was killed): read {report.messages} intact messages, {stop}")
     elif not report.intact:
         report.note = (f"{path}: finished MCAP with a damaged record: read {report.messages} "
                        f"intact messages, {stop}")
+
+
+_OPCODE_NAMES = {0x01: "header", 0x02: "footer", 0x03: "schema", 0x04: "channel", 0x05: "message",
+                 0x06: "chunk", 0x07: "message index", 0x08: "chunk index", 0x09: "attachment",
+                 0x0A: "attachment index", 0x0B: "statistics", 0x0C: "metadata",
+                 0x0D: "metadata index", 0x0E: "summary offset", 0x0F: "data end"}
+
+
+def _cut_record(f, at: int, size: int) -> tuple[int, int] | None:
+    """(opcode, end) of the record at byte ``at`` when the file's end cuts it, else None (the
+    reader failed on damage, not on the end of the file)."""
+    if at < len(MAGIC) or at >= size:
+        return None
+    f.seek(at)
+    head = f.read(9)
+    if len(head) < 9:
+        return head[0], size + 1
+    opcode, length = struct.unpack("<BQ", head)
+    end = at + 9 + length
+    return (opcode, end) if end > size else None
+
+
+_CUT_CHUNK_MAX = 1 << 31      # bytes a cut chunk may decompress to (its header's uncompressed size, capped)
+
+
+def _cut_chunk_records(f, at: int, size: int) -> Iterator:
+    """Schema, Channel and Message records of the chunk at ``at`` that the file's end cuts, up to
+    the first one the cut (or damage) reaches: the compressed prefix is decompressed as far as
+    it goes (zstd and lz4 give every whole block; an uncompressed chunk every byte)."""
+    f.seek(at)
+    buf = f.read(size - at)
+    try:
+        _mst, _met, usize, _crc, clen = struct.unpack_from("<QQQII", buf, 9)
+        off = 9 + 32
+        comp = buf[off: off + clen].decode()
+        off += clen
+        (rlen,) = struct.unpack_from("<Q", buf, off)
+    except (struct.error, UnicodeDecodeError):
+        return
+    data = buf[off + 8: off + 8 + rlen]
+    limit = min(usize, _CUT_CHUNK_MAX)
+    dec = b""
+    try:
+        if comp == "":
+            dec = data[:limit]
+        elif comp == "zstd" and _zstd is not None:
+            import io
+            out = bytearray()
+            reader = _zstd.ZstdDecompressor().stream_reader(io.BytesIO(data))
+            try:
+                while len(out) < limit:
+                    piece = reader.read(min(1 << 20, limit - len(out)))
+                    if not piece:
+                        break
+                    out += piece
+            except _zstd.ZstdError:
+                pass                       # the blocks before the damage are kept
+            dec = bytes(out)
+        elif comp == "lz4" and _lz4 is not None:
+            dec = _lz4.LZ4FrameDecompressor().decompress(data, max_length=limit)
+    except (*_CORRUPTION_ERRORS, OSError):
+        return
+    from mcap.data_stream import ReadDataStream
+    import io
+    pos, n = 0, len(dec)
+    while pos + 9 <= n:
+        opcode, length = struct.unpack_from("<BQ", dec, pos)
+        end = pos + 9 + length
+        if end > n or opcode not in (0x03, 0x04, 0x05):
+            return
+        stream = ReadDataStream(io.BytesIO(dec[pos + 9: end]))
+        try:
+            yield (Schema.read(stream) if opcode == 0x03 else Channel.read(stream) if opcode == 0x04
+                   else Message.read(stream, length))
+        except _CORRUPTION_ERRORS:
+            return
+        pos = end
 
 
 def iter_messages(path: str | os.PathLike, topics: Iterable[str] | str | None = None, *,
