@@ -179,20 +179,22 @@ def test_sums_of_exponentials_equal_the_matrix_powers():
     np.testing.assert_array_equal(mj.series(left[:, :2], right[:2], 50), _powers_series(J, left[:, :2], right[:2], 50))
 
 
-def test_the_parts_cache_drops_its_oldest_beyond_a_count_or_a_size():
-    """cache_put: entries beyond ``limit`` or beyond ``nbytes`` of arrays go, the oldest first (a
-    re-put entry is new again); an entry larger than the whole budget is not kept, and the others
-    stay."""
-    c: dict = {}
-    W.cache_put(c, {i: np.zeros(10) for i in range(5)}, limit=4, nbytes=10_000)
-    assert list(c) == [1, 2, 3, 4]                               # the count: 0 went
-    W.cache_put(c, {1: np.zeros(10)}, limit=4, nbytes=10_000)    # 1 used again: now the newest
-    W.cache_put(c, {"big": np.zeros(1225)}, limit=4, nbytes=10_000)
+def test_the_parts_cache_drops_its_oldest_beyond_a_count_or_a_size(monkeypatch):
+    """parts_cache: entries beyond PARTS_CACHE or beyond PARTS_CACHE_BYTES of arrays go, the oldest
+    first (a re-put entry is new again); an entry larger than the whole budget is not kept, and the
+    others stay."""
+    monkeypatch.setattr(W, "PARTS_CACHE", 4)
+    monkeypatch.setattr(W, "PARTS_CACHE_BYTES", 10_000)
+    c = W.parts_cache()
+    c.update({i: np.zeros(10) for i in range(5)})
+    assert c.keys() == [1, 2, 3, 4]                              # the count: 0 went
+    c.put(1, np.zeros(10))                                       # 1 used again: now the newest
+    c.put("big", np.zeros(1225))
     # 2 goes for the count, then 3 for the bytes: 9800 + 3 x 80 > 10000
-    assert list(c) == [4, 1, "big"]
-    assert sum(v.nbytes for v in c.values()) <= 10_000
-    W.cache_put(c, {"huge": np.zeros(2000)}, limit=4, nbytes=10_000)
-    assert list(c) == [4, 1, "big"]                              # larger than the budget: not kept, nothing pushed out
+    assert c.keys() == [4, 1, "big"]
+    assert sum(v.nbytes for _, v in c.items()) <= 10_000
+    c.put("huge", np.zeros(2000))
+    assert c.keys() == [4, 1, "big"]                             # larger than the budget: not kept, nothing pushed out
 
 
 @pytest.mark.parametrize("M", [199680, 1_000_000])

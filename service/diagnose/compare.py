@@ -111,9 +111,12 @@ CACHE_MAX_BYTES = 64 * 2**20
 CACHE_MAX_ENTRIES = 2048                   # a filling window adds ~2 small entries per update
 _CACHE: OrderedDict = OrderedDict()        # key -> (value, bytes, model kept alive for id keys)
 _cache_bytes = 0
-_LOCK = threading.RLock()                 # the views of one comparison are computed in threads
-VIEW_THREADS = 2                          # ... on records of at least VIEW_THREADS_MIN samples x outputs
-VIEW_THREADS_MIN = 50_000
+# guards _CACHE (its entries and their order) and _cache_bytes: every read and change of them holds it
+# (the views of one comparison are computed in threads, and a diagnosis runs its comparisons in a
+# thread beside its fits where it cannot fork)
+_LOCK = threading.RLock()
+VIEW_THREADS = 2                          # threads for the views of one comparison, on records ...
+VIEW_THREADS_MIN = 50_000                 # ... of at least this many samples x outputs
 
 
 def _model_key(model):
@@ -144,9 +147,17 @@ def _freeze(value) -> None:
 
 
 def _cache_drop(k) -> None:
+    """Entry k out (the caller holds _LOCK, and k is there)."""
     global _cache_bytes
     _, nb, _ = _CACHE.pop(k)
     _cache_bytes -= nb
+
+
+def _cache_discard(k) -> None:
+    """Entry k out if it is there (another thread may have dropped it since it was read)."""
+    with _LOCK:
+        if k in _CACHE:
+            _cache_drop(k)
 
 
 def _cache_put(k, value, model) -> None:
@@ -218,7 +229,7 @@ def _gamma_parts(model, L: int) -> dict:
     got = _cache_get(k)
     if got is None or got[0] < L:
         if got is not None:
-            _cache_drop(k)                      # free the shorter one before computing the longer
+            _cache_discard(k)                   # free the shorter one before computing the longer
         Lg = _generous(L)
         got = (Lg, _gamma_parts_uncached(model, Lg))
         _cache_put(k, got, model)

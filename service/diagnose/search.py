@@ -63,6 +63,7 @@ import numpy as np
 import scipy.fft as sfft
 
 from .. import parallel
+from ..memo import Memo
 from ..model import ModelError
 from ..model.effects import CATALOGUE
 from ..model.predict import free_response_fit, gain_switches, mean_key as _mean_key
@@ -149,9 +150,10 @@ class Data:
         ``duration_s``, a maximal-length PRBS) is a comb of hundreds to thousands of weak lines up
         to the Nyquist frequency: their harmonics' zones would cover every frequency, so that no
         interference tone could be found (a square wave keeps its first odd harmonics). Empty
-        without a command."""
+        without a command. Set once computed whole (a thread that asks meanwhile computes them
+        too, never reads an unfinished value)."""
         if self._lines is None:
-            self._lines = np.zeros(0)
+            lines = np.zeros(0)
             if self.has_command:
                 from scipy.ndimage import median_filter
                 x = self.u[self.k0:] - np.mean(self.u[self.k0:], axis=0)
@@ -164,7 +166,8 @@ class Data:
                 share = (P[idx] + P[idx - 1] + P[np.minimum(idx + 1, P.size - 1)]) / max(float(P.sum()), 1e-300)
                 idx = idx[share >= LINE_SHARE]
                 if idx.size <= COMB_LINES:
-                    self._lines = idx / (x.shape[0] * self.Ts)
+                    lines = idx / (x.shape[0] * self.Ts)
+            self._lines = lines
         return self._lines
 
     def group(self, A: np.ndarray) -> np.ndarray:
@@ -259,7 +262,7 @@ def mean_drive(pr, u: np.ndarray) -> np.ndarray:
     return out
 
 
-_ORDERS: dict = {}
+_ORDERS = Memo(5, flush=True)
 
 
 def _sort_order(col: np.ndarray) -> np.ndarray:
@@ -267,12 +270,7 @@ def _sort_order(col: np.ndarray) -> np.ndarray:
     evaluation of a diagnosis): keyed by a digest of all its bytes (~2 ms at 10^6 samples, against
     ~60 ms for the sort)."""
     key = (col.size, hashlib.blake2b(np.ascontiguousarray(col).tobytes(), digest_size=16).digest())
-    got = _ORDERS.get(key)
-    if got is None:
-        if len(_ORDERS) > 4:
-            _ORDERS.clear()
-        got = _ORDERS[key] = np.argsort(col, kind="stable")
-    return got
+    return _ORDERS.get_or_compute(key, lambda: np.argsort(col, kind="stable"))
 
 
 def tone_ls(r: np.ndarray, f: float, Ts: float, k0: int):
@@ -322,18 +320,19 @@ def refine_frequency(r: np.ndarray, f0: float, Ts: float, k0: int, width: float)
 
 # -- one evaluation: residual spectrum and noise spectrum of a hypothesis -----------------------------------
 class Evaluator:
-    """Caches what does not change between evaluations (mean responses, parts of fixed effects)."""
+    """Caches what does not change between evaluations (mean responses, parts of fixed effects),
+    shared by the threads that fit one record's candidates (:class:`service.memo.Memo`)."""
 
     def __init__(self, data: Data):
         self.data = data
-        self._mean: dict = {}
-        self._parts: dict = {}
-        self._pgram: dict = {}
-        self._slope: dict = {}
-        self._ramp: dict = {}
-        self._level: dict = {}
-        self._quant: dict = {}
-        self._qmo: dict = {}
+        self._mean = Memo(17, flush=True)
+        self._parts = W.parts_cache()
+        self._pgram = Memo(9, flush=True)
+        self._slope = Memo(17, flush=True)
+        self._ramp = Memo(65, flush=True)
+        self._level = Memo(65, flush=True)
+        self._quant = Memo(9, flush=True)
+        self._qmo = Memo(17, flush=True)
         self.evals = 0
 
     def quant_moments(self, model):
@@ -349,10 +348,8 @@ class Evaluator:
         if w is not None and not _quant_mean_possible(q.params["step"], w.params["std"]):
             return None, None
         key = repr(model.to_dict())
-        got = self._qmo.get(key)
-        if got is None:
-            if len(self._qmo) > 16:
-                self._qmo.clear()
+
+        def compute():
             k0 = self.data.k0
             try:
                 # over the analysed samples (its averages are the analysis'); g is 0 before them
@@ -361,8 +358,8 @@ class Evaluator:
                 mo = None
             if mo is not None and k0:
                 mo.g = np.concatenate([np.zeros((k0, mo.g.shape[1])), mo.g])
-            got = self._qmo[key] = (mo, None if mo is None else key)
-        return got
+            return mo, None if mo is None else key
+        return self._qmo.get_or_compute(key, compute)
 
     def residual_key(self, model, free_tone: bool) -> tuple:
         """:func:`_residual_key`, and the quantizer's moments when its mean depends on the noise."""
@@ -371,18 +368,14 @@ class Evaluator:
     def mean(self, model):
         """E[y] and E[ydot]: cached without the sensor gain (a scale factor's trials share one
         response), the gain applied per model."""
-        key = _mean_key(model, gain=False)
-        got = self._mean.get(key)          # get-then-set: safe when candidates are fitted in threads
-        if got is None:
-            if len(self._mean) > 16:
-                self._mean.clear()
+        def compute():
             got = mean_response(model, self.data, gain=False)
             if self.data.free_start:
                 # fitted to the record as it is (the sensor gain in it): the start state is fitted
                 # per mean response, not per gain, and a gain's part of a decaying transient is small
                 got = free_response_fit(model, self.data.y, *got, self.data.k0)
-            self._mean[key] = got
-        y, yd = got
+            return got
+        y, yd = self._mean.get_or_compute(_mean_key(model, gain=False), compute)
         g = model.out_gain
         return (y, yd) if np.all(g == 1.0) else (y * g, yd * g)
 
@@ -429,12 +422,7 @@ class Evaluator:
         key = (tuple(float(f"{v:.3g}") for v in np.concatenate(inc)) if inc else (),
                repr(tone.param_dict()) if tone is not None else None,
                repr(step))
-        got = self._quant.get(key)
-        if got is None:
-            if len(self._quant) > 8:
-                self._quant.clear()
-            got = self._quant[key] = (pr.motion(ym.shape[0], ym, d.k0), {})
-        motion, cache = got
+        motion, cache = self._quant.get_or_compute(key, lambda: (pr.motion(ym.shape[0], ym, d.k0), Memo(math.inf)))
         # one output: Stein's term in the part (negative where the quantizer holds the measurement;
         # Inner floors the total); several: carried by the noise parts instead (:func:`_stein`)
         multi = d.p > 1
@@ -449,28 +437,18 @@ class Evaluator:
     def slope_power(self, model, ydot: np.ndarray) -> np.ndarray:
         """:func:`.whittle.slope_power` of the model's mean slope ``ydot``, cached by its mean response
         (an O(N) pass per evaluation cost 4 s of a 10^6-sample diagnosis)."""
-        key = _mean_key(model)
-        got = self._slope.get(key)
-        if got is None:
-            if len(self._slope) > 16:
-                self._slope.clear()
-            got = self._slope[key] = W.slope_power(ydot[self.data.k0:], self.data.p > 1)
-        return got
+        return self._slope.get_or_compute(_mean_key(model), lambda: W.slope_power(ydot[self.data.k0:], self.data.p > 1))
 
     def grouped_periodogram(self, model, free_tone: bool):
         """:meth:`residual` and the group means of its periodogram, cached: only the mean effects
         and the tone change them, not the noise parameters most evaluations vary (except through a
         quantizer's conditional mean, :meth:`quant_moments`, when the noise is under a step)."""
-        key = self.residual_key(model, free_tone)
-        got = self._pgram.get(key)
-        if got is None:
-            if len(self._pgram) > 8:
-                self._pgram.clear()
+        def compute():
             r, yd, fitted = self.residual(model, free_tone)
             # several outputs: the cross-periodogram matrices (the multivariate Whittle likelihood)
             I = W.periodogram(r, self.data.k0, cross=self.data.p > 1)
-            got = self._pgram[key] = (r, yd, fitted, self.data.group(I))
-        r, yd, fitted, Ig = got
+            return r, yd, fitted, self.data.group(I)
+        r, yd, fitted, Ig = self._pgram.get_or_compute(self.residual_key(model, free_tone), compute)
         return r, yd, None if fitted is None else fitted.copy(), Ig
 
     def ramp_term(self, model, free_tone: bool) -> float:
@@ -478,14 +456,9 @@ class Evaluator:
         ramps = self.data.ramps
         if not ramps:
             return 0.0
-        key = self.residual_key(model, free_tone)
-        got = self._ramp.get(key)
-        if got is None:
-            if len(self._ramp) > 64:
-                self._ramp.clear()
-            r = self.grouped_periodogram(model, free_tone)[0]
-            got = self._ramp[key] = ramps(np.diff(r[self.data.k0:], axis=0))
-        return got
+        return self._ramp.get_or_compute(
+            self.residual_key(model, free_tone),
+            lambda: ramps(np.diff(self.grouped_periodogram(model, free_tone)[0][self.data.k0:], axis=0)))
 
     def level_term(self, res_model, free_tone: bool, model) -> float:
         """l_level (:func:`.whittle.level_loglik`): the mean of ``res_model``'s residual against
@@ -495,14 +468,11 @@ class Evaluator:
         d = self.data
         if not (LEVEL and d.at_rest and d.stable):
             return 0.0
-        key_r = ("mean",) + self.residual_key(res_model, free_tone)
-        got = self._level.get(key_r)
-        if got is None:
-            if len(self._level) > 64:
-                self._level.clear()
+
+        def compute():
             r, yd = self.grouped_periodogram(res_model, free_tone)[:2]
-            got = self._level[key_r] = (np.mean(r[d.k0:], axis=0), np.mean(yd[d.k0:] ** 2, axis=0))
-        m, slope_sq = got
+            return np.mean(r[d.k0:], axis=0), np.mean(yd[d.k0:] ** 2, axis=0)
+        m, slope_sq = self._level.get_or_compute(("mean",) + self.residual_key(res_model, free_tone), compute)
         return W.level_loglik(m, *W.level_density(model, d.N - d.k0, slope_sq), d.N - d.k0)
 
     def residual(self, model, free_tone: bool):
@@ -1096,7 +1066,7 @@ class Hypotheses:
         self.data = data
         self.ev = Evaluator(data)
         self.base = base_model
-        self._qslope: dict = {}
+        self._qslope = Memo(5, flush=True)
         if data.ramps is None:
             # the ramps' whitener: from the first model's residual (the nominal), one per record
             data.ramps = False
@@ -1141,8 +1111,8 @@ class Hypotheses:
         if np.all(a0 > QUANT_SLOPE_MAX):
             return None
         key = (_mean_key(model), tuple(float(f"{v:.4g}") for v in a0), tuple(step.tolist()), f"{std_s:.4g}")
-        got = self._qslope.get(key)
-        if got is None:
+
+        def compute():
             mean, ydot = self.ev.mean(model)
             dmu = np.diff(mean[d.k0:], axis=0)                       # (M, p)
             w = np.zeros_like(dmu)
@@ -1157,10 +1127,8 @@ class Hypotheses:
                         break
                     w[:, j] -= damp / n**2 * np.cos(2.0 * np.pi * n * dmu[:, j] / step[j])
                 w[:, j] *= step[j] ** 2 / np.pi**2
-            if len(self._qslope) > 4:
-                self._qslope.clear()
-            got = self._qslope[key] = w
-        return got
+            return w
+        return self._qslope.get_or_compute(key, compute)
 
     # one evaluation: outer parameters fixed (in ``model``), the free variances fitted
     def inner_fit(self, model, free: dict) -> Fit:
@@ -1948,7 +1916,7 @@ class Search:
         """fn over items, two at a time on long records: in this process and a forked copy of it
         where that is safe (:func:`service.parallel.can_fork`; the fits are mostly Python, which
         threads cannot run at once), else in :data:`WORKERS` threads (the transforms and array
-        arithmetic release the GIL; the caches they share are get-then-set); results in order.
+        arithmetic release the GIL; the caches they share are :class:`service.memo.Memo`); results in order.
         ``cost``: an item's expected cost, the costliest started first (no worker idles at the
         end while the other runs a long fit)."""
         side, self._side = [s for s in self._side if not s.done], []
@@ -1977,14 +1945,14 @@ class Search:
         caches = [ev._parts for ev in {id(h.ev): h.ev for h in (self.H, self.Hs)}.values()]
 
         def mark():
-            return [set(c) for c in caches]
+            return [set(c.keys()) for c in caches]
 
         def take(marks):
             return [{k: v for k, v in c.items() if k not in m} for c, m in zip(caches, marks)]
 
         def give(brought):
             for c, new in zip(caches, brought):
-                W.cache_put(c, new)
+                c.update(new)
         return mark, take, give
 
     def starts(self, cur: Fit) -> list[Start]:

@@ -61,6 +61,8 @@ import math
 import numpy as np
 import scipy.fft as sfft
 
+from ..memo import Memo
+
 TAPER = 0.2              # Tukey taper: the cosine parts cover 10 % of the record at each end
 DECAY = 1e-13            # |lambda|^h below which an exponential's tail is dropped
 COND_MAX = 1e8           # eigenvector condition number beyond which F is treated as defective
@@ -73,24 +75,21 @@ def n_freqs(M: int) -> int:
     return (M - 1) // 2 + 1
 
 
-_TAPERS: dict = {}
+_TAPERS = Memo(9, flush=True)           # by M
 
 
 def taper(M: int) -> tuple[np.ndarray, np.ndarray, float]:
     """Tukey taper w (M,) with sum w^2 = M, its autocorrelation c_w(h) = sum_q w_q w_{q+h}
     (h = 0..M-1) and kappa = M sum w^4 / (sum w^2)^2."""
-    got = _TAPERS.get(M)                 # get-then-set: safe when candidates are fitted in threads
-    if got is None:
+    def compute():
         from scipy.signal.windows import tukey
         w = tukey(M, TAPER) if M > 2 else np.ones(M)
         w *= np.sqrt(M / np.sum(w**2))
         F = np.fft.rfft(w, 2 * M)
         cw = np.fft.irfft(np.abs(F) ** 2, 2 * M)[:M]
         kappa = float(M * np.sum(w**4) / np.sum(w**2) ** 2)
-        if len(_TAPERS) > 8:
-            _TAPERS.clear()
-        got = _TAPERS[M] = (w, cw, kappa)
-    return got
+        return w, cw, kappa
+    return _TAPERS.get_or_compute(M, compute)
 
 
 def slope_power(yk: np.ndarray, cross: bool) -> np.ndarray:
@@ -197,7 +196,7 @@ class Groups:
                                           np.ones(self.tail)])
             self.unit_starts = np.searchsorted(unit_f, self.starts)
         self._D = np.ones(1, complex)
-        self._chirps: dict = {}
+        self._chirps = Memo(17, flush=True)         # by (first bin, bins, length)
         self.white_unit = self.mean(_from_acf(np.array([[2.0], [-1.0]]), M))[:, 0]
 
     def mean(self, A: np.ndarray) -> np.ndarray:
@@ -240,15 +239,18 @@ class Groups:
         return np.add.reduceat(units * self.unit_w[:, None], self.unit_starts, axis=0) / self.sizes[:, None]
 
     def _kernel(self, K: int) -> np.ndarray:
-        """D(h) = (1/n) sum_{j<n} e^{-i 2 pi j h / M}, h = 0..K-1 (cached, extended on demand)."""
-        if self._D.size < K:
+        """D(h) = (1/n) sum_{j<n} e^{-i 2 pi j h / M}, h = 0..K-1 (cached, extended on demand).
+        The one read of ``self._D`` is what is returned: another thread may replace it meanwhile,
+        by a shorter one too (every length's values agree)."""
+        D = self._D
+        if D.size < K:
             size = 1 << int(K - 1).bit_length()
             h = np.arange(1, size)
             th = 2 * np.pi * h / self.M
             D = np.ones(size, complex)
             D[1:] = (1 - np.exp(-1j * self.n * th)) / (self.n * (1 - np.exp(-1j * th)))
             self._D = D
-        return self._D
+        return D
 
     def _czt(self, a: np.ndarray, f0: int, m: int) -> np.ndarray:
         """X_f = sum_h a(h) e^{-i 2 pi f h / M} for f = f0..f0+m-1 (m, p): Bluestein's chirp
@@ -257,16 +259,14 @@ class Groups:
         size = 1 << int(K + m - 2).bit_length()
         M2 = 2 * self.M
         key = (f0, m, size)
-        got = self._chirps.get(key)
-        if got is None:
-            if len(self._chirps) > 16:
-                self._chirps.clear()
+
+        def chirp():
             # filter c(j) = e^{i pi j^2 / M} for j = f - h in [f0 - size + m, f0 + m); index j - (f0 - size + m)
             j = np.arange(f0 - size + m, f0 + m, dtype=np.int64)
             c = np.exp(1j * np.pi * ((j * j) % M2) / self.M)
             f = np.arange(f0, f0 + m, dtype=np.int64)
-            got = self._chirps[key] = (sfft.fft(c), np.exp(-1j * np.pi * ((f * f) % M2) / self.M))
-        Cf, post = got
+            return sfft.fft(c), np.exp(-1j * np.pi * ((f * f) % M2) / self.M)
+        Cf, post = self._chirps.get_or_compute(key, chirp)
         h = np.arange(K, dtype=np.int64)
         x = np.zeros((size, a.shape[1]), complex)
         x[:K] = a * np.exp(-1j * np.pi * ((h * h) % M2) / self.M)[:, None]
@@ -282,15 +282,12 @@ def white_part(var: np.ndarray, M: int, groups: Groups | None = None) -> np.ndar
     var = np.atleast_1d(np.asarray(var, float))
     if groups is not None:
         return groups.white_unit[:, None] * var[None, :]
-    unit = _WHITE.get(M)                     # linear in var: the unit shape once per length
-    if unit is None:
-        if len(_WHITE) > 8:
-            _WHITE.clear()
-        unit = _WHITE[M] = _from_acf(np.array([[2.0], [-1.0]]), M)[:, 0]
+    # linear in var: the unit shape once per length
+    unit = _WHITE.get_or_compute(M, lambda: _from_acf(np.array([[2.0], [-1.0]]), M)[:, 0])
     return unit[:, None] * var[None, :]
 
 
-_WHITE: dict = {}
+_WHITE = Memo(9, flush=True)            # by M
 
 
 def acf_part(R: np.ndarray, M: int, groups: Groups | None = None, cross: bool = False,
@@ -587,35 +584,30 @@ def linear_part(F, G, H, J, Pe, M: int, k0: int, at_rest: bool, groups: Groups |
     return E if groups is None else groups.mean(E)
 
 
-PARTS_CACHE = 1024         # parts kept per record by :func:`expected_parts`' cache (the oldest go first) ...
+# :func:`expected_parts`' cache of one record (:func:`parts_cache`): a part is mostly a group mean per
+# output, ~1000 groups even at 10^6 samples (8.7 kB for one output; 154 kB as a 3-output
+# cross-spectral matrix), but the tone screen's are per frequency bin (4 MB per output at 10^6
+# samples): the count alone does not bound them
+PARTS_CACHE = 1024         # parts kept (the oldest go first) ...
 PARTS_CACHE_BYTES = 128 << 20     # ... and at most this many bytes of them
 
 
-def cache_put(cache: dict, new: dict, limit: int = PARTS_CACHE, nbytes: int = PARTS_CACHE_BYTES) -> None:
-    """Entries ``new`` into ``cache``, the oldest dropped beyond ``limit`` entries or ``nbytes``
-    bytes of arrays. A part is mostly a group mean per output, ~1000 groups even at 10^6 samples
-    (8.7 kB for one output; 154 kB as a 3-output cross-spectral matrix), but the tone screen's
-    are per frequency bin (4 MB per output at 10^6 samples): the count alone does not bound them.
-    An entry larger than the whole budget is not kept (it would push out every other)."""
-    for k, v in new.items():
-        cache.pop(k, None)
-        if getattr(v, "nbytes", 0) <= nbytes:
-            cache[k] = v
-    total = sum(getattr(v, "nbytes", 0) for v in cache.values())
-    while cache and (len(cache) > limit or total > nbytes):
-        total -= getattr(cache.pop(next(iter(cache))), "nbytes", 0)
+def parts_cache() -> Memo:
+    """A cache for :func:`expected_parts`, bounded by :data:`PARTS_CACHE` entries and
+    :data:`PARTS_CACHE_BYTES` bytes, shared by the threads that fit one record's candidates."""
+    return Memo(PARTS_CACHE, nbytes=PARTS_CACHE_BYTES)
 
 
 def expected_parts(model, M: int, k0: int, at_rest: bool, ydot_sq: np.ndarray | None = None,
-                   skip: tuple = ("sensor.tone",), cache: dict | None = None,
+                   skip: tuple = ("sensor.tone",), cache: Memo | None = None,
                    groups: Groups | None = None, cross: bool = False) -> dict:
     """{effect id: E I_f (nf, p)} for every effect of ``model`` that owns noise, for the
     differenced residual of M samples starting after sample k0. ``at_rest``: the record starts at
     rest at sample 0 (the from-rest correction applies). ``ydot_sq``: mean square of the predicted
     mean slope per output over the record (for the jitter; default: the predictor's); with
     ``cross``, the matrix of mean products (p, p). Tones are deterministic in a record and handled
-    by the caller (``skip``). ``cache``: a dict reused across calls, keyed by each source's own
-    sub-system (an effect whose transfer did not change is not recomputed). ``groups``: the parts
+    by the caller (``skip``). ``cache``: a :func:`parts_cache` reused across calls, keyed by each
+    source's own sub-system (an effect whose transfer did not change is not recomputed). ``groups``: the parts
     as group means (nb, p) (:class:`Groups`, fast on long records). ``cross``: the expected
     cross-periodogram matrices (nf or nb, p, p), complex Hermitian: sources through the plant (and
     the jitter: one sampling instant for all outputs) correlate the outputs, sensor white noise and
@@ -646,7 +638,7 @@ def expected_parts(model, M: int, k0: int, at_rest: bool, ydot_sq: np.ndarray | 
                 continue
         E = linear_part(F, G, H, J, Ps, M, k0, at_rest, groups, cross, Ds)
         if cache is not None:
-            cache_put(cache, {key: E})
+            cache.put(key, E)
         parts[eid] = E
     if ydot_sq is None:
         mean = pr.mean_response()

@@ -21,20 +21,15 @@ from __future__ import annotations
 import numpy as np
 from scipy.linalg import expm
 
+from ..memo import Memo
 
-_EXPM: dict = {}
+_EXPM = Memo(257, flush=True)
 
 
 def _expm(X: np.ndarray) -> np.ndarray:
     """expm, remembered for the last few hundred arguments (the diagnosis parses many variants of
-    one model whose plant does not change)."""
-    key = (X.shape, X.tobytes())
-    E = _EXPM.get(key)
-    if E is None:
-        if len(_EXPM) > 256:
-            _EXPM.clear()
-        E = _EXPM[key] = expm(X)
-    return E.copy()
+    one model whose plant does not change, in threads too); a copy, the cached one stays as computed."""
+    return _EXPM.get_or_compute((X.shape, X.tobytes()), lambda: expm(X)).copy()
 
 
 def zoh(Ac: np.ndarray, Bc: np.ndarray, Ts: float) -> tuple[np.ndarray, np.ndarray]:

@@ -38,6 +38,7 @@ import numpy as np
 from scipy.linalg import block_diag, solve_discrete_lyapunov
 from scipy.special import ndtr
 
+from ..memo import Memo
 from .effects import CATALOGUE
 from .simulate import lsim
 
@@ -193,15 +194,15 @@ DISTORTION_TERMS = 20     # Hermite terms of a colored noise's distortion (Predi
 # it does not depend on (:func:`mean_key`): a diagnosis builds thousands of models that differ in a
 # noise parameter, and each one's steady state needs the mean when the model has a quantizer, a
 # jitter or a nonlinearity (on 10^6 samples of the seed: 2325 steady states, 5.9 s of 42 s in the
-# mean responses, under the profiler). Read-only arrays; get-then-set (threads may compute one
-# twice, never wrongly). Only means of at most _OWN_MEAN_BYTES are kept: the horizon is 60 s of
-# samples, and at Ts = 1 us one mean response is gigabytes.
-_OWN_MEAN: dict = {}
+# mean responses, under the profiler). Read-only arrays, shared by threads (a :class:`Memo`: they
+# may compute one twice, never wrongly). Only means of at most _OWN_MEAN_BYTES are kept: the horizon
+# is 60 s of samples, and at Ts = 1 us one mean response is gigabytes.
+_OWN_MEAN = Memo(9, flush=True)
 _OWN_MEAN_BYTES = 16 << 20
 # The gain fluctuation's and the distortion's damped-cosine fits of a nonlinear model, by the same
 # key as _OWN_MEAN (they depend on nothing else): (shadow, dcolor) of Predictor._colors. Not to be
 # changed by callers.
-_COLORS: dict = {}
+_COLORS = Memo(65, flush=True)
 
 
 class Predictor:
@@ -333,9 +334,7 @@ class Predictor:
             for v in arrays:
                 v.setflags(write=False)
             if sum(v.nbytes for v in arrays) <= _OWN_MEAN_BYTES:
-                if len(_OWN_MEAN) > 8:
-                    _OWN_MEAN.clear()
-                _OWN_MEAN[key] = got
+                _OWN_MEAN.put(key, got)
         return got
 
     # -- the augmented linear system -------------------------------------------------------------------
@@ -452,14 +451,11 @@ class Predictor:
         # does not take the shared fits
         fits = tuple(getattr(f, "__func__", f) for f in (self._gain_shadows, self._distortion_colors))
         key = (mean_key(mdl), self.horizon, fits)
-        got = _COLORS.get(key)
-        if got is None:
+
+        def compute():
             u = mdl.command.values(0, mean.t.size, mdl.Ts)[burn:].reshape(-1, mdl.m)
-            got = (self._gain_shadows(mean.gain[burn:]), self._distortion_colors(u, dstd**2))
-            if len(_COLORS) > 64:
-                _COLORS.clear()
-            _COLORS[key] = got
-        return got
+            return self._gain_shadows(mean.gain[burn:]), self._distortion_colors(u, dstd**2)
+        return _COLORS.get_or_compute(key, compute)
 
     def _source_acf(self, i: int, D: int) -> np.ndarray:
         """Autocovariance (D + 1, m) of actuator source i per input channel at lags 0..D:
@@ -713,8 +709,8 @@ class Predictor:
         contributions: dict = {}
         Ptot = np.zeros((n_s, n_s))
         ydot_var = np.zeros(mdl.p)
-        self._Pj = {}
-        self._Dj = {}           # marginal plants: (I - F) P per source, formed without cancellation
+        Pj: dict = {}
+        Dj: dict = {}           # marginal plants: (I - F) P per source, formed without cancellation
         for eid, cols in ls.owners.items():
             Gj = ls.Gam[:, cols]
             drives_plant = bool(np.any(Gj[plant_part] != 0))
@@ -722,11 +718,11 @@ class Predictor:
                 contributions[eid] = None
                 continue
             if marginal:
-                Pk, self._Dj[eid] = lyap_leaky(ls.F, Gj @ Gj.T)
+                Pk, Dj[eid] = lyap_leaky(ls.F, Gj @ Gj.T)
             else:
                 Pk = solve_discrete_lyapunov(ls.F, Gj @ Gj.T) if stable else _sensor_lyap(ls, Gj, plant_part)
             Pk = 0.5 * (Pk + Pk.T)
-            self._Pj[eid] = Pk
+            Pj[eid] = Pk
             Ptot += Pk
             Jj = ls.J[:, cols]
             c = np.einsum("ij,jk,ik->i", ls.H, Pk, ls.H) + np.sum(Jj**2, axis=1)
@@ -770,7 +766,9 @@ class Predictor:
         var_y = None if any(v is None for v in contributions.values()) else \
             sum(contributions.values(), np.zeros(mdl.p))
         Pp = Ptot[ls.plant_block, ls.plant_block] if stable else None
-        self._ls = ls
+        # published whole, the cache last: a predictor shared by threads (the comparison's views) may
+        # compute its steady state in two at once, and each reads complete, equal dicts
+        self._Pj, self._Dj, self._ls = Pj, Dj, ls
         self._steady_cache = Steady(var_y=var_y, P=Pp, contributions=contributions,
                                     bias_var_rate=rate, stable=stable, notes=notes,
                                     ydot_var=ydot_var if slope_ok else None, walk_var_rate=walk_rate)
@@ -907,7 +905,7 @@ class Predictor:
         return sum((v for eid, v in gam.items() if eid != q and eid not in tones and v is not None),
                    np.zeros((L, self.model.p)))
 
-    def quantization_acf(self, gam: dict, motion: np.ndarray | None, cache: dict | None = None,
+    def quantization_acf(self, gam: dict, motion: np.ndarray | None, cache: Memo | None = None,
                          moments=None, stein: bool = True) -> np.ndarray:
         """R_e(d) of the quantizer's error (L, p) from the other effects' variograms ``gam`` ({id:
         (L, p)}, :meth:`before_quantizer`) and the deterministic ``motion``. ``moments``

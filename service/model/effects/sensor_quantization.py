@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ...memo import Memo
 from ..schema import positive
 from .base import Effect, FitSpec, _g
 
@@ -205,15 +206,15 @@ def _mean_factors(sigma2: np.ndarray, a2: float, m_max: int, samples: int = 4096
 
 
 def quantization_acf(step, gamma: np.ndarray, motion: np.ndarray | None = None,
-                     cache: dict | None = None, moments: Moments | None = None,
+                     cache: Memo | None = None, moments: Moments | None = None,
                      cross: np.ndarray | None = None) -> np.ndarray:
     """Autocovariance R_e(d), d = 0..L-1, of the quantization error (L, p) (formula in the module
     docstring). ``step`` (p,); ``gamma`` (L, p) the variogram E[(x_{k+d} - x_k)^2] / 2 of the random
     part of the signal before the quantizer (everything else in the model); ``motion`` (n, p) its
     deterministic part over the record (None: none). Lags d >= n of the motion have no pairs in the
-    record and are set to 0 (no estimator uses them). ``cache``: a dict for the motion's factors
-    C_m(d), keyed by output, term and step: one dict per motion, the caller's to keep apart (the
-    diagnosis varies the noise, not the motion).
+    record and are set to 0 (no estimator uses them). ``cache``: a :class:`service.memo.Memo` for
+    the motion's factors C_m(d), keyed by output, term and step: one per motion, the caller's to
+    keep apart (the diagnosis varies the noise, not the motion; its threads share it).
 
     ``moments`` (:func:`conditional_moments`): the error's conditional mean g is in the mean
     response, so what is left is the measurement's covariance about it, as a part added to the
@@ -272,7 +273,7 @@ def quantization_acf(step, gamma: np.ndarray, motion: np.ndarray | None = None,
                     Z = np.fft.fft(z, nfft)
                     c = (np.fft.ifft(Z * np.conj(Z))[:n].real / (n - np.arange(n)))[:min(L, n)].copy()
                     if cache is not None:
-                        cache[key] = c
+                        cache.put(key, c)
                 C = np.zeros(L)
                 C[: min(L, n)] = c[:L]
                 f = f * C
