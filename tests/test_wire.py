@@ -88,7 +88,7 @@ def test_schema_names_are_the_contract():
 
 
 @settings(max_examples=200, deadline=None)
-@given(seq=st.integers(0, 2**63), t=finite, vec=st.lists(finite, max_size=6),
+@given(seq=st.integers(0, wire.SEQ_MAX), t=finite, vec=st.lists(finite, max_size=6),
        kind=st.sampled_from(wire.KINDS))
 def test_encode_equals_json_dumps_and_decodes_bit_exact(seq, t, vec, kind):
     data = wire.encode(seq, t, vec, kind=kind)
@@ -308,3 +308,277 @@ def test_end_payload_round_trip_and_validation():
         with pytest.raises(WireError, match=match) as e:
             wire.decode_end(bad, topic="noiselab/dev/end")
         assert str(e.value).startswith("noiselab/dev/end: ")
+
+
+# ------------------------------------------------------------------ untrusted input
+
+DECODERS = {
+    "decode": lambda p: wire.decode(p, "measurement", topic="noiselab/d/measurement"),
+    "decode_health": lambda p: wire.decode_health(p, topic="noiselab/d/health"),
+    "decode_end": lambda p: wire.decode_end(p, topic="noiselab/d/end"),
+    "decode_analysis": lambda p: wire.decode_analysis(p, topic="noiselab/d/analysis"),
+    "decode_batch": lambda p: wire.decode_batch([p], "measurement", topic="noiselab/d/measurement"),
+    # in a batch among good payloads (the fast paths see the blob first)
+    "decode_batch, 20": lambda p: wire.decode_batch(GOOD[:10] + [p] + GOOD[10:], "measurement"),
+    "decode_packed, 20": lambda p: wire.decode_packed(*packed(GOOD[:10] + [p] + GOOD[10:]), "measurement"),
+}
+GOOD = wire.encode_batch("measurement", 0, np.arange(19) * 0.01, np.ones((19, 1)))
+
+
+def packed(payloads: list[bytes]) -> tuple[bytes, np.ndarray]:
+    """What the MCAP reader hands to decode_packed: payloads each followed by a newline."""
+    return b"".join(p + b"\n" for p in payloads), np.array([len(p) for p in payloads])
+
+
+DEEP = 200_000             # levels (each payload stays under MAX_PAYLOAD_BYTES: the depth is what is refused)
+HOSTILE_DEEP = {
+    "arrays": b"[" * DEEP + b"]" * DEEP,
+    "objects": b'{"":' * DEEP + b"1" + b"}" * DEEP,
+    "unclosed": b"[" * DEEP,
+    "inside a sample": b'{"seq":0,"t":0.0,"y":' + b"[" * DEEP + b"]" * DEEP + b"}",
+    # a closing bracket inside a string must not hide the real depth (string-aware scan)
+    "behind strings": b'["]",' * (DEEP // 2) + b"1" + b"]" * (DEEP // 2),
+    "behind escapes": b'["\\"]",' * (DEEP // 2) + b"1" + b"]" * (DEEP // 2),
+}
+
+
+@pytest.mark.parametrize("decoder", DECODERS)
+@pytest.mark.parametrize("payload", HOSTILE_DEEP.values(), ids=HOSTILE_DEEP)
+def test_deep_nesting_is_refused_before_parsing(decoder, payload):
+    """JSON nested 200,000 deep: a WireError naming the bound, from every decode path (Python's
+    parser would recurse out of its stack: RecursionError, a crash of the node that read it)."""
+    with pytest.raises(WireError, match=f"deeper than {wire.MAX_DEPTH}") as e:
+        DECODERS[decoder](payload)
+    assert "\n" not in str(e.value) and len(str(e.value)) < 200
+
+
+def test_nesting_up_to_the_bound_is_parsed():
+    """The bound is on the depth, not on the number of brackets: an analysis summary of many
+    small lists, strings full of brackets, and exactly MAX_DEPTH levels are parsed."""
+    many = {"seq": 0, "t": 1.0, "error": 1.0, "regions": [[i, i + 1] for i in range(1000)],
+            "note": "[[[[{{{{" * 100}
+    assert wire.decode_analysis(json.dumps(many).encode())["regions"][999] == [999, 1000]
+    nested = 1.0
+    for _ in range(wire.MAX_DEPTH - 1):               # the payload object itself is one level
+        nested = [nested]
+    assert wire.decode_analysis(json.dumps({"seq": 0, "t": 1.0, "error": 1.0, "n": nested}).encode())
+    with pytest.raises(WireError, match="deeper than"):
+        wire.decode_analysis(json.dumps({"seq": 0, "t": 1.0, "error": 1.0, "n": [nested]}).encode())
+
+
+json_leaves = (st.none() | st.booleans() | st.integers(-10**400, 10**400) | st.floats()
+               | st.text(alphabet=st.sampled_from('ab[]{}"\\/:,\n é'), max_size=8))
+json_values = st.recursive(json_leaves, lambda inner: st.lists(inner, max_size=4)
+                           | st.dictionaries(st.text(alphabet='seqtxuy[]{}"\\', max_size=4), inner, max_size=4),
+                           max_leaves=30)
+
+
+def depth_of(v) -> int:
+    if isinstance(v, list):
+        return 1 + max(map(depth_of, v), default=0)
+    if isinstance(v, dict):
+        return 1 + max(map(depth_of, v.values()), default=0)
+    return 0
+
+
+@settings(max_examples=300, deadline=None)
+@given(v=json_values)
+def test_nesting_depth_of_json_is_exact(v):
+    """The byte scan's depth equals the parsed value's, whatever the strings hold (brackets,
+    quotes, backslashes), in compact and spaced layouts."""
+    for text in (json.dumps(v), json.dumps(v, separators=(",", ":")), json.dumps(v, indent=1, ensure_ascii=False)):
+        assert wire.nesting_depth(text.encode()) == depth_of(v)
+
+
+def test_oversized_payload_is_refused_before_parsing():
+    """A payload over MAX_PAYLOAD_BYTES (a 10^6-element vector, 4 MB) is refused by every path
+    without parsing it; MAX_PAYLOAD_BYTES itself is parsed."""
+    big = b'{"seq":0,"t":0.0,"y":[' + b",".join([b"0.1"] * 10**6) + b"]}"
+    for name, decoder in DECODERS.items():
+        with pytest.raises(WireError, match=f"{len(big)} bytes exceeds {wire.MAX_PAYLOAD_BYTES}"):
+            decoder(big)
+    pad = wire.MAX_PAYLOAD_BYTES - len(b'{"seq":0,"t":0.0,"y":[1.0]}')
+    at_bound = b'{"seq":0,"t":0.0,"y":[1.0]}' + b" " * pad
+    assert len(at_bound) == wire.MAX_PAYLOAD_BYTES
+    assert wire.decode(at_bound)["y"] == [1.0]
+
+
+@pytest.mark.parametrize("payload, match", [
+    (b'{"seq":0,"t":1' + b"0" * 400 + b',"y":[1.0]}', "t=1000"),              # an int beyond float64
+    (b'{"seq":0,"t":0.0,"y":[-1' + b"0" * 400 + b"]}", r"y\[0\]=-1000"),
+    (b'{"seq":9223372036854775808,"t":0.0,"y":[1.0]}', "seq=9223372036854775808"),
+    (b'{"seq":100000000000000000000000000,"t":0.0,"y":[1.0]}', "seq="),
+    (b'{"seq":0,"t":0.0,"y":["' + b"a" * 500_000 + b'"]}', r"y\[0\]='aaaa"),   # named, not echoed
+    (b'{"seq":0,"t":0.0,"y":[1.0],"' + b"k" * 500_000 + b'":1}', "unknown keys"),
+])
+def test_numbers_and_strings_beyond_range_are_refused_in_one_short_line(payload, match):
+    for name in ("decode", "decode_batch, 20", "decode_packed, 20"):
+        with pytest.raises(WireError, match=match) as e:
+            DECODERS[name](payload)
+        assert "\n" not in str(e.value) and len(str(e.value)) < 200, name
+
+
+def test_health_and_end_refuse_ints_beyond_float64():
+    stats = dict.fromkeys(wire.HEALTH_FIELDS, 1)
+    health = json.dumps({"seq": 0, "t": 0.0, **stats, "overruns": 10**400}).encode()
+    with pytest.raises(WireError, match="overruns=1000"):
+        wire.decode_health(health)
+    end = json.dumps({"seq": 0, "t": 10**400, "samples": 1, "counts": {}, "reason": "stopped"}).encode()
+    with pytest.raises(WireError, match="t=1000"):
+        wire.decode_end(end)
+
+
+def test_seq_fits_in_int64_everywhere():
+    assert wire.decode(wire.encode(wire.SEQ_MAX, 0.0, [1.0], kind="truth"))["seq"] == wire.SEQ_MAX
+    for bad in (wire.SEQ_MAX + 1, 10**26):
+        with pytest.raises(WireError, match="2\\*\\*63-1"):
+            wire.encode(bad, 0.0, [1.0], kind="truth")
+    with pytest.raises(WireError, match="exceeds 2\\*\\*63-1"):
+        wire.encode_batch("truth", wire.SEQ_MAX, [0.0, 0.01], np.ones((2, 1)))
+
+
+def test_control_elements_are_bounded_by_magnitude_max():
+    """A control drives the emulator's plant: beyond MAGNITUDE_MAX it is refused on encode and on
+    every decode path; the bound itself passes; measurements are not bounded by the contract."""
+    ok = wire.encode(0, 0.0, [wire.MAGNITUDE_MAX, -wire.MAGNITUDE_MAX], kind="control")
+    assert wire.decode(ok, "control")["u"] == [1e100, -1e100]
+    with pytest.raises(WireError, match=r"u\[1\]=-1e\+101 at seq 3 exceeds 1e\+100"):
+        wire.encode(3, 0.0, [0.0, -1e101], kind="control", topic="noiselab/d/control")
+    mat = np.zeros((20, 1))
+    mat[7, 0] = 1e308
+    with pytest.raises(WireError, match="seq 7 exceeds"):
+        wire.encode_batch("control", 0, np.arange(20) * 0.01, mat)
+    hostile = b'{"seq":7,"t":0.07,"u":[1e308]}'
+    good = wire.encode_batch("control", 0, np.arange(20) * 0.01, np.zeros((20, 1)))
+    batch = good[:7] + [hostile] + good[8:]
+    for decoder in (lambda: wire.decode(hostile, "control"), lambda: wire.decode_batch(batch, "control"),
+                    lambda: wire.decode_packed(*packed(batch), "control")):
+        with pytest.raises(WireError, match=r"u\[0\]=1e\+308 at seq 7 exceeds"):
+            decoder()
+    assert wire.decode(b'{"seq":7,"t":0.07,"u":[1e308]}', "command")["u"] == [1e308]
+
+
+def test_decode_batch_fast_path_takes_nothing_decode_refuses():
+    """The json fast path parses the batch as one array: a payload may not lend half an object to
+    its neighbour, nor a non-scalar t pass as a column."""
+    merged = [b'{"seq":0,"t":0,"y":[1,1]},{"seq":1,"t":0,"y":[1', b"2]}"] + \
+        [json.dumps({"t": 0, "y": [1, 1], "seq": k}).encode() for k in range(2, 20)]
+    with pytest.raises(WireError, match="not valid JSON"):
+        wire.decode_batch(merged, "measurement")
+    listed_t = [json.dumps({"t": [0.5], "y": [1.0], "seq": k}).encode() for k in range(20)]
+    with pytest.raises(WireError, match=r"t=\[0.5\] at seq 0"):
+        wire.decode_batch(listed_t, "measurement")
+
+
+# ------------------------------------------------------------ properties of the decoders
+
+ANY_DECODER = [lambda p: wire.decode(p), lambda p: wire.decode(p, "control"), wire.decode_health,
+               wire.decode_end, wire.decode_analysis]
+
+
+def result_or_wire_error(fn, *args):
+    """fn(*args), or None when it raises WireError; any other exception fails the test."""
+    try:
+        return fn(*args)
+    except WireError as e:
+        assert "\n" not in str(e) and len(str(e)) < 400, str(e)
+        return None
+
+
+@settings(max_examples=400, deadline=None)
+@given(data=st.binary(max_size=200))
+def test_any_bytes_give_a_result_or_a_wire_error(data):
+    for decoder in ANY_DECODER:
+        result_or_wire_error(decoder, data)
+    result_or_wire_error(wire.decode_batch, [data] * 3, "measurement")
+    result_or_wire_error(wire.decode_packed, *packed([data, data]), "truth")
+
+
+numberish = st.floats() | st.integers(-10**400, 10**400)          # NaN/inf, and ints beyond float64
+seqish = st.integers(-2, 2**64) | json_values
+optional_extra = {"extra": json_values}
+# payloads shaped like each kind's (the right keys, values valid or not), so that the decoders'
+# checks past the parse are reached, not only the key check
+vector_like = st.sampled_from("xuy").flatmap(lambda f: st.fixed_dictionaries(
+    {"seq": seqish, "t": numberish | json_values, f: st.lists(numberish, max_size=3) | json_values},
+    optional=optional_extra))
+health_like = st.fixed_dictionaries(
+    {"seq": seqish, "t": numberish, **{name: numberish | json_values for name in wire.HEALTH_FIELDS}},
+    optional=optional_extra)
+end_like = st.fixed_dictionaries(
+    {"seq": seqish, "t": numberish | json_values, "samples": seqish,
+     "counts": st.dictionaries(st.sampled_from([*wire.ALL_KINDS, "state"]), seqish, max_size=3) | json_values,
+     "reason": st.sampled_from([*wire.END_REASONS, "crashed"]) | json_values}, optional=optional_extra)
+analysis_like = st.fixed_dictionaries({"seq": seqish, "t": numberish | json_values, "error": json_values},
+                                      optional=optional_extra)
+sample_like = vector_like | health_like | end_like | analysis_like
+
+
+@settings(max_examples=500, deadline=None)
+@given(v=json_values | sample_like, spaced=st.booleans())
+def test_any_json_value_gives_a_result_or_a_wire_error(v, spaced):
+    data = json.dumps(v, separators=(", ", ": ") if spaced else (",", ":")).encode()
+    for decoder in ANY_DECODER:
+        result_or_wire_error(decoder, data)
+
+
+def as_payload(draw_kind, obj, layout):
+    if layout == "wire":
+        return wire.encode(obj["seq"], obj["t"], obj["y"], kind="measurement")
+    if layout == "spaced":
+        return json.dumps(obj).encode()
+    return json.dumps(dict(reversed(list(obj.items()))), separators=(",", ":")).encode()
+
+
+good_sample = st.fixed_dictionaries({"seq": st.integers(0, wire.SEQ_MAX), "t": finite | st.integers(-2**70, 2**70),
+                                     "y": st.lists(finite | st.integers(-2**70, 2**70), min_size=2, max_size=2)})
+payloads = st.lists(st.one_of(
+    st.tuples(good_sample, st.sampled_from(["wire", "spaced", "reordered"])).map(
+        lambda a: as_payload(None, *a) if a[1] != "wire" else wire.encode(
+            a[0]["seq"], a[0]["t"], a[0]["y"], kind="measurement")),
+    (json_values | sample_like).map(lambda v: json.dumps(v).encode()),
+    st.binary(max_size=40)), min_size=1, max_size=8)
+
+
+@settings(max_examples=500, deadline=None)
+@given(batch=payloads)
+def test_decode_batch_and_packed_equal_decode_message_by_message(batch):
+    """decode_batch (and decode_packed on the same payloads) either raises a WireError exactly
+    when a payload fails decode or the lengths differ, or returns decode's values bit for bit."""
+    single = [result_or_wire_error(wire.decode, p, "measurement") for p in batch]
+    ok = all(d is not None for d in single) and len({len(d["y"]) for d in single}) == 1
+    for got in (result_or_wire_error(wire.decode_batch, batch, "measurement"),
+                result_or_wire_error(wire.decode_packed, *packed(batch), "measurement")):
+        assert (got is not None) == ok, (batch, single)
+        if ok:
+            seq, t, vals = got
+            assert seq.dtype == np.int64 and seq.tolist() == [d["seq"] for d in single]
+            assert same_bits(t, [d["t"] for d in single])
+            assert same_bits(vals, np.array([d["y"] for d in single], dtype=np.float64).reshape(len(batch), -1))
+
+
+@settings(max_examples=200, deadline=None)
+@given(seq0=st.integers(0, 2**62), n=st.integers(1, 30), dim=st.integers(1, 4), data=st.data(),
+       kind=st.sampled_from([*wire.KINDS, wire.CONTROL]))
+def test_batches_round_trip_exactly(seq0, n, dim, data, kind):
+    elem = st.floats(-wire.MAGNITUDE_MAX, wire.MAGNITUDE_MAX) if kind == wire.CONTROL else finite
+    t = np.array(data.draw(st.lists(finite, min_size=n, max_size=n)))
+    mat = np.array(data.draw(st.lists(st.lists(elem, min_size=dim, max_size=dim), min_size=n, max_size=n)))
+    enc = wire.encode_batch(kind, seq0, t, mat)
+    for seq, tt, vals in (wire.decode_batch(enc, kind), wire.decode_packed(*packed(enc), kind)):
+        assert seq.tolist() == list(range(seq0, seq0 + n))
+        assert same_bits(tt, t) and same_bits(vals, mat)
+
+
+@settings(max_examples=200, deadline=None)
+@given(seq=st.integers(0, wire.SEQ_MAX), t=finite, samples=st.integers(0, wire.SEQ_MAX),
+       counts=st.dictionaries(st.sampled_from(wire.ALL_KINDS), st.integers(0, wire.SEQ_MAX)),
+       reason=st.sampled_from(wire.END_REASONS), stats=st.fixed_dictionaries(
+           {name: finite | st.integers(-2**70, 2**70) for name in wire.HEALTH_FIELDS}))
+def test_health_and_end_round_trip_exactly(seq, t, samples, counts, reason, stats):
+    h = wire.decode_health(wire.encode_health(seq, t, stats))
+    assert h["seq"] == seq and same_bits(h["t"], t)
+    assert all(h[k] == v and type(h[k]) is type(v if isinstance(v, int) else float(v)) for k, v in stats.items())
+    e = wire.decode_end(wire.encode_end(seq, t, samples, counts, reason))
+    assert e == {"seq": seq, "t": e["t"], "samples": samples, "counts": counts, "reason": reason}
+    assert same_bits(e["t"], t)

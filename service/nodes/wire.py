@@ -18,6 +18,17 @@ Payload (UTF-8 JSON object, compact, key order ``seq``, ``t``, vector)
     ``json.dumps(..., separators=(",", ":"))`` writes them, so a decoded float is bit-identical
     to the encoded one. NaN and +-inf are not JSON and are refused (:class:`WireError`).
 
+Untrusted input (a payload comes from any peer on the network, or from a file)
+    Every decoder checks the bounds below on the raw bytes BEFORE parsing, so no payload can
+    make the parser recurse or allocate without limit; a payload beyond them is a WireError.
+    ``MAX_PAYLOAD_BYTES`` (1 MiB): a noiselab payload is ~25 bytes per vector element, so a
+    vector of some 40,000 elements, or an analysis summary (a few kB), fits many times over.
+    ``MAX_DEPTH`` (32 nested arrays/objects): a sample is 2 deep, an analysis summary 6.
+    ``seq`` must fit in int64 (:data:`SEQ_MAX`: every reader stores it so). A ``control``
+    element must not exceed :data:`MAGNITUDE_MAX` in magnitude (it drives a simulation).
+    What the bytes cannot tell (a vector's length, a seq far from its stream's) is checked by
+    the node that knows the stream (:class:`SeqGate` for the seq).
+
 Time (integer nanoseconds end to end, STYLE.md 13)
     ``Ts_ns = round(Ts * 1e9)`` once (:func:`period_ns`); the MCAP ``publish_time`` of sample k
     is the integer ``k * Ts_ns`` (:func:`publish_time_ns`), never a float epoch converted to ns.
@@ -32,6 +43,7 @@ import json
 import math
 import operator
 import re
+import sys
 from collections.abc import Iterable, Sequence
 from numbers import Real
 
@@ -47,6 +59,11 @@ __all__ = [
     "MESSAGE_ENCODING",
     "SCHEMA_NAMES",
     "VECTOR_FIELD",
+    "MAGNITUDE_MAX",
+    "MAX_DEPTH",
+    "MAX_PAYLOAD_BYTES",
+    "SEQ_MAX",
+    "SeqGate",
     "WireError",
     "check_name",
     "decode",
@@ -126,6 +143,25 @@ _VECTOR_DESCRIPTION = {
 
 class WireError(ValueError):
     """A key, payload or timestamp that breaks the wire contract (one-line message)."""
+
+
+MAX_PAYLOAD_BYTES = 1 << 20
+"""Largest payload a decoder parses, bytes (a sample is ~25 bytes per vector element)."""
+
+MAX_DEPTH = 32
+"""Deepest nesting of arrays and objects a decoder parses (a sample: 2, an analysis summary: 6);
+far below the depth at which Python's JSON parser recurses out of its stack (~1000)."""
+
+SEQ_MAX = 2**63 - 1
+"""Largest ``seq``: readers hold seqs in int64 arrays."""
+
+MAGNITUDE_MAX = 1e100
+"""Largest magnitude of a vector element that a node feeds into a simulation or into
+second-order statistics, in the vector's units: its square, and the sum of squares over any
+record (1e200 * 1e8 samples), stay finite in float64 (max ~1.8e308), as do a stable plant's
+response to it at any physical gain. A ``control`` element beyond it is refused on encode and
+decode (the emulator applies controls from the network); the live analyzer skips measurement
+and command samples beyond it."""
 
 
 # --------------------------------------------------------------------------- keys
@@ -249,12 +285,11 @@ def decode_health(data: bytes | bytearray | memoryview | str, *, topic: str | No
     obj = _loads(data, where)
     if not isinstance(obj, dict) or set(obj) != {"seq", "t", *HEALTH_FIELDS}:
         raise WireError(f"{where}: health payload must have keys seq, t, {', '.join(HEALTH_FIELDS)}")
-    if type(obj["seq"]) is not int or obj["seq"] < 0:
-        raise WireError(f"{where}: seq={obj['seq']!r} is not an integer >= 0")
+    _check_seq_field(obj, where)
     for name in ("t", *HEALTH_FIELDS):
         v = obj[name]
-        if type(v) not in (int, float) or not math.isfinite(v):
-            raise WireError(f"{where}: {name}={v!r} is not a finite number")
+        if not _finite(v):
+            raise WireError(f"{where}: {name}={_short(v)} is not a finite number")
     return obj
 
 
@@ -291,8 +326,9 @@ def decode_analysis(data, *, topic: str | None = None) -> dict:
     obj = _loads(data, where)
     if not isinstance(obj, dict) or not {"seq", "t", "error"} <= set(obj):
         raise WireError(f"{where}: analysis payload must be an object with seq, t, error")
-    if type(obj["seq"]) is not int or obj["seq"] < 0 or type(obj["t"]) not in (int, float):
-        raise WireError(f"{where}: bad seq or t in an analysis payload")
+    _check_seq_field(obj, where)
+    if not _finite(obj["t"]):
+        raise WireError(f"{where}: t={_short(obj['t'])} in an analysis payload is not a finite number")
     return obj
 
 
@@ -339,16 +375,16 @@ def decode_end(data, *, topic: str | None = None) -> dict:
     if not isinstance(obj, dict) or set(obj) != {"seq", "t", "samples", "counts", "reason"}:
         raise WireError(f"{where}: end payload must have keys seq, t, samples, counts, reason")
     for name in ("seq", "samples"):
-        if type(obj[name]) is not int or obj[name] < 0:
-            raise WireError(f"{where}: {name}={obj[name]!r} is not an integer >= 0")
-    if type(obj["t"]) not in (int, float) or not math.isfinite(obj["t"]):
-        raise WireError(f"{where}: t={obj['t']!r} is not a finite number")
+        if type(obj[name]) is not int or not 0 <= obj[name] <= SEQ_MAX:
+            raise WireError(f"{where}: {name}={_short(obj[name])} is not an integer from 0 to 2**63-1")
+    if not _finite(obj["t"]):
+        raise WireError(f"{where}: t={_short(obj['t'])} is not a finite number")
     counts = obj["counts"]
-    if not isinstance(counts, dict) or not all(k in ALL_KINDS and type(v) is int and v >= 0
+    if not isinstance(counts, dict) or not all(k in ALL_KINDS and type(v) is int and 0 <= v <= SEQ_MAX
                                                for k, v in counts.items()):
-        raise WireError(f"{where}: counts must map topic kinds to integers >= 0, got {counts!r}")
-    if obj["reason"] not in END_REASONS:
-        raise WireError(f"{where}: reason={obj['reason']!r} is not one of {', '.join(END_REASONS)}")
+        raise WireError(f"{where}: counts must map topic kinds to integers >= 0, got {_short(counts)}")
+    if type(obj["reason"]) is not str or obj["reason"] not in END_REASONS:
+        raise WireError(f"{where}: reason={_short(obj['reason'])} is not one of {', '.join(END_REASONS)}")
     obj["t"] = float(obj["t"])
     return obj
 
@@ -403,8 +439,8 @@ def _check_seq(seq: int, what: str = "seq") -> int:
         seq = operator.index(seq)
     except TypeError:
         raise WireError(f"{what} must be an integer >= 0, got {seq!r}") from None
-    if seq < 0:
-        raise WireError(f"{what} must be an integer >= 0, got {seq}")
+    if not 0 <= seq <= SEQ_MAX:
+        raise WireError(f"{what} must be an integer from 0 to 2**63-1, got {seq}")
     return seq
 
 
@@ -451,7 +487,15 @@ def encode(seq: int, t: float, vec: Sequence[float] | np.ndarray, *, kind: str,
     # Finite float reprs use only digits . e + -: an 'n' means inf or nan somewhere.
     if "n" in nums or not math.isfinite(t):
         _raise_non_finite(kind, topic, seq, t, vals)
+    if kind == CONTROL and vals and max(map(abs, vals)) > MAGNITUDE_MAX:
+        _raise_too_large(topic, seq, vals)
     return f'{{"seq":{seq},"t":{t!r},"{field}":[{nums}]}}'.encode()
+
+
+def _raise_too_large(topic, seq, vals):
+    i = next(i for i, v in enumerate(vals) if abs(v) > MAGNITUDE_MAX)
+    raise WireError(f"{_where(CONTROL, topic)}: u[{i}]={vals[i]!r} at seq {seq} exceeds "
+                    f"{MAGNITUDE_MAX:g} in magnitude")
 
 
 def _raise_non_finite(kind, topic, seq, t, vals):
@@ -491,6 +535,11 @@ def encode_batch(kind: str, seq0: int, t_array, mat, *,
     if bad_t.any() or bad_m.any():
         row = int(np.argmax(bad_t | bad_m.any(axis=1)))
         _raise_non_finite(kind, topic, seq0 + row, float(t_arr[row]), m[row].tolist())
+    if kind == CONTROL and m.size and np.abs(m).max() > MAGNITUDE_MAX:
+        row = int(np.argmax((np.abs(m) > MAGNITUDE_MAX).any(axis=1)))
+        _raise_too_large(topic, seq0 + row, m[row].tolist())
+    if n and seq0 + n - 1 > SEQ_MAX:
+        raise WireError(f"{_where(kind, topic)}: seq {seq0 + n - 1} exceeds 2**63-1")
     fmt = ('{"seq":%d,"t":%r,"' + field + '":[' + ",".join(["%r"] * dim) + "]}").encode()
     # tolist() yields Python floats, whose %r is float.__repr__ (numpy scalars would print
     # "np.float64(...)"); zip builds the argument tuple of each row without a Python loop body.
@@ -510,14 +559,63 @@ JSONDecoder on every call (a keyword argument defeats its cached default decoder
 more than the parsing itself (8.6 -> 2.3 us per payload; tests/bench/RESULTS.md)."""
 
 
+_STRUCTURE = b'[]{}"\\'
+_NOT_STRUCTURE = bytes(sorted(set(range(256)) - set(_STRUCTURE)))
+_STRING = re.compile(rb'"(?:[^"\\]++|\\.)*+"?', re.S)
+"""A JSON string from its opening quote: to its closing quote, or to the end of the bytes when
+it has none (so a scan never goes back: linear time on any input)."""
+_NEST_STEP = np.zeros(256, np.int8)
+_NEST_STEP[[ord("["), ord("{")]] = 1
+_NEST_STEP[[ord("]"), ord("}")]] = -1
+
+
+def nesting_depth(data: bytes) -> int:
+    """Deepest nesting of arrays and objects in ``data``, from a byte scan (no parsing).
+
+    Brackets inside strings do not count. Exact for valid JSON; for any other bytes it is at
+    least the depth a JSON parser reaches before it stops at the first error (up to that point
+    both see the same strings). Cost: a ``bytes.translate`` that keeps only ``[]{}"\\``, and
+    when a string holds a bracket or an escape, one regex pass that cuts the strings out."""
+    s = data.translate(None, _NOT_STRUCTURE)
+    if b'"' in s:
+        bare = s.replace(b'""', b"")            # strings without brackets or escapes: all of them, usually
+        if b'"' in bare or b"\\" in s:
+            bare = _STRING.sub(b"", data).translate(None, _NOT_STRUCTURE)
+        s = bare
+    if not s:
+        return 0
+    return int(np.cumsum(_NEST_STEP[np.frombuffer(s, np.uint8)], dtype=np.int64).max())
+
+
+def _check_bounds(data: bytes) -> None:
+    """:data:`MAX_PAYLOAD_BYTES` and :data:`MAX_DEPTH`, checked on the bytes before any parsing."""
+    if len(data) > MAX_PAYLOAD_BYTES:
+        raise WireError(f"payload of {len(data)} bytes exceeds {MAX_PAYLOAD_BYTES}")
+    # an array or object opens with [ or {: no more than MAX_DEPTH of them cannot nest deeper
+    if data.count(b"[") + data.count(b"{") > MAX_DEPTH and nesting_depth(data) > MAX_DEPTH:
+        raise WireError(f"payload nests arrays/objects deeper than {MAX_DEPTH}")
+
+
 def _loads(data: bytes | bytearray | memoryview | str, where: str):
     try:
+        raw = data.encode("utf-8") if isinstance(data, str) else bytes(data)
+        _check_bounds(raw)
         # payloads are UTF-8 (the contract); json.loads would also sniff UTF-16/32
-        return _DECODER.decode(data if isinstance(data, str) else bytes(data).decode("utf-8"))
+        return _DECODER.decode(raw.decode("utf-8"))
     except WireError as e:
         raise WireError(f"{where}: {e}") from None
-    except (ValueError, UnicodeDecodeError) as e:
+    except (ValueError, UnicodeError) as e:
         raise WireError(f"{where}: payload is not valid JSON ({e})") from None
+
+
+_FLOAT_MAX = sys.float_info.max
+
+
+def _finite(v) -> bool:
+    """A JSON number that is a finite float64: a float, or an int within float64's range (a
+    longer int would overflow on conversion); not a bool."""
+    t = type(v)
+    return (t is float and math.isfinite(v)) or (t is int and -_FLOAT_MAX <= v <= _FLOAT_MAX)
 
 
 def _kind_of(obj: dict, kind: str | None, where: str) -> str:
@@ -527,8 +625,21 @@ def _kind_of(obj: dict, kind: str | None, where: str) -> str:
     found = [k for k in KINDS if VECTOR_FIELD[k] in obj]
     if len(found) != 1:
         raise WireError(f"{where}: payload must hold exactly one of x, u, y; keys are "
-                        f"{sorted(obj)}")
+                        f"{_short(sorted(obj))}")
     return found[0]
+
+
+def _short(v, n: int = 40) -> str:
+    """``repr(v)`` cut to ``n`` characters: an error names a hostile value without echoing it."""
+    r = repr(v)
+    return r if len(r) <= n else r[:n] + "..."
+
+
+def _check_seq_field(obj: dict, where: str) -> int:
+    seq = obj["seq"]
+    if type(seq) is not int or not 0 <= seq <= SEQ_MAX:
+        raise WireError(f"{where}: seq={_short(seq)} is not an integer from 0 to 2**63-1")
+    return seq
 
 
 def _validate(obj, kind: str | None, where: str) -> dict:
@@ -541,20 +652,21 @@ def _validate(obj, kind: str | None, where: str) -> dict:
         missing = sorted({"seq", "t", field} - keys)
         extra = sorted(keys - {"seq", "t", field})
         raise WireError(f"{where}: {kind} payload has missing keys {missing} and unknown "
-                        f"keys {extra}")
-    seq = obj["seq"]
-    if type(seq) is not int or seq < 0:
-        raise WireError(f"{where}: seq={seq!r} is not an integer >= 0")
+                        f"keys {_short(extra)}")
+    seq = _check_seq_field(obj, where)
     t = obj["t"]
-    if type(t) not in (int, float) or not math.isfinite(t):
-        raise WireError(f"{where}: t={t!r} at seq {seq} is not a finite number")
+    if not _finite(t):
+        raise WireError(f"{where}: t={_short(t)} at seq {seq} is not a finite number")
     vec = obj[field]
     if type(vec) is not list:
         raise WireError(f"{where}: {field} at seq {seq} is not a list")
     for i, v in enumerate(vec):
-        if type(v) not in (int, float) or not math.isfinite(v):
-            raise WireError(f"{where}: {field}[{i}]={v!r} at seq {seq} is not a finite number")
-    return {"seq": seq, "t": float(t), field: [float(v) for v in vec]}
+        if (type(v) is not float or not math.isfinite(v)) and not _finite(v):   # floats: one test
+            raise WireError(f"{where}: {field}[{i}]={_short(v)} at seq {seq} is not a finite number")
+    vals = [float(v) for v in vec]
+    if kind == CONTROL and vals and max(map(abs, vals)) > MAGNITUDE_MAX:
+        _raise_too_large(where, seq, vals)
+    return {"seq": seq, "t": float(t), field: vals}
 
 
 def decode(data: bytes | bytearray | memoryview | str, kind: str | None = None, *,
@@ -573,6 +685,10 @@ def decode(data: bytes | bytearray | memoryview | str, kind: str | None = None, 
 # A JSON number (RFC 8259), possessive: numbers are followed by "," or "]" so nothing is given back.
 _NUM = rb"-?+(?:0|[1-9][0-9]*+)(?:\.[0-9]++)?+(?:[eE][+-]?+[0-9]++)?+"
 _ROWS: dict[tuple[str, int], re.Pattern] = {}
+_TEMPLATE_DIM_MAX = 64
+"""Longest vector the template path takes: its row pattern is compiled once per (field, length)
+and kept, so a payload's length must not choose an unbounded regex or cache (longer vectors,
+rare, take the json path)."""
 _NL_TO_COMMA = bytes.maketrans(b"\n", b",")
 
 
@@ -601,7 +717,7 @@ def _decode_template_blob(blob: bytes, n: int, field: str):
     if not first.startswith(b'{"seq":') or mid not in first:
         return None
     dim = first.count(b",") - 1 if not first.endswith(b"[]}") else 0
-    if dim < 1:
+    if not 1 <= dim <= _TEMPLATE_DIM_MAX:
         return None
     m = _rows_pattern(field, dim).match(blob)
     if m is None or m.end() != len(blob):
@@ -632,8 +748,8 @@ def decode_packed(blob: bytes, lens, kind: str, *, topic: str | None = None
     field = _vector_field(kind)
     lens = np.asarray(lens, np.int64)
     n = int(lens.size)
-    if n and int(lens.sum()) + n == len(blob):
-        fast = _decode_template_blob(blob, n, field)
+    if n and int(lens.sum()) + n == len(blob) and int(lens.max()) <= MAX_PAYLOAD_BYTES:
+        fast = _checked(kind, _decode_template_blob(blob, n, field))
         if fast is not None:
             return fast
     ends = np.cumsum(lens + 1) - 1
@@ -641,48 +757,77 @@ def decode_packed(blob: bytes, lens, kind: str, *, topic: str | None = None
     return decode_batch([blob[a:b] for a, b in zip(starts.tolist(), ends.tolist())], kind, topic=topic)
 
 
+def _checked(kind: str, fast):
+    """A fast path's result, or None when it holds what only the validating path may name: a
+    ``control`` element beyond :data:`MAGNITUDE_MAX`."""
+    if fast is not None and kind == CONTROL and fast[2].size and np.abs(fast[2]).max() > MAGNITUDE_MAX:
+        return None
+    return fast
+
+
+def _decode_json_batch(payloads: Sequence[bytes], field: str):
+    """Fast path for payloads in another layout (spacing, key order, integers): the whole batch
+    parsed with one ``json.loads`` and checked with numpy; None (use the validating path) when
+    anything looks off. Every payload must open with ``{`` and close with ``}``: then the
+    parsed array has one object per payload (two payloads could only merge through a string
+    holding the ``},{`` between them, and no key or value of a valid sample is such a string)."""
+    if not all(p[:1] == b"{" and p[-1:] == b"}" for p in payloads):
+        return None
+    blob = b"[" + b",".join(payloads) + b"]"
+    # Literals that numpy would silently coerce (true -> 1.0, null -> nan) take the slow path;
+    # the batch array adds one level to the payloads' nesting.
+    if b"true" in blob or b"false" in blob or b"null" in blob or nesting_depth(blob) > MAX_DEPTH + 1:
+        return None
+    try:
+        objs = json.loads(blob, parse_constant=_reject_constant)
+    except (ValueError, UnicodeDecodeError):
+        return None
+    n = len(payloads)
+    if len(objs) != n:
+        return None
+    expected = {"seq", "t", field}
+    try:
+        if not all(type(o) is dict and o.keys() == expected for o in objs):
+            return None
+        seq_list = [o["seq"] for o in objs]
+        if not all(type(s) is int for s in seq_list):
+            return None
+        seq = np.array(seq_list, dtype=np.int64)
+        t = np.array([o["t"] for o in objs])
+        vals = np.array([o[field] for o in objs])
+    except (ValueError, OverflowError):
+        return None                     # ragged vectors, huge ints: the slow path names the culprit
+    if vals.ndim == 1 and vals.size == 0:
+        vals = vals.reshape(n, 0)
+    if (t.ndim == 1 and t.dtype.kind in "fi" and vals.dtype.kind in "fi" and vals.ndim == 2
+            and vals.shape[0] == n and (seq >= 0).all()
+            and np.isfinite(t).all() and np.isfinite(vals).all()):
+        return seq, t.astype(np.float64), vals.astype(np.float64)
+    return None
+
+
 def decode_batch(payloads: Sequence[bytes], kind: str, *, topic: str | None = None
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Decode many payloads of one topic at once: ``(seq int64 (N,), t float64 (N,) in s,
     values float64 (N, dim))``.
 
-    Same validation as :func:`decode` (and all vectors must have the same length). The fast
-    path parses the whole batch with one ``json.loads`` and checks it with numpy; when anything
-    looks off it falls back to :func:`decode` per message to name the first culprit.
+    Same validation as :func:`decode` (and all vectors must have the same length). Two fast
+    paths (noiselab's own layout: :func:`_decode_template`; any other: :func:`_decode_json_batch`)
+    check the batch as a whole; when anything looks off it falls back to :func:`decode` per
+    message to name the first culprit.
     """
     field = _vector_field(kind)
     where = topic if topic is not None else f"{kind} topic"
     n = len(payloads)
     if n == 0:
         return (np.empty(0, np.int64), np.empty(0, np.float64), np.empty((0, 0), np.float64))
-    fast = _decode_template(payloads, field)
-    if fast is not None:
-        return fast
-    blob = b"[" + b",".join(payloads) + b"]"
-    objs = None
-    # Literals that numpy would silently coerce (true -> 1.0, null -> nan) take the slow path.
-    if b"true" not in blob and b"false" not in blob and b"null" not in blob:
-        try:
-            objs = json.loads(blob, parse_constant=_reject_constant)
-        except (ValueError, UnicodeDecodeError):
-            objs = None
-    if objs is not None and len(objs) == n:
-        expected = {"seq", "t", field}
-        try:
-            if all(type(o) is dict and o.keys() == expected for o in objs):
-                seq_list = [o["seq"] for o in objs]
-                if all(type(s) is int for s in seq_list):
-                    seq = np.array(seq_list, dtype=np.int64)
-                    t = np.array([o["t"] for o in objs])
-                    vals = np.array([o[field] for o in objs])
-                    if vals.ndim == 1 and vals.size == 0 and n > 0:
-                        vals = vals.reshape(n, 0)
-                    if (t.dtype.kind in "fi" and vals.dtype.kind in "fi" and vals.ndim == 2
-                            and vals.shape[0] == n and (seq >= 0).all()
-                            and np.isfinite(t).all() and np.isfinite(vals).all()):
-                        return seq, t.astype(np.float64), vals.astype(np.float64)
-        except (ValueError, OverflowError):
-            pass  # ragged vectors, huge ints: let the slow path name the culprit
+    if max(map(len, payloads)) <= MAX_PAYLOAD_BYTES:
+        fast = _decode_template(payloads, field)
+        if fast is None:
+            fast = _decode_json_batch(payloads, field)
+        fast = _checked(kind, fast)
+        if fast is not None:
+            return fast
     decoded = [decode(p, kind, topic=topic) for p in payloads]
     dims = {len(d[field]) for d in decoded}
     if len(dims) != 1:
@@ -690,10 +835,61 @@ def decode_batch(payloads: Sequence[bytes], kind: str, *, topic: str | None = No
         bad = next(d for d in decoded if len(d[field]) != len(first[field]))
         raise WireError(f"{where}: {field} has length {len(bad[field])} at seq {bad['seq']} but "
                         f"{len(first[field])} at seq {first['seq']}")
-    try:
-        seq = np.array([d["seq"] for d in decoded], dtype=np.int64)
-    except OverflowError:
-        raise WireError(f"{where}: a seq does not fit in int64") from None
+    seq = np.array([d["seq"] for d in decoded], dtype=np.int64)
     t = np.array([d["t"] for d in decoded], dtype=np.float64)
     vals = np.array([d[field] for d in decoded], dtype=np.float64).reshape(n, dims.pop())
     return seq, t, vals
+
+
+# ------------------------------------------------------------------------- streams
+
+
+class SeqGate:
+    """Whether a message continues its stream, judged by its seq (one gate per topic).
+
+    A stream's seq counts from 0 by one, so the next one is the last plus one. A seq more than
+    ``ahead`` past the last one taken (or, when ``behind`` is given, more than ``behind`` before
+    it) is not taken at once: it is held until the next message of the topic. If that one is
+    its successor (held seq + 1), the stream did jump (messages lost on the way, or a source
+    that restarted) and both are taken; if not, the held message was a forged or corrupt seq
+    and is dropped. So a single message with a wild seq is refused, and a real jump costs no
+    message. The first message of a stream is taken whatever its seq (a sink may join a stream
+    anywhere). :meth:`offer` and :meth:`flush` return what to take and what was dropped; the
+    caller keeps the items (payloads, decoded samples), the gate only their seqs."""
+
+    def __init__(self, ahead: int, behind: int | None = None):
+        self.ahead, self.behind = ahead, behind
+        self.last: int | None = None          # the last seq taken
+        self.held: tuple[int, object] | None = None
+
+    def far(self, seq: int) -> bool:
+        """``seq`` would be held (it is too far from the last seq taken)."""
+        last = self.last
+        return last is not None and (seq > last + self.ahead or (self.behind is not None and seq < last - self.behind))
+
+    def offer(self, seq: int, item) -> tuple[list, list]:
+        """The next message of the topic: ``(items to take now, in order; items dropped)``."""
+        held, self.held = self.held, None
+        if held is not None and seq == held[0] + 1:
+            self.last = seq
+            return [held[1], item], []
+        dropped = [] if held is None else [held[1]]
+        if self.far(seq):
+            self.held = (seq, item)
+            return [], dropped
+        self.last = seq
+        return [item], dropped
+
+    def take_held(self) -> list:
+        """The message still held is vouched for otherwise (its source says it published that
+        seq): take it."""
+        held, self.held = self.held, None
+        if held is None:
+            return []
+        self.last = held[0]
+        return [held[1]]
+
+    def flush(self) -> list:
+        """The stream is over: a message still held had no successor, so it is dropped."""
+        held, self.held = self.held, None
+        return [] if held is None else [held[1]]
