@@ -133,6 +133,26 @@ class Collector:
         return -1 if not items else json.loads(items[-1][0])["seq"]
 
 
+def poll_until(predicate, what: str, timeout: float = T_EVENT, every: float = 0.05) -> None:
+    """Wait for a condition this process cannot be told of (a file another process writes): checked
+    every ``every`` s until it holds; fails after ``timeout``, never passes on it."""
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        assert time.monotonic() < deadline, f"timeout ({timeout} s) waiting for {what}"
+        time.sleep(every)
+
+
+def on_disk(path, name: str) -> dict[str, int]:
+    """Per data kind, the last seq of device ``name`` that a recording being written already holds
+    intact on disk (-1: none yet, nor before the file has its header)."""
+    try:
+        dev = mcapio.read_recording(path).devices.get(name)
+    except (FileNotFoundError, mcapio.NotMcapError):
+        dev = None
+    return {kind: int(dev.streams[kind].seq[-1]) if dev is not None and kind in dev.streams
+            and len(dev.streams[kind]) else -1 for kind in DATA_KINDS}
+
+
 def step_path(model, seed: int, n: int, commands=None) -> dict[str, np.ndarray]:
     """The step API's sample path (exactly the emulator's): t, x, u, y arrays of n samples."""
     st = model.stepper(seed=seed)
@@ -325,17 +345,22 @@ def test_replay_fast_delivers_every_message_in_order(separate_recording, spawn):
         assert received == payloads, f"{topic}: payload bytes differ from the file"
 
 
-def test_replay_paced_and_prefixed(fast_model, spawn, tmp_path):
-    """replay --speed 5 of a 1 s recording takes about 0.2 s (its own wall_s, loosely 0.15..1.0 s,
-    and the spread of arrival times here); --prefix P publishes under P/noiselab/..., nothing
-    under noiselab/... ."""
+def test_replay_paced_and_prefixed(spawn, tmp_path):
+    """replay --speed 10 of a recording spanning 39.96 s (1000 samples at Ts = 40 ms): its own wall_s
+    is at least the 3.996 s the pace asks (a paced message is never published before it is due,
+    whatever the machine's speed) and under the 39.96 s of real time (a bound only a 36 s stall could
+    break: --speed is honoured), and the arrival times here spread over at least half the pace
+    and less than real time; --prefix P publishes under P/noiselab/..., nothing under noiselab/... ."""
     from service.cli import write_simulation
 
-    path = tmp_path / "one_second.mcap"
-    write_simulation(fast_model, 1000, 3, path)            # 1 s at Ts = 1 ms: publish 0..0.999 s
+    f = tmp_path / "paced.toml"
+    f.write_text(model_text("paced", 0.04))
+    path = tmp_path / "paced.mcap"
+    write_simulation(load_model(f), 1000, 3, path)         # publish 0..39.96 s
+    span, speed = 999 * 0.04, 10
     in_file = {topic: [m.data for _, _, m in items] for topic, items in file_messages(path).items()}
     port = free_port()
-    rp = spawn("replay", "replay", path, "--listen", ep(port), "--speed", "5", "--prefix", "lab/replayed",
+    rp = spawn("replay", "replay", path, "--listen", ep(port), "--speed", str(speed), "--prefix", "lab/replayed",
                "--wait-subscribers", "20", "--json")
     prefixed, bare = Collector(), Collector()
     with zenoh.open(session_config(connect=[ep(port)])) as session:
@@ -347,13 +372,13 @@ def test_replay_paced_and_prefixed(fast_model, spawn, tmp_path):
             s.undeclare()
     assert waited_for_subscribers(rp), rp.stderr_text()
     wall = rp.json()["wall_s"]
-    assert 0.15 <= wall <= 1.0, f"--speed 5 of a 1 s recording took {wall:.3f} s (ideal 0.1998 s)"
+    assert span / speed - 1e-3 <= wall < span, f"--speed {speed} of a {span:g} s recording took {wall:.3f} s"
     assert set(prefixed.by_key) == {f"lab/replayed/{t}" for t in in_file}
     for topic, payloads in in_file.items():
         assert [p for p, _ in prefixed.by_key[f"lab/replayed/{topic}"]] == payloads
     arrivals = [a for v in prefixed.by_key.values() for _, a in v]
     spread = max(arrivals) - min(arrivals)
-    assert 0.15 <= spread <= 1.0, f"arrivals spread over {spread:.3f} s (ideal 0.1998 s)"
+    assert span / speed / 2 <= spread < span, f"arrivals spread over {spread:.3f} s (paced: {span / speed:.3f} s)"
     assert not bare.by_key, f"published without the prefix: {sorted(bare.by_key)}"
 
 
@@ -442,6 +467,12 @@ def test_closed_loop_with_a_p_controller(spawn, tmp_path):
 
     The live path equals the batch path for the same commands: the recorded applied command
     re-simulated with simulate(N, seed, command=u) gives the recorded measurement bit for bit.
+
+    How late the controller answers depends on the machine (on a busy one, 0.5 s at times): the
+    emulator's stale timeout is set above the run (--stale 10), so every applied command is an
+    answer, and the prediction also covers the largest lateness the recording shows (at least the
+    smallest k - j with u_k = Kp (r - y_j)), so the check holds whatever the machine's speed; the
+    tolerance of 1 to 3 samples is the one that must be far from the open-loop value.
     """
     f = tmp_path / "loop.toml"
     f.write_text(LOOP_TOML)
@@ -460,10 +491,18 @@ def test_closed_loop_with_a_p_controller(spawn, tmp_path):
     rec = spawn("record", "record", *client, "--out", out, "--json")
     ctl.wait_line("p_controller: ready")
     rec.wait_line(READY_MARK)
-    emu = spawn("emulate", "emulate", f, *client, "--duration", "4", "--seed", str(LOOP_SEED),
-                "--wait-subscribers", "20", "--json")
-    assert emu.finish(60) == 0, emu.stderr_text()
-    assert rec.interrupt() == 0, rec.stderr_text()
+    controls = Collector()
+    control_key = wire.key("loop", wire.CONTROL)
+    with zenoh.open(session_config(connect=[ep(port)])) as session:
+        sub = session.declare_subscriber(control_key, controls)
+        emu = spawn("emulate", "emulate", f, *client, "--duration", "4", "--seed", str(LOOP_SEED), "--stale", "10",
+                    "--wait-subscribers", "20", "--json")
+        assert emu.finish(60) == 0, emu.stderr_text()
+        assert rec.interrupt() == 0, rec.stderr_text()
+        # the controller has answered all but the last measurement (its controls are in order: seq
+        # LOOP_N - 2 is its (LOOP_N - 1)-th), however far behind a busy machine left it
+        controls.wait_for(lambda: controls.last_seq(control_key) >= LOOP_N - 2, f"control seq {LOOP_N - 2}")
+        sub.undeclare()
     assert ctl.interrupt() == 0, ctl.stderr_text()
     assert router.interrupt() == 0, router.stderr_text()
     assert waited_for_subscribers(emu), emu.stderr_text()
@@ -479,29 +518,32 @@ def test_closed_loop_with_a_p_controller(spawn, tmp_path):
     y = dev.measurement.values[:, 0]
     u = dev.command.values[:, 0]
 
-    # every applied command is the controller's answer to an earlier measurement at most the
-    # stale timeout (0.5 s = 50 samples) old (ZOH of the latest control), or zero before the
-    # first answer arrived
-    stale_n = 50
+    # every applied command is the controller's answer to an earlier measurement (ZOH of the latest
+    # control), or zero before the first answer arrived; its lateness: at least the smallest k - j
     first = int(np.flatnonzero(u != 0.0)[0])
-    assert 1 <= first < stale_n and (u[:first] == 0.0).all(), f"first control applied at sample {first}"
+    assert 1 <= first and (u[:first] == 0.0).all(), f"first control applied at sample {first}"
+    late = 1
     for k in range(first, LOOP_N):
-        cands = KP * (REF - y[max(0, k - stale_n):k])         # bitwise the controller's arithmetic
-        assert (cands == u[k]).any(), f"u[{k}] = {u[k]!r} is no Kp (r - y_j) with k - {stale_n} <= j < k"
+        hits = np.flatnonzero(KP * (REF - y[:k]) == u[k])      # bitwise the controller's arithmetic
+        assert hits.size, f"u[{k}] = {u[k]!r} is no Kp (r - y_j) with j < k"
+        late = max(late, k - int(hits[-1]))
 
     # static closed-loop position
     x_static = KP * REF / (K_SPRING + KP)
-    preds = [closed_loop_prediction(model, LOOP_N, WINDOW, d) for d in (1, 2, 3)]
-    transient = max(abs(m - x_static) for m, _, _ in preds)
-    sigma = max(s for _, s, _ in preds)
-    sig_y = max(s for _, _, s in preds)
-    tau_c = sigma**2 * WINDOW * model.Ts / (2 * sig_y**2)
-    tol = transient + 4.5 * sigma
+
+    def tolerance(delays):
+        preds = [closed_loop_prediction(model, LOOP_N, WINDOW, d) for d in delays]
+        transient = max(abs(m - x_static) for m, _, _ in preds)
+        sigma = max(s for _, s, _ in preds)
+        sig_y = max(s for _, _, s in preds)
+        tau_c = sigma**2 * WINDOW * model.Ts / (2 * sig_y**2)
+        return transient + 4.5 * sigma, (f"transient {transient:.5f} m + 4.5 x {sigma:.5f} m; sigma_y {sig_y:.4f} m, "
+                                         f"tau_c {tau_c:.2f} s; answers up to {max(delays)} samples late")
+    tol, why = tolerance(range(1, max(3, late) + 1))
     mean_y = float(y[-WINDOW:].mean())
     assert abs(mean_y - x_static) <= tol, (
-        f"mean y over the last 2 s = {mean_y:.5f} m, predicted {x_static:.5f} m, tolerance {tol:.5f} m "
-        f"(transient {transient:.5f} m + 4.5 x {sigma:.5f} m; sigma_y {sig_y:.4f} m, tau_c {tau_c:.2f} s)")
-    assert abs(0.0 - x_static) > 10 * tol            # the open-loop value is far outside
+        f"mean y over the last 2 s = {mean_y:.5f} m, predicted {x_static:.5f} m, tolerance {tol:.5f} m ({why})")
+    assert abs(0.0 - x_static) > 10 * tolerance((1, 2, 3))[0]      # the open-loop value is far outside
 
     # the live path is the batch path for the same commands, and the step path
     sim = model.simulate(LOOP_N, seed=LOOP_SEED, command=dev.command.values)
@@ -543,14 +585,59 @@ def test_stale_control_applies_zero_and_says_so_once(spawn, tmp_path):
     assert all(h["late_control"] == 1 for h in health if h["t"] > 0.2), health
 
 
+def test_stale_control_is_judged_on_the_loops_own_clock(spawn, tmp_path):
+    """As above, with the emulator held still (SIGSTOP) for 0.6 s right after its first sample, as
+    a busy machine can hold it, then let go: the loop catches up on the samples it owes, and
+    the stale timeout is still counted on their deadlines k*Ts, not on the wall clock the late
+    loop reads when it gets to them (which called sample 1 or 2 stale): the same one line,
+    from sample 20 or later, zero applied, late_control in every report after 0.2 s."""
+    f = tmp_path / "loop.toml"
+    f.write_text(LOOP_TOML)
+    port = free_port()
+    emu = spawn("emulate", "emulate", f, "--listen", ep(port), "--duration", "2", "--stale", "0.2",
+                "--wait-subscribers", "20", "--json")
+    emu.wait_line(EMULATE_MARK)
+    got = Collector()
+    held = threading.Event()
+
+    def hold_at_first_sample(sample) -> None:
+        if not held.is_set() and json.loads(sample.payload.to_bytes())["seq"] == 0:
+            os.kill(emu.proc.pid, signal.SIGSTOP)
+            held.set()
+
+    with zenoh.open(session_config(connect=[ep(port)])) as session:
+        hold = session.declare_subscriber("noiselab/loop/measurement", hold_at_first_sample)
+        sub = session.declare_subscriber("noiselab/loop/**", got)
+        assert held.wait(T_EVENT), "no first sample"
+        try:
+            time.sleep(0.6)                 # the fault: how long a busy machine holds the process
+        finally:
+            os.kill(emu.proc.pid, signal.SIGCONT)
+        assert emu.finish(60) == 0, emu.stderr_text()
+        got.wait_for(lambda: got.count("noiselab/loop/command") >= 200 and got.count("noiselab/loop/health") >= 2,
+                     "200 commands and 2 health reports")
+        sub.undeclare()
+        hold.undeclare()
+    stale = [ln for ln in emu.err if "control input stale" in ln]
+    assert len(stale) == 1, emu.stderr_text()
+    k_stale = int(stale[0].rsplit("sample ", 1)[1])
+    assert 20 <= k_stale < 200, stale[0]
+    assert emu.json()["stale_control_events"] == 1 and emu.json()["overruns"] > 0
+    cmds = [wire.decode(p, "command") for p, _ in got.by_key["noiselab/loop/command"]]
+    assert [c["seq"] for c in cmds] == list(range(200)) and all(c["u"] == [0.0] for c in cmds)
+    health = [wire.decode_health(p) for p, _ in got.by_key["noiselab/loop/health"]]
+    assert all(h["late_control"] == 1 for h in health if h["t"] > 0.2), health
+
+
 # ------------------------------------------------------------- 4. kill, recover, restart
 
 
-def test_sigkilled_recorder_is_recovered_up_to_half_a_second_before_the_kill(fast_model_file, fast_model,
-                                                                            spawn, tmp_path):
-    """SIGKILL the recorder at Ts = 1 ms: `recover` gives every message 0..last with last >=
-    s_kill - 500 on every topic (s_kill: latest measurement seq seen here at the kill), payloads
-    equal to the step API's; the broken file reads as incomplete."""
+def test_sigkilled_recorder_is_recovered_up_to_what_it_had_written(fast_model_file, fast_model, spawn, tmp_path):
+    """SIGKILL the recorder at Ts = 1 ms once its file holds measurement seq 1130: `recover` gives
+    every message 0..last on every topic, with last at least what the file held intact just before
+    the kill (the recorder writes every 0.25 s; how far that is behind the stream depends on the
+    machine's speed, what was written does not), payloads equal to the step API's; the broken file
+    reads as incomplete."""
     port = free_port()
     emu = spawn("emulate", "emulate", fast_model_file, "--listen", ep(port), "--duration", "60", "--seed", "21",
                 "--wait-subscribers", "20", "--json")
@@ -562,8 +649,12 @@ def test_sigkilled_recorder_is_recovered_up_to_half_a_second_before_the_kill(fas
     meas = "noiselab/fast/measurement"
     with zenoh.open(session_config(connect=[ep(port)])) as session:
         sub = session.declare_subscriber(meas, got)
-        # mid-way between two of the recorder's 0.25 s flushes (it starts with the stream)
-        got.wait_for(lambda: got.last_seq(meas) >= 1130, "measurement seq 1130")
+        held: dict[str, int] = {}
+
+        def written():
+            held.update(on_disk(broken, "fast"))
+            return held["measurement"] >= 1130
+        poll_until(written, "measurement seq 1130 on disk")
         with got.cond:                        # no sample is taken in while we kill
             s_kill = got.last_seq(meas)
             rec.proc.kill()
@@ -591,7 +682,7 @@ def test_sigkilled_recorder_is_recovered_up_to_half_a_second_before_the_kill(fas
         items = msgs.get(topic, [])
         seqs = [json.loads(m.data)["seq"] for _, _, m in items]
         assert seqs == list(range(len(items))), f"{topic}: not 0..last consecutively"
-        assert last[topic] >= s_kill - 500, f"{topic}: recovered up to {last[topic]}, killed at {s_kill}"
+        assert last[topic] >= held[kind], f"{topic}: recovered up to {last[topic]}, the file held {held[kind]}"
         want = expected_payloads(fast_model, steps, kind, len(items))
         assert [m.data for _, _, m in items] == want, f"{topic}: corrupted payloads"
     health = [json.loads(m.data)["seq"] for _, _, m in msgs.get("noiselab/fast/health", [])]
@@ -655,8 +746,9 @@ def test_recorder_restarted_mid_stream(fast_model_file, spawn, tmp_path):
 def test_join_points_of_a_live_emulator_and_a_replay(fast_model_file, separate_recording, spawn):
     """transport.join_points: a source answers, per topic, the first seq it had not started when the
     query came (the emulator: the same for its three data topics, its own count for health; a
-    replay: its file's), between what a subscriber here saw before the query and after it; only
-    topics under the asker's key expression; nothing, at once, when no source serves @join."""
+    replay: its file's), after what a subscriber here saw before the query and within what the
+    source published; only topics under the asker's key expression; nothing, at once, when no
+    source serves @join (not after its timeout)."""
     port = free_port()
     emu = spawn("emulate", "emulate", fast_model_file, "--listen", ep(port), "--duration", "60", "--seed", "4", "--json")
     emu.wait_line(EMULATE_MARK)
@@ -667,7 +759,6 @@ def test_join_points_of_a_live_emulator_and_a_replay(fast_model_file, separate_r
         got.wait_for(lambda: got.last_seq(truth) >= 1200, "truth seq 1200")     # health (1 Hz) has reported
         before = got.last_seq(truth)
         joins = transport.join_points(session, "noiselab/**")
-        after = got.last_seq(truth)
         got.wait_for(lambda: got.last_seq(truth) >= joins[truth], f"truth seq {joins[truth]}")
         assert transport.join_points(session, "noiselab/other/**") == {}
         sub.undeclare()
@@ -676,11 +767,14 @@ def test_join_points_of_a_live_emulator_and_a_replay(fast_model_file, separate_r
     assert joins[truth] == joins["noiselab/fast/command"] == joins["noiselab/fast/measurement"]
     assert before + 1 <= joins[truth], (before, joins)             # it had started what we saw
     assert 1 <= joins["noiselab/fast/health"] <= joins[truth] // 1000 + 1
-    assert after < joins[truth] + 1000, (after, joins)             # and not much more (a loose upper bound)
+    assert joins[truth] <= emu.json()["samples"], (joins, emu.json()["samples"])   # no seq it never reached
     with zenoh.open(session_config()) as alone:                   # no source at all
-        t0 = time.monotonic()
-        assert transport.join_points(alone, "noiselab/**") == {}
-        assert time.monotonic() - t0 < 1.0
+        answered: list = []
+        asking = threading.Thread(target=lambda: answered.append(
+            transport.join_points(alone, "noiselab/**", timeout=20 * T_EVENT)), daemon=True)
+        asking.start()
+        asking.join(T_EVENT)
+        assert answered == [{}], "join_points with no source to answer waited for its timeout"
 
     path, _, _ = separate_recording                              # a replay, paced: 5 s of samples
     port = free_port()
@@ -994,13 +1088,15 @@ def test_default_endpoints_listen_on_loopback_only(default_endpoint, spawn):
 
 
 def test_health_at_1_hz(fast_model_file, spawn):
-    """A 2 s run at Ts = 1 ms: health reports arrive about 1 s apart (0.7..1.3 s), k = 1000, 2000;
-    lateness fields ordered, non-negative, below the 1 s report period, and consistent with the
-    emulator's final summary (the two reports cover every sample of the run: the overall max is
-    their max, the overall median lies between theirs, the overrun count is the last one's);
-    late_control 0. No real-time bound is asserted on the lateness itself: on a shared 2-core
-    machine a competing process can hold the loop several ms behind (observed once: median
-    5.4 ms over a whole second), and the health is there to say so."""
+    """A 2 s run at Ts = 1 ms: a health report every 1000 samples (k = 1000, 2000: 1 s of samples
+    each, and the emulator keeps the samples' pace: its run lasts at least the 1.999 s to the last
+    sample's deadline); lateness fields ordered, non-negative, within the run's wall time, and
+    consistent with the emulator's final summary (the two reports cover every sample of the run:
+    the overall max is their max, the overall median lies between theirs, the overrun count is the
+    last one's); late_control 0. No real-time bound is asserted on the lateness itself, nor on
+    when the reports arrive here: on a shared 2-core machine a competing process can hold the loop
+    behind (observed: median 5.4 ms over a whole second; reports 0.63 s apart), and the health is
+    there to say so."""
     port = free_port()
     emu = spawn("emulate", "emulate", fast_model_file, "--listen", ep(port), "--duration", "2",
                 "--wait-subscribers", "20", "--json")
@@ -1015,21 +1111,16 @@ def test_health_at_1_hz(fast_model_file, spawn):
     health = [(wire.decode_health(p), a) for p, a in got.by_key["noiselab/fast/health"]]
     assert [h["seq"] for h, _ in health] == [0, 1]
     assert [h["k"] for h, _ in health] == [1000, 2000]
+    summary = emu.json()
     for h, _ in health:
         assert abs(h["t"] - h["k"] * 0.001) <= 0.001 + 1e-12, h
-        assert 0 <= h["lateness_p50_us"] <= h["lateness_p99_us"] <= h["lateness_max_us"] < 1e6, h
+        assert 0 <= h["lateness_p50_us"] <= h["lateness_p99_us"] <= h["lateness_max_us"] <= summary["wall_s"] * 1e6, h
         assert 0 <= h["overruns"] <= h["k"] and h["late_control"] == 0, h
     (h1, _), (h2, _) = health
-    summary = emu.json()
-    assert summary["samples"] == 2000
+    assert summary["samples"] == 2000 and summary["wall_s"] >= 1.999, summary
     assert h1["overruns"] <= h2["overruns"] == summary["overruns"]
     lat = summary["lateness_us"]
     assert lat["max"] == max(h1["lateness_max_us"], h2["lateness_max_us"]), (lat, health)
     assert min(h1["lateness_p50_us"], h2["lateness_p50_us"]) <= lat["p50"] <= \
         max(h1["lateness_p50_us"], h2["lateness_p50_us"]), (lat, health)
-    dt = health[1][1] - health[0][1]
-    assert 0.7 <= dt <= 1.3, f"health reports {dt:.3f} s apart"
-    first_meas = got.by_key["noiselab/fast/measurement"][0]
-    assert json.loads(first_meas[0])["seq"] == 0
-    lead = health[0][1] - first_meas[1]
-    assert 0.7 <= lead <= 1.3, f"first health report {lead:.3f} s after sample 0"
+    assert json.loads(got.by_key["noiselab/fast/measurement"][0][0])["seq"] == 0

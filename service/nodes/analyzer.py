@@ -11,6 +11,14 @@ costs less; an update that overruns makes the loop skip the ticks it missed (cou
 estimator sizes only and are cached per model revision (:mod:`service.diagnose.compare`); at start
 the analyzer computes them once for the full window, so the first full-window update is not slow.
 
+Untrusted input: a measurement or command is analysed only if it holds to the wire contract
+(:mod:`wire`'s decoders, with their size and nesting bounds), its vector has the model's length,
+every element is within :data:`wire.MAGNITUDE_MAX` (beyond it the statistics overflow), and its
+seq lies within a ring's capacity of its stream's last one (a seq further off is taken only
+once the next message confirms the jump, :class:`wire.SeqGate`: a restarted source, or a long
+loss). Anything else is skipped and counted (``malformed``); the first of each reason is said
+on stderr.
+
 Memory is bounded: ring buffers of ``window`` plus a warm-up, indexed by seq; a prediction cache
 bounded in bytes; the error history thinned (every other entry) when it reaches
 :data:`HISTORY_MAX` entries. The residual needs
@@ -45,7 +53,7 @@ WARM_MAX_SAMPLES = 400_000  # the start-up warm-up runs compare() on a synthetic
 
 
 class _Ring:
-    """Samples by seq modulo capacity, for one vector topic."""
+    """Samples by seq modulo capacity, for one vector topic; ``gate`` decides which seqs enter."""
 
     def __init__(self, capacity: int, dim: int):
         self.cap = capacity
@@ -53,8 +61,12 @@ class _Ring:
         self.t = np.zeros(capacity)
         self.v = np.zeros((capacity, dim))
         self.max_seq = -1
+        self.gate = wire.SeqGate(ahead=capacity, behind=capacity)
 
     def put(self, seq: int, t: float, v) -> None:
+        if seq < self.max_seq - self.cap:        # the stream went back a window or more: a new one
+            self.seq[:] = -1
+            self.max_seq = -1
         i = seq % self.cap
         self.seq[i], self.t[i], self.v[i] = seq, t, v
         if seq > self.max_seq:
@@ -85,6 +97,7 @@ class LiveAnalyzer:
         self.history: list[dict] = []
         self.received = 0
         self.bad = 0
+        self.said: set[str] = set()               # reasons for skipping a message already said
 
     def warm(self) -> None:
         """Compute the predictions of a full-window update now (they are cached per model), so
@@ -117,6 +130,14 @@ class LiveAnalyzer:
         if key.rsplit("/", 1)[-1] in ("measurement", "command"):
             self.q.put((key, sample.payload.to_bytes()))
 
+    def skip(self, reason: str, text: str, n: int = 1) -> None:
+        """Count ``n`` skipped messages; say the first of each ``reason``."""
+        self.bad += n
+        if reason not in self.said:
+            self.said.add(reason)
+            print(f"noiselab analyze: skipped a message (further ones counted in 'malformed'): {text}",
+                  file=self.log, flush=True)
+
     def drain(self) -> None:
         while True:
             try:
@@ -124,18 +145,35 @@ class LiveAnalyzer:
             except queue.Empty:
                 return
             kind = key.rsplit("/", 1)[-1]
+            ring = self.meas if kind == "measurement" else self.cmd
             try:
                 obj = wire.decode(payload, kind, topic=key)
-            except wire.WireError:
-                self.bad += 1
+            except wire.WireError as exc:
+                self.skip("contract", str(exc))
                 continue
-            ring = self.meas if kind == "measurement" else self.cmd
             vec = obj[wire.VECTOR_FIELD[kind]]
             if len(vec) != ring.v.shape[1]:
-                self.bad += 1
+                self.skip("length", f"{key}: seq {obj['seq']} has {len(vec)} elements, the model {ring.v.shape[1]}")
                 continue
-            ring.put(obj["seq"], obj["t"], vec)
-            self.received += 1
+            if vec and max(map(abs, vec)) > wire.MAGNITUDE_MAX:
+                self.skip("magnitude", f"{key}: seq {obj['seq']} has an element beyond {wire.MAGNITUDE_MAX:g}")
+                continue
+            take, dropped = ring.gate.offer(obj["seq"], (obj["seq"], obj["t"], vec))
+            self._drop_jumps(key, ring, dropped)
+            for seq, t, v in take:
+                ring.put(seq, t, v)
+                self.received += 1
+
+    def _drop_jumps(self, key: str, ring: _Ring, dropped: list) -> None:
+        if dropped:
+            self.skip("seq", f"{key}: seq {dropped[0][0]} is more than a window ({ring.cap} samples) from the "
+                      f"stream's last seq {ring.gate.last}, and the next message did not follow it", len(dropped))
+
+    def finish(self) -> None:
+        """The stream is over: what the seq gates still hold had no successor (skipped)."""
+        self.drain()
+        for kind, ring in (("measurement", self.meas), ("command", self.cmd)):
+            self._drop_jumps(f"noiselab/{self.device}/{kind}", ring, ring.gate.flush())
 
     def maybe_reload(self) -> None:
         if self.path is None:
@@ -330,6 +368,7 @@ def run_live(session, model_spec: str, *, device: str | None, window_s: float, u
     finally:
         for s in subs:
             s.undeclare()
+        an.finish()
         if ranker is not None:
             rank_stop.set()
             ranker.join()

@@ -18,9 +18,19 @@ closing the session afterwards loses nothing that was still queued or in flight.
 Closed loop (``[command] kind = "external"``): the emulator subscribes to
 ``noiselab/<name>/control`` and applies the latest command it has received (zero-order hold).
 Until the first one arrives, and whenever the last is older than ``stale_s``, it applies zero and
-says so (stderr, and ``late_control`` in the health). The applied command is published on the
+says so (stderr, and ``late_control`` in the health). Staleness is judged on the loop's own
+clock: sample k is stale when its deadline d_k is more than ``stale_s`` after the last control's
+arrival (or after d_0 when none came), so a loop that runs late does not count its lateness as
+the controller's. The applied command is published on the
 ``command`` topic, so `noiselab simulate` with that command and the same seed reproduces the
 measurement exactly: the live path is the step API's path.
+
+A control comes from the network: one that breaks the wire contract (including an element
+beyond :data:`wire.MAGNITUDE_MAX`) or whose length is not the model's input count is rejected
+(the previous command stays), counted (``rejected_controls``) and the first one said on stderr.
+A sample whose step is not finite (an unstable plant that has diverged) is not published: the
+emulator says so once, ends its stream there (end of stream as usual) and reports the sample
+(``diverged_at``).
 """
 
 from __future__ import annotations
@@ -51,31 +61,39 @@ class EmulatorSummary:
     keys: dict = field(default_factory=dict)
     end: dict = field(default_factory=dict)
     speed: float = 1.0
+    rejected_controls: int = 0
+    diverged_at: int | None = None
 
     def as_dict(self) -> dict:
         return {"node": "emulate", "name": self.name, "samples": self.samples, "Ts": self.Ts, "seed": self.seed, "speed": self.speed,
                 "lateness_us": self.lateness_us, "overruns": self.overruns, "wall_s": self.wall_s,
-                "stale_control_events": self.stale_control_events, "keys": self.keys, "end": self.end}
+                "stale_control_events": self.stale_control_events, "rejected_controls": self.rejected_controls,
+                "diverged_at": self.diverged_at, "keys": self.keys, "end": self.end}
 
 
 class _Control:
     """Latest control input (zero-order hold), written by the Zenoh thread, read by the loop."""
 
-    def __init__(self, m: int):
+    def __init__(self, m: int, name: str, log):
         self.lock = threading.Lock()
         self.u = np.zeros(m)
         self.rx_ns = None
         self.count = 0
         self.bad = 0
+        self.name, self.log = name, log
 
     def on_sample(self, sample) -> None:
+        key = str(sample.key_expr)
         try:
-            obj = wire.decode(sample.payload.to_bytes(), "control")
+            obj = wire.decode(sample.payload.to_bytes(), "control", topic=key)
             u = np.asarray(obj["u"], float)
             if u.shape != self.u.shape:
-                raise wire.WireError(f"control vector has {u.size} elements, the model {self.u.size}")
-        except wire.WireError:
+                raise wire.WireError(f"{key}: u has {u.size} elements at seq {obj['seq']}, the model {self.u.size} inputs")
+        except wire.WireError as exc:
             self.bad += 1
+            if self.bad == 1:
+                print(f"noiselab emulate: {self.name}: rejected a control, the previous command stays "
+                      f"(further ones counted in 'rejected_controls'): {exc}", file=self.log, flush=True)
             return
         with self.lock:
             self.u = u
@@ -122,7 +140,7 @@ def run_emulator(model, session: "zenoh.Session", *, duration: float | None, see
 
     join = transport.serve_join(session, name, first_seqs)
     external = model.command.kind == "external"
-    control = _Control(model.m) if external else None
+    control = _Control(model.m, name, log) if external else None
     sub = session.declare_subscriber(keys[wire.CONTROL], control.on_sample) if external else None
     if wait_peers > 0 and not transport.wait_peers(session, wait_peers, max(wait_subscribers, 5.0), stop):
         if not stop.is_set():
@@ -137,6 +155,8 @@ def run_emulator(model, session: "zenoh.Session", *, duration: float | None, see
     overruns = 0
     stale_events = 0
     stale = False
+    stale_ns = stale_s * 1e9
+    diverged_at = None
     health_every = max(1, int(round(speed / Ts)))   # about 1 Hz of wall time
     health_seq = 0
     t0 = time.monotonic_ns() + 2_000_000          # first deadline 2 ms from now
@@ -144,49 +164,61 @@ def run_emulator(model, session: "zenoh.Session", *, duration: float | None, see
     k = 0
     mono = time.monotonic_ns
     try:
-        while not stop.is_set() and (n_total is None or k < n_total):
-            deadline = t0 + int(round(k * wall_ns))
-            now = mono()
-            if deadline - now > SPIN_NS:
-                time.sleep((deadline - now - SPIN_NS) / 1e9)
-            while mono() < deadline:
-                pass
-            late = mono() - deadline
-            lat_all.append(late)
-            lat_period.append(late)
-            u = None
-            if external:
-                with control.lock:
-                    rx, u_last = control.rx_ns, control.u
-                now_ctl = mono()
-                is_stale = (rx is None and now_ctl - start_ns > stale_s * 1e9) or \
-                    (rx is not None and now_ctl - rx > stale_s * 1e9)
-                if is_stale and not stale:
-                    stale_events += 1
-                    age = "no control received yet" if rx is None else f"last control {(now_ctl - rx) / 1e9:.3f} s old"
-                    print(f"noiselab emulate: {name}: control input stale ({age}, timeout {stale_s:g} s): "
-                          f"applying zero from sample {k}", file=log, flush=True)
-                elif stale and not is_stale:
-                    print(f"noiselab emulate: {name}: control input back at sample {k}", file=log, flush=True)
-                stale = is_stale
-                u = np.zeros(model.m) if (is_stale or rx is None) else u_last
-            t, x, u_applied, y = stepper.step(u)
-            tk = wire.sample_time(k, Ts)
-            started[0] = k
-            pubs["truth"].put(wire.encode(k, tk, x, kind="truth"))
-            pubs["command"].put(wire.encode(k, tk, u_applied, kind="command"))
-            pubs["measurement"].put(wire.encode(k, tk, y, kind="measurement"))
-            if mono() > deadline + wall_ns:
-                overruns += 1
-            k += 1
-            if k % health_every == 0:
-                p50, p99, mx = _percentiles(lat_period)
-                lat_period = []
-                stats = {"k": k, "lateness_p50_us": p50, "lateness_p99_us": p99, "lateness_max_us": mx,
-                         "overruns": overruns, "late_control": int(stale)}
-                started[1] = health_seq
-                health_pub.put(wire.encode_health(health_seq, tk, stats))
-                health_seq += 1
+        # a diverging plant overflows to inf: the encode below refuses it and says so (no numpy warning)
+        with np.errstate(over="ignore", invalid="ignore"):
+            while not stop.is_set() and (n_total is None or k < n_total):
+                deadline = t0 + int(round(k * wall_ns))
+                now = mono()
+                if deadline - now > SPIN_NS:
+                    time.sleep((deadline - now - SPIN_NS) / 1e9)
+                while mono() < deadline:
+                    pass
+                late = mono() - deadline
+                lat_all.append(late)
+                lat_period.append(late)
+                u = None
+                if external:
+                    with control.lock:
+                        rx, u_last = control.rx_ns, control.u
+                    # the age of the last control at this sample's deadline (not at the time the loop,
+                    # maybe running late, gets to it)
+                    age_ns = deadline - (start_ns if rx is None else rx)
+                    is_stale = age_ns > stale_ns
+                    if is_stale and not stale:
+                        stale_events += 1
+                        age = "no control received yet" if rx is None else f"last control {age_ns / 1e9:.3f} s old"
+                        print(f"noiselab emulate: {name}: control input stale ({age}, timeout {stale_s:g} s): "
+                              f"applying zero from sample {k}", file=log, flush=True)
+                    elif stale and not is_stale:
+                        print(f"noiselab emulate: {name}: control input back at sample {k}", file=log, flush=True)
+                    stale = is_stale
+                    u = np.zeros(model.m) if (is_stale or rx is None) else u_last
+                t, x, u_applied, y = stepper.step(u)
+                tk = wire.sample_time(k, Ts)
+                try:           # encode refuses NaN/inf: nothing of a sample that is not finite goes out
+                    p_truth = wire.encode(k, tk, x, kind="truth", topic=keys["truth"])
+                    p_command = wire.encode(k, tk, u_applied, kind="command", topic=keys["command"])
+                    p_measurement = wire.encode(k, tk, y, kind="measurement", topic=keys["measurement"])
+                except wire.WireError as exc:
+                    diverged_at = k
+                    print(f"noiselab emulate: {name}: sample {k} is not finite ({exc}): the plant has diverged; "
+                          "ending the stream here", file=log, flush=True)
+                    break
+                started[0] = k
+                pubs["truth"].put(p_truth)
+                pubs["command"].put(p_command)
+                pubs["measurement"].put(p_measurement)
+                if mono() > deadline + wall_ns:
+                    overruns += 1
+                k += 1
+                if k % health_every == 0:
+                    p50, p99, mx = _percentiles(lat_period)
+                    lat_period = []
+                    stats = {"k": k, "lateness_p50_us": p50, "lateness_p99_us": p99, "lateness_max_us": mx,
+                             "overruns": overruns, "late_control": int(stale)}
+                    started[1] = health_seq
+                    health_pub.put(wire.encode_health(health_seq, tk, stats))
+                    health_seq += 1
     finally:
         if sub is not None:
             sub.undeclare()
@@ -203,6 +235,7 @@ def run_emulator(model, session: "zenoh.Session", *, duration: float | None, see
     return EmulatorSummary(name=name, samples=k, Ts=Ts, seed=seed, speed=speed,
                            lateness_us={"p50": p50, "p99": p99, "max": mx}, overruns=overruns,
                            wall_s=wall_s, stale_control_events=stale_events,
+                           rejected_controls=control.bad if external else 0, diverged_at=diverged_at,
                            keys={k_: v for k_, v in keys.items()}, end=end)
 
 

@@ -11,6 +11,13 @@ publish_time = the sample time t in ns, log_time = receive time, wall clock ns).
 * A batch is decoded topic by topic (``wire.decode_batch`` for long runs, ``wire.decode`` for a
   few messages, the same checks either way), written topic by topic, and its seqs are booked.
   A payload that breaks the contract is skipped and counted (never the rest of its batch).
+* Untrusted input: a message is recorded only if it holds to the contract (:mod:`wire`'s
+  decoders, with their size and nesting bounds), its vector has the length of its stream's
+  first message (a topic's length never changes within a recording), and its seq continues
+  its stream: a forward jump is recorded only once the next message of the topic confirms it
+  (:class:`wire.SeqGate`; a real gap costs nothing, one forged seq is not recorded) or the
+  source's end of stream says it published that seq. Anything else is skipped and counted per
+  topic (``malformed``, ``malformed_topics``); the first few are said on stderr.
 * The chunk in progress is flushed every ``flush_s`` (default 0.25 s), so a SIGKILLed recorder
   loses at most the last ~0.25 s plus what waited in the channel: the file lacks its footer, and
   `noiselab recover` (or any reader, which says the file is unfinished) gets every message up to
@@ -23,6 +30,8 @@ publish_time = the sample time t in ns, log_time = receive time, wall clock ns).
   recorder first writes what is still queued, and goes on until every source it has heard has
   ended, or nothing arrived for :data:`QUIET_S` (a source gone without an end), or it has been
   caught up for :data:`LIVE_S` (a live stream: it stops there), or at most :data:`DRAIN_MAX_S`.
+  Each source heard whose stream did not end is said on stderr, one line each, and listed in
+  the summary and metadata (``unended``): it vanished, or was still streaming at the stop.
 * Join point (README "Live pipeline"): right after subscribing, the recorder asks the sources
   where each topic's stream to it is complete (:class:`transport.JoinRequest`) and starts each
   topic's recording at its last hole before that point (:meth:`Ingest._from_join`).
@@ -53,6 +62,7 @@ BATCH_DECODE_MIN = 16  # a topic's run in a batch at least this long is decoded 
 QUIET_S = 0.25       # on stop: nothing arrived for this long and a source has not ended: finish
 LIVE_S = 0.5         # on stop: caught up for this long with sources still streaming: finish
 DRAIN_MAX_S = 10.0   # on stop: finish after this long whatever is still arriving
+SEQ_AHEAD = 1        # a seq more than this past its topic's last is held for confirmation (wire.SeqGate)
 VECTOR_KINDS = (*wire.KINDS, wire.CONTROL)
 
 
@@ -125,11 +135,14 @@ class RecorderSummary:
     malformed: int
     wall_s: float
     ended: dict = field(default_factory=dict)
+    malformed_topics: dict = field(default_factory=dict)   # key -> messages skipped
+    unended: dict = field(default_factory=dict)            # prefix -> {kind: last seq}: no end of stream came
 
     def as_dict(self) -> dict:
         return {"node": "record", "out": self.out, "messages": self.messages, "malformed": self.malformed,
-                "wall_s": self.wall_s, "topics": {k: v.as_dict() for k, v in self.topics.items()},
-                "ended": self.ended}
+                "malformed_topics": self.malformed_topics, "wall_s": self.wall_s,
+                "topics": {k: v.as_dict() for k, v in self.topics.items()}, "ended": self.ended,
+                "unended": self.unended}
 
     def lines(self) -> list[str]:
         out = [f"recorded {self.messages} messages to {self.out} in {self.wall_s:.1f} s"]
@@ -146,8 +159,16 @@ class RecorderSummary:
                 text += f", {len(b.restarts)} restarts (seq went back)"
             out.append(text)
         if self.malformed:
-            out.append(f"  {self.malformed} malformed payloads skipped")
+            out.append(f"  {self.malformed} malformed payloads skipped ("
+                       + ", ".join(f"{n} on {k}" for k, n in sorted(self.malformed_topics.items())) + ")")
+        for prefix in sorted(self.unended):
+            out.append(f"  {prefix}: {_unended_text(self.unended[prefix])}")
         return out
+
+
+def _unended_text(last: dict) -> str:
+    return ("no end of stream (the source vanished, or was still streaming at the stop); last seq "
+            + ", ".join(f"{kind} {seq}" for kind, seq in sorted(last.items())))
 
 
 def _kind_of_key(key: str) -> str | None:
@@ -155,16 +176,20 @@ def _kind_of_key(key: str) -> str | None:
     return kind if kind in wire.ALL_KINDS else None
 
 
+def _decoded(payload: bytes, kind: str, key: str) -> dict:
+    """Validate one payload of ``kind`` (WireError if it breaks the contract); the decoded object."""
+    if kind == wire.HEALTH:
+        return wire.decode_health(payload, topic=key)
+    if kind == wire.ANALYSIS:
+        return wire.decode_analysis(payload, topic=key)
+    if kind == wire.END:
+        return wire.decode_end(payload, topic=key)
+    return wire.decode(payload, kind, topic=key)
+
+
 def _seq_t(payload: bytes, kind: str, key: str) -> tuple[int, float]:
     """Validate one payload of ``kind``; its (seq, t)."""
-    if kind == wire.HEALTH:
-        obj = wire.decode_health(payload, topic=key)
-    elif kind == wire.ANALYSIS:
-        obj = wire.decode_analysis(payload, topic=key)
-    elif kind == wire.END:
-        obj = wire.decode_end(payload, topic=key)
-    else:
-        obj = wire.decode(payload, kind, topic=key)
+    obj = _decoded(payload, kind, key)
     return obj["seq"], float(obj["t"])
 
 
@@ -177,7 +202,10 @@ class Ingest:
         self.out = out
         self.log = log
         self.books: dict[str, TopicBook] = {}
+        self.gates: dict[str, wire.SeqGate] = {}  # topic -> its seq gate (held: (seq, t, payload, rx_ns))
+        self.dims: dict[str, int] = {}            # vector topic -> its vector's length (first message)
         self.malformed = 0
+        self.malformed_topics: dict[str, int] = {}
         self.messages = 0
         self.ends: dict[str, dict] = {}          # prefix -> its last end payload (stream ended)
         self.live: set[str] = set()              # prefixes with data whose end has not come
@@ -185,8 +213,9 @@ class Ingest:
         self._held: dict[str, list] = {}         # topic -> [(seq, payload)] before its join point
         self.dropped_at_join: dict[str, tuple[int, int, int]] = {}   # topic -> (count, first, last seq)
 
-    def _skip(self, exc: Exception, n: int = 1) -> None:
+    def _skip(self, key: str, exc: Exception, n: int = 1) -> None:
         self.malformed += n
+        self.malformed_topics[key] = self.malformed_topics.get(key, 0) + n
         if self.malformed - n < 5:
             print(f"noiselab record: skipped a message: {exc}", file=self.log, flush=True)
 
@@ -204,7 +233,7 @@ class Ingest:
         for key, payloads in groups.items():       # keys in order of first arrival
             kind = _kind_of_key(key)
             if kind is None:
-                self._skip(wire.WireError(f"{key}: not a noiselab topic kind"), len(payloads))
+                self._skip(key, wire.WireError(f"{key}: not a noiselab topic kind"), len(payloads))
                 continue
             if kind in VECTOR_KINDS and len(payloads) >= BATCH_DECODE_MIN and self._add_run(key, kind, payloads, rx_ns):
                 continue
@@ -269,12 +298,31 @@ class Ingest:
         if kept:
             self.add(kept, time.time_ns())
 
+    def finish(self) -> None:
+        """The recorder stops: write what waits for a join point; a message still held by its
+        seq gate had no successor, so it is skipped."""
+        self.flush_join()
+        for key, gate in self.gates.items():
+            for seq, *_ in gate.flush():
+                self._skip(key, self._jump_error(key, seq))
+
+    def _jump_error(self, key: str, seq: int) -> wire.WireError:
+        book = self.books.get(key)
+        last = None if book is None else book.last_seq
+        return wire.WireError(f"{key}: seq {seq} jumps from the stream's last seq {last} and no message "
+                              "followed it: not recorded")
+
     def _add_run(self, key: str, kind: str, payloads: list[bytes], rx_ns: int) -> bool:
         """Many payloads of one vector topic at once; False (nothing written) when any of them
-        breaks the contract, so the caller goes message by message and skips just that one."""
+        breaks the contract, the stream's vector length, or jumps ahead (a seq to confirm), so
+        the caller goes message by message and decides on each."""
         try:
-            seq, t, _ = wire.decode_batch(payloads, kind, topic=key)
+            seq, t, vals = wire.decode_batch(payloads, kind, topic=key)
         except wire.WireError:
+            return False
+        gate = self.gates.get(key)
+        if self.dims.get(key, vals.shape[1]) != vals.shape[1] or (gate is not None and (
+                gate.held is not None or gate.far(int(seq[0])))) or (np.diff(seq) > SEQ_AHEAD).any():
             return False
         pub = np.rint(t * 1e9)
         if ((pub < 0) | (pub >= 2.0**63)).any():   # not a u64 publish_time: write() names it
@@ -294,15 +342,45 @@ class Ingest:
             book.see_run(s0, b - a)
             restarted |= len(book.restarts) > n_restarts
         self.messages += len(payloads)
+        self.dims[key] = vals.shape[1]
+        if gate is None:
+            gate = self.gates[key] = wire.SeqGate(SEQ_AHEAD)
+        gate.last = int(seq[-1])
         self._data_seen(key, kind, restarted)
         return True
 
     def _add_one(self, key: str, kind: str, payload: bytes, rx_ns: int) -> None:
+        n = None
         try:
-            seq, t = _seq_t(payload, kind, key)
+            obj = _decoded(payload, kind, key)
+            if kind in VECTOR_KINDS:
+                n, dim = len(obj[wire.VECTOR_FIELD[kind]]), self.dims.get(key)
+                if dim is not None and n != dim:
+                    raise wire.WireError(f"{key}: {wire.VECTOR_FIELD[kind]} has {n} elements at seq {obj['seq']}; "
+                                         f"the stream's have {dim}")
+        except wire.WireError as exc:
+            self._skip(key, exc)
+            return
+        item = (obj["seq"], float(obj["t"]), payload, rx_ns, n)
+        if kind == wire.END:                     # one message per stream, each with seq 0
+            self._write(key, kind, *item, end=obj)
+            return
+        gate = self.gates.get(key)
+        if gate is None:
+            gate = self.gates[key] = wire.SeqGate(SEQ_AHEAD)
+        take, dropped = gate.offer(obj["seq"], item)
+        for seq, *_ in dropped:
+            self._skip(key, self._jump_error(key, seq))
+        for it in take:
+            self._write(key, kind, *it)
+
+    def _write(self, key: str, kind: str, seq: int, t: float, payload: bytes, rx_ns: int, dim: int | None,
+               end: dict | None = None) -> None:
+        """Write one message that has passed every check (``dim``: its vector's length), and book it."""
+        try:
             self.w.write(key, kind, seq, int(round(t * 1e9)), rx_ns, payload)
-        except (wire.WireError, mcapio.McapIoError) as exc:
-            self._skip(exc)
+        except mcapio.McapIoError as exc:
+            self._skip(key, exc)
             return
         book = self.books.get(key)
         if book is None:
@@ -310,8 +388,10 @@ class Ingest:
         n_restarts = len(book.restarts)
         book.see(seq)
         self.messages += 1
-        if kind == wire.END:
-            self._end(key, wire.decode_end(payload, topic=key))
+        if dim is not None:
+            self.dims.setdefault(key, dim)
+        if end is not None:
+            self._end(key, end)
         else:
             self._data_seen(key, kind, len(book.restarts) > n_restarts)
 
@@ -325,8 +405,14 @@ class Ingest:
 
     def _end(self, key: str, end: dict) -> None:
         """The end of a source's stream: everything it sent before has been written (same links,
-        in order). Book the tail that did not come as a gap, and say so."""
+        in order). A message held by its topic's seq gate is taken if the source says it published
+        that seq. Book the tail that did not come as a gap, and say so."""
         prefix = key.rsplit("/", 1)[0]
+        for kind, n in end["counts"].items():
+            gate = self.gates.get(f"{prefix}/{kind}")
+            if gate is not None and gate.held is not None and gate.held[0] < n:
+                for item in gate.take_held():
+                    self._write(f"{prefix}/{kind}", kind, *item)
         self.ends[prefix] = end
         self.live.discard(prefix)
         short = []
@@ -346,6 +432,13 @@ class Ingest:
         text = (f"noiselab record: {prefix} ended ({end['reason']}) after {end['samples']} samples: "
                 + ("every message recorded" if not short else "not recorded: " + ", ".join(short)))
         print(text, file=self.log, flush=True)
+
+    def unended(self) -> dict:
+        """{prefix: {kind: last seq}} of every source whose data arrived and whose end of stream
+        did not come after it (it vanished, or was still streaming)."""
+        return {prefix: {key.rsplit("/", 1)[1]: b.last_seq for key, b in sorted(self.books.items())
+                         if key.rsplit("/", 1)[0] == prefix and key.rsplit("/", 1)[1] in wire.KINDS}
+                for prefix in sorted(self.live)}
 
     def ack(self, prefix: str) -> dict:
         """What the recorder holds of ``prefix``'s topics (the answer to an end-of-stream query)."""
@@ -426,16 +519,21 @@ def run_recorder(session: "zenoh.Session", key_expr: str, out: str, *, duration:
             sub.undeclare()
             if waiting:
                 ing.add(waiting, time.time_ns())
-            ing.flush_join()
+            ing.finish()
             for p in pending:
                 _answer(p[0], ing)
             queries.undeclare()
+            unended = ing.unended()
+            for prefix in sorted(unended):
+                print(f"noiselab record: {prefix}: {_unended_text(unended[prefix])}", file=log, flush=True)
             summary = RecorderSummary(out=str(out), topics=ing.books, messages=ing.messages,
                                       malformed=ing.malformed, wall_s=time.monotonic() - t_start,
-                                      ended={k: v["counts"] for k, v in ing.ends.items()})
+                                      ended={k: v["counts"] for k, v in ing.ends.items()},
+                                      malformed_topics=dict(ing.malformed_topics), unended=unended)
             w.add_metadata("noiselab.recorder", {
                 "topics": json.dumps({k: v.as_dict() for k, v in ing.books.items()}),
                 "messages": str(ing.messages), "malformed": str(ing.malformed),
+                "malformed_topics": json.dumps(ing.malformed_topics), "unended": json.dumps(unended),
                 "stopped_unix_ns": str(time.time_ns())})
     return summary
 

@@ -1,0 +1,295 @@
+"""Messages from the network are untrusted input: every node (emulator, recorder, live analyzer)
+survives anything a Zenoh peer on 127.0.0.1 publishes, and a hostile message never spoils a
+recording. Real processes and real Zenoh sessions on loopback (multicast scouting off), real
+MCAP files read back, as in tests/test_live.py, whose helpers this file uses.
+
+Synchronisation is by events only (a child's stderr line, a subscriber's condition variable, a
+recorder's answer to a query, process exit); every timeout is a failure bound, never a pass.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zenoh
+
+from livechild import ROOT
+from service.model import load_model
+from service.nodes import mcapio, transport, wire
+from service.nodes.analyzer import READY_MARK as ANALYZER_READY
+from service.nodes.recorder import Ingest
+from service.nodes.runner import READY_MARK, free_port
+from test_live import (CONTROLLER, EMULATE_MARK, LOOP_TOML, ROUTER_MARK, Collector, check_summary_topics, ep,
+                       file_messages, session_config, waited_for_subscribers)
+
+T_EVENT = 60.0            # bound for "the next event happens" on a shared 2-core machine; never a pass
+DEEP = 200_000            # nesting levels of the deep payloads (Python's JSON parser recurses ~1000)
+
+
+def deep(levels: int = DEEP) -> bytes:
+    return b"[" * levels + b"]" * levels
+
+
+def sample(kind: str, seq: int, vec, Ts: float = 0.01) -> bytes:
+    return wire.encode(seq, wire.sample_time(seq, Ts), vec, kind=kind)
+
+
+def cli(*args, timeout: float = 120) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "service.cli", *map(str, args)], capture_output=True, text=True,
+                          cwd=ROOT, timeout=timeout)
+
+
+def no_traceback(child) -> None:
+    assert not any("Traceback" in ln or "Error:" in ln and "noiselab" not in ln for ln in child.err), \
+        child.stderr_text()
+
+
+# ------------------------------------------------------------------ the recorder's books
+
+
+def test_recorder_skips_what_does_not_continue_its_stream(tmp_path):
+    """Ingest (the recorder's work on what it received): a vector's length is fixed by its
+    stream's first message, so wrong-length messages (injected with seq 0, empty, 10^3 elements)
+    are skipped and counted, not booked as restarts or gaps; a seq that jumps ahead is held
+    until the next message: not followed by its successor it is skipped (a forged seq), followed
+    by it the gap is real and both are recorded, and an end of stream that counts it takes it;
+    batches and single messages give the same file and books."""
+    meas = [("noiselab/d/measurement", sample("measurement", k, [0.5])) for k in range(40)]
+    items = meas[:10]
+    hostile = [sample("measurement", 0, [0.1, 0.2]), sample("measurement", 0, []),
+               sample("measurement", 10, [0.0] * 1000), sample("measurement", 10**12, [0.5]),
+               b'{"seq":10,"t":0.1,"y":' + deep() + b"}"]
+    items += [("noiselab/d/measurement", p) for p in hostile]
+    items += meas[10:20] + meas[23:40]                    # a real gap: 20..22 lost on the way
+    items += [("noiselab/d/truth", sample("truth", k, [1.0, 2.0])) for k in range(5)]
+    items += [("noiselab/d/truth", sample("truth", 9, [1.0, 2.0]))]        # ahead, then the end says 10
+    end = wire.encode_end(0, 0.39, 40, {"measurement": 40, "truth": 10}, "duration")
+    items += [("noiselab/d/end", end)]
+    results = []
+    for mode in ("batch", "one by one"):
+        path = tmp_path / f"{mode}.mcap"
+        with mcapio.RecordingWriter(path) as w, open(tmp_path / f"{mode}.log", "w") as log:
+            ing = Ingest(w, str(path), log=log)
+            if mode == "batch":
+                ing.add(items, 1_000)
+            else:
+                for item in items:
+                    ing.add([item], 1_000)
+            ing.finish()
+        results.append(({k: b.as_dict() for k, b in ing.books.items()}, ing.messages, ing.malformed,
+                         ing.malformed_topics, {t: [m.data for _, _, m in v] for t, v in file_messages(path).items()}))
+    assert results[0] == results[1]
+    books, messages, malformed, per_topic, files = results[0]
+    assert (malformed, per_topic) == (5, {"noiselab/d/measurement": 5})
+    m = books["noiselab/d/measurement"]
+    assert (m["count"], m["gaps"], m["restarts"], m["expected"], m["missing"]) == (37, [[19, 3]], [], 40, 3)
+    assert files["noiselab/d/measurement"] == [p for _, p in meas[:20] + meas[23:]]
+    tb = books["noiselab/d/truth"]
+    assert (tb["count"], tb["gaps"], tb["last_seq"], tb["missing_at_end"]) == (6, [[4, 4]], 9, 0)
+    assert messages == 37 + 6 + 1
+    rec = mcapio.read_recording(tmp_path / "batch.mcap")
+    assert rec.device("d").measurement.values.shape == (37, 1)
+    text = (tmp_path / "batch.log").read_text()
+    assert "y has 2 elements at seq 0; the stream's have 1" in text
+    assert "seq 1000000000000 jumps from the stream's last seq 9 and no message followed it" in text
+    assert f"deeper than {wire.MAX_DEPTH}" in text
+
+
+def test_recorder_says_which_sources_vanished_without_an_end_of_stream(spawn, tmp_path):
+    """Two sources: one ends its stream, the other closes its session without an end of stream.
+    On stop the recorder says so for the second, one line, and lists it in its summary and in
+    the file's metadata (with the last seq it got of each topic); the first is not listed."""
+    port = free_port()
+    out = tmp_path / "vanished.mcap"
+    rec = spawn("record", "record", "--listen", ep(port), "--out", out, "--json")
+    rec.wait_line(READY_MARK)
+    with zenoh.open(session_config(connect=[ep(port)])) as session:
+        pubs = {(dev, kind): session.declare_publisher(wire.key(dev, kind), **transport.DATA_QOS)
+                for dev in ("gone", "done") for kind in ("measurement", "command", "end")}
+        assert transport.wait_matching(pubs.values(), T_EVENT), "the recorder did not match"
+        for k in range(50):
+            for dev in ("gone", "done"):
+                pubs[dev, "measurement"].put(sample("measurement", k, [0.5]))
+                if k < 30:
+                    pubs[dev, "command"].put(sample("command", k, [0.0]))
+        end = transport.end_stream(session, pubs["done", "end"],
+                                   wire.encode_end(0, 0.49, 50, {"measurement": 50, "command": 30}, "duration"), T_EVENT)
+        assert len(end["acks"]) == 1 and end["acks"][0]["complete"], end
+    assert rec.interrupt() == 0, rec.stderr_text()
+    lines = [ln for ln in rec.err if "no end of stream" in ln]
+    assert lines == ["noiselab record: noiselab/gone: no end of stream (the source vanished, or was still "
+                     "streaming at the stop); last seq command 29, measurement 49"], rec.stderr_text()
+    summary = rec.json()
+    assert summary["unended"] == {"noiselab/gone": {"measurement": 49, "command": 29}}
+    assert summary["malformed"] == 0
+    meta = mcapio.read_recording(out).metadata["noiselab.recorder"]
+    assert json.loads(meta["unended"]) == summary["unended"]
+
+
+# -------------------------------------------------------------- one hostile message, each node
+
+
+def test_live_analyzer_counts_and_skips_hostile_samples_and_keeps_updating(spawn, tmp_path):
+    """A live analyzer fed the seed model's 1200 samples (measurement and command) from a session
+    here, with hostile messages after sample 599: JSON nested 200,000 deep (it crashed on
+    RecursionError), seq 10^26 (OverflowError in its ring), a valid-looking seq 10^12 (its
+    window jumped there and it stopped updating), vectors of the wrong length (2, 0 and 10^6
+    elements), and finite samples of 1e308 (its statistics overflowed and it exited). It keeps
+    updating to the last sample, analyses all 1200 (none of the hostile ones took a place),
+    counts each hostile message once, says each reason once, and exits 0."""
+    model = load_model("seed")
+    n, cut = 1200, 600
+    sim = model.simulate(n, seed=4)
+    good = {kind: wire.encode_batch(kind, 0, sim.t, values) for kind, values in
+            (("measurement", sim.y), ("command", sim.u))}
+    hostile = [("measurement", deep()), ("command", b'{"":' * DEEP + b"1" + b"}" * DEEP),
+               ("measurement", b'{"seq":100000000000000000000000000,"t":6.0,"y":[0.1]}'),
+               ("measurement", sample("measurement", 10**12, [0.1])),
+               ("measurement", sample("measurement", cut, [0.1, 0.2])), ("measurement", sample("measurement", cut, [])),
+               ("measurement", b'{"seq":600,"t":6.0,"y":[' + b",".join([b"0.1"] * 10**6) + b"]}"),
+               ("measurement", sample("measurement", cut, [1e308])), ("command", sample("command", cut, [1e308]))]
+    port = free_port()
+    got = Collector()
+    with zenoh.open(session_config(listen=[ep(port)])) as session:
+        sub = session.declare_subscriber("noiselab/seed/analysis", got)
+        an = spawn("analyze", "analyze", "--live", "--model", "seed", "--connect", ep(port), "--window", "20",
+                   "--update", "0.5", "--json")
+        an.wait_line(ANALYZER_READY)
+        pubs = {kind: session.declare_publisher(wire.key("seed", kind), **transport.DATA_QOS)
+                for kind in ("measurement", "command")}
+        assert transport.wait_matching(pubs.values(), T_EVENT), "the analyzer did not match"
+        for k in range(n):
+            if k == cut:
+                for kind, payload in hostile:
+                    pubs[kind].put(payload)
+            pubs["command"].put(good["command"][k])
+            pubs["measurement"].put(good["measurement"][k])
+
+        def done():
+            return any((s := json.loads(p))["samples"] == n and s["received"] == 2 * n and s["malformed"] == len(hostile)
+                       for p, _ in got.by_key.get("noiselab/seed/analysis", []))
+        got.wait_for(done, f"a summary of all {n} samples with {len(hostile)} malformed")
+        assert an.interrupt() == 0, an.stderr_text()
+        sub.undeclare()
+    last = json.loads(got.by_key["noiselab/seed/analysis"][-1][0])
+    assert last["t"] == sim.t[-1]                     # it analysed up to the last sample
+    final = an.json()
+    assert (final["samples"], final["received"], final["malformed"]) == (n, 2 * n, len(hostile))
+    said = [ln for ln in an.err if "skipped a message" in ln]
+    assert len(said) == 4, an.stderr_text()        # one line per reason: contract, length, seq, magnitude
+    assert any("seq 1000000000000 is more than a window" in ln for ln in said), said
+    assert not any("Traceback" in ln for ln in an.err), an.stderr_text()
+
+
+def test_emulator_rejects_hostile_controls_says_so_once_and_keeps_running(spawn, tmp_path):
+    """An emulator in closed loop (external command) receives controls of 1e308 (finite JSON: the
+    plant overflowed and the emulator died without an end of stream), nested 200,000 deep (a
+    callback traceback), of the wrong length, and of 10^6 elements; then a valid one. It rejects
+    the five (the previous command stays), says so once, counts them in its summary, applies
+    the valid one, ends its run at its duration and exits 0; every command it applied is
+    finite and one it was given."""
+    f = tmp_path / "loop.toml"
+    f.write_text(LOOP_TOML)
+    port = free_port()
+    emu = spawn("emulate", "emulate", f, "--listen", ep(port), "--duration", "3", "--stale", "30",
+                "--wait-subscribers", "20", "--json")
+    emu.wait_line(EMULATE_MARK)
+    got = Collector()
+    cmd = "noiselab/loop/command"
+    with zenoh.open(session_config(connect=[ep(port)])) as session:
+        sub = session.declare_subscriber("noiselab/loop/**", got)
+        pub = session.declare_publisher(wire.key("loop", wire.CONTROL), **transport.DATA_QOS)
+        got.wait_for(lambda: got.last_seq(cmd) >= 5, "command seq 5")
+        for payload in (b'{"seq":0,"t":0.0,"u":[1e308]}', deep(), sample("control", 0, [1.0, 2.0]),
+                        sample("control", 0, []), b'{"seq":0,"t":0.0,"u":[' + b",".join([b"1"] * 10**6) + b"]}",
+                        sample("control", 1, [0.5])):
+            pub.put(payload)
+        got.wait_for(lambda: any(wire.decode(p)["u"] == [0.5] for p, _ in got.by_key[cmd]), "the valid control applied")
+        assert emu.finish() == 0, emu.stderr_text()
+        got.wait_for(lambda: got.count("noiselab/loop/end") == 1, "the end of stream")
+        sub.undeclare()
+    summary = emu.json()
+    assert summary["samples"] == 300 and summary["rejected_controls"] == 5 and summary["diverged_at"] is None
+    said = [ln for ln in emu.err if "rejected a control" in ln]
+    assert len(said) == 1 and "u[0]=1e+308 at seq 0 exceeds 1e+100" in said[0], emu.stderr_text()
+    assert not any("Traceback" in ln for ln in emu.err), emu.stderr_text()
+    applied = [wire.decode(p)["u"][0] for p, _ in got.by_key[cmd]]
+    assert len(applied) == 300 and set(applied) == {0.0, 0.5}
+
+
+UNSTABLE_TOML = """
+name = "unstable"
+[sampling]
+Ts = 0.01
+[plant]            # x' = 2000 x + u: grows e^20 per sample, past float64 within some 40 samples
+A = [[2000.0]]
+B = [[1.0]]
+C = [[1.0]]
+[command]
+kind = "sine"
+amplitude = 1.0
+frequency_hz = 1.0
+[sensor.white]
+std = 0.01
+"""
+
+
+def test_emulator_ends_its_stream_where_the_plant_diverges(spawn, tmp_path):
+    """An unstable plant overflows to inf: the emulator publishes no sample that is not finite,
+    says once where it stopped, ends its stream there (the end of stream counts what it
+    published) and exits 0, its summary naming the sample (it used to exit on a WireError
+    without an end of stream)."""
+    f = tmp_path / "unstable.toml"
+    f.write_text(UNSTABLE_TOML)
+    port = free_port()
+    emu = spawn("emulate", "emulate", f, "--listen", ep(port), "--duration", "5", "--wait-subscribers", "20",
+                "--json")
+    emu.wait_line(EMULATE_MARK)
+    got = Collector()
+    with zenoh.open(session_config(connect=[ep(port)])) as session:
+        sub = session.declare_subscriber("noiselab/unstable/**", got)
+        assert emu.finish() == 0, emu.stderr_text()
+        got.wait_for(lambda: got.count("noiselab/unstable/end") == 1, "the end of stream")
+        sub.undeclare()
+    summary = emu.json()
+    k = summary["diverged_at"]
+    assert k is not None and summary["samples"] == k and 0 < k < 500, summary
+    end = wire.decode_end(got.by_key["noiselab/unstable/end"][0][0])
+    assert end["counts"]["measurement"] == end["counts"]["truth"] == k and end["reason"] == "stopped"
+    got.wait_for(lambda: got.count("noiselab/unstable/measurement") == k, f"{k} measurements")
+    ys = [wire.decode(p)["y"][0] for p, _ in got.by_key["noiselab/unstable/measurement"]]
+    assert np.isfinite(ys).all() and abs(ys[-1]) > 1e250
+    said = [ln for ln in emu.err if "is not finite" in ln]
+    assert len(said) == 1 and f"sample {k} is not finite" in said[0], emu.stderr_text()
+    assert not any("Warning" in ln or "Traceback" in ln for ln in emu.err), emu.stderr_text()
+
+
+def test_analyze_of_a_recording_nested_deep_is_one_line_exit_2(tmp_path):
+    """`noiselab analyze` of a file whose y at one seq is nested 100,000 deep: one line naming the
+    topic and the bound, exit 2 (the reader's decode raised RecursionError: a traceback)."""
+    model = load_model("seed")
+    n = 1000
+    sim = model.simulate(n, seed=1)
+    path = tmp_path / "deep.mcap"
+    with mcapio.RecordingWriter(path) as w:
+        for k in range(n):
+            pub = wire.publish_time_ns(k, wire.period_ns(model.Ts))
+            for kind, values in (("command", sim.u), ("measurement", sim.y)):
+                payload = sample(kind, k, values[k])
+                if kind == "measurement" and k == 500:
+                    payload = b'{"seq":500,"t":5.0,"y":' + deep(100_000) + b"}"
+                w.write(wire.key("seed", kind), kind, k, pub, pub, payload)
+    r = cli("analyze", path, "--model", "seed", "--json")
+    assert r.returncode == 2, r.stderr
+    lines = r.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("noiselab: "), r.stderr
+    assert "noiselab/seed/measurement" in lines[0] and f"deeper than {wire.MAX_DEPTH}" in lines[0], lines[0]
+    assert r.stdout == ""
