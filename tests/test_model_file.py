@@ -151,8 +151,10 @@ def assert_same_model(a, b) -> None:
 
 
 # -- 1. the catalogue of bad files ----------------------------------------------------------------
-# Q_d = L psd L^T Ts (euler) overflows float64 while A_d = I + Ts A does not
-OVERFLOW_QD = edited(SEED, {("sampling", "Ts"): 1e100, ("process", "white"): {"psd": 1e300}})
+# an unstable pole at 1/s: over Ts = 400 s Van Loan's Q_d (about psd e^(2 Ts) / 2) overflows float64
+# while A_d = e^Ts does not; over Ts = 1000 s A_d overflows too (Ts and psd within their bounds)
+UNSTABLE = 'name = "unstable"\n[sampling]\nTs = 400.0\n[plant]\nA = [[1.0]]\nB = [[1.0]]\nC = [[1.0]]\n'
+OVERFLOW_QD = UNSTABLE + "[process.white]\npsd = 1.0\n"
 # a plain two-input, two-output plant without effects, two process-noise channels
 PLAIN_2X2 = edited(GENERAL, {("plant", "L"): [[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]},
                    drops=[("process",), ("actuator",), ("sensor",)])
@@ -213,6 +215,32 @@ BAD_FILES = {
     # impossible values
     "Ts zero": (edited(SEED, {("sampling", "Ts"): 0.0}), ("[sampling] Ts", "> 0", "got 0.0")),
     "Ts negative": (edited(SEED, {("sampling", "Ts"): -0.01}), ("[sampling] Ts", "> 0", "got -0.01")),
+    # out of the sample period's range, 1 us to a day: Ts = 1e300 overflowed the mean response
+    # (OverflowError in lsim), Ts = 1e-300 asked numpy for its horizon's 6e301 samples (ValueError)
+    "Ts huge": (edited(SEED, {("sampling", "Ts"): 1e300}), ("[sampling] Ts", "between 1e-06", "86400", "got 1e+300")),
+    "Ts above a day": (edited(SEED, {("sampling", "Ts"): 86401.0}), ("[sampling] Ts", "86400", "got 86401.0")),
+    "Ts tiny": (edited(SEED, {("sampling", "Ts"): 1e-300}), ("[sampling] Ts", "1e-06", "got 1e-300")),
+    "Ts below 1 us": (edited(SEED, {("sampling", "Ts"): 9e-7}), ("[sampling] Ts", "1e-06", "got 9e-07")),
+    # magnitudes whose squares or fourth powers overflow float64
+    "sensor white std 1e300": (edited(SEED, {("sensor", "white", "std"): 1e300}),
+                               ("[sensor.white] std", "magnitude at most 1e+50", "float64", "got 1e+300")),
+    "one channel's std 1e51": (edited(GENERAL, {("sensor", "bias_markov", "std"): [0.1, 1e51]}),
+                               ("[sensor.bias_markov] std", "magnitude at most 1e+50")),
+    "mass 1e60": (edited(SEED, {("plant", "m"): 1e60}), ("[plant] m", "magnitude at most 1e+50", "got 1e+60")),
+    "huge entry of A": (edited(GENERAL, {("plant", "A"): [[0.0, 1.0, 0.0], [-4.0, -0.5, 1.0], [0.0, 0.0, -1e51]]}),
+                        ("[plant] A", "magnitude at most 1e+50")),
+    "huge command amplitude": (edited(SEED, {("command", "amplitude"): -1e300}),
+                               ("[command] amplitude", "magnitude at most 1e+50")),
+    "integer of 60 digits": (edited(SEED, {("sensor", "quantization", "step"): 10**60}),
+                             ("[sensor.quantization] step", "magnitude at most 1e+50")),
+    # a correlation time whose rho = exp(-Ts / tau_s) rounds to 1 (a singular stationary covariance:
+    # LinAlgError in the prediction)
+    "markov tau_s beyond 1e15 Ts": (edited(GENERAL, {("sensor", "bias_markov", "tau_s"): 1e50}),
+                                    ("[sensor.bias_markov] tau_s", "at most 1e+15 Ts")),
+    "ar1 tau_s beyond 1e15 Ts": (edited(GENERAL, {("actuator", "ar1", "tau_s"): [0.3, 1e14]}),
+                                 ("[actuator.ar1] tau_s", "at most 1e+15 Ts = 1e+13 s")),
+    "prbs bit shorter than a sample": (edited(SEED, {("command",): {"kind": "prbs", "amplitude": 1.0, "bit_s": 1e-50}}),
+                                       ("[command] bit_s", ">= Ts = 0.01")),
     "negative std": (edited(SEED, {("sensor", "white", "std"): -0.01}), ("[sensor.white] std", ">= 0")),
     "negative std in one channel": (edited(GENERAL, {("sensor", "bias_markov", "std"): [0.1, -0.1]}),
                                     ("[sensor.bias_markov] std", ">= 0")),
@@ -276,8 +304,7 @@ BAD_FILES = {
                                  ("[sensor.jitter] std_s", "std_s < Ts = 0.01")),
     "jitter std_s above Ts": (edited(GENERAL, {("sensor", "jitter", "std_s"): 0.5}),
                               ("[sensor.jitter] std_s", "std_s < Ts")),
-    "discretization overflows": (edited(SEED, {("sampling", "Ts"): 1e300, ("sampling", "discretization"): "zoh"}),
-                                 ("[plant]", "[sampling] Ts", "finite")),
+    "discretization overflows": (sub(UNSTABLE, "Ts = 400.0", "Ts = 1000.0"), ("[plant]", "[sampling] Ts", "finite")),
     "process noise covariance overflows": (OVERFLOW_QD, ("[process.white] psd", "finite")),
     # syntax and names
     "invalid TOML": (sub(SEED, "Ts = 0.01", "Ts = = 0.01"), ("invalid TOML", "line 8")),

@@ -66,7 +66,7 @@ def prbs_bits(order: int) -> np.ndarray:
     return out
 
 
-def parse_command(t: Table | None, m: int) -> Command:
+def parse_command(t: Table | None, m: int, Ts: float) -> Command:
     if t is None:
         return Command("none", m)
     kind = t.string("kind", "none", choices=KINDS)
@@ -88,7 +88,8 @@ def parse_command(t: Table | None, m: int) -> Command:
         p["duration_s"] = t.number("duration_s", check=lambda v: v > 0, expect="a sweep duration in s > 0")
     elif kind == "prbs":
         p["amplitude"] = t.vector("amplitude", m)
-        p["bit_s"] = t.number("bit_s", check=lambda v: v > 0, expect="a bit duration in s > 0")
+        # a bit shorter than a sample is held for no sample (and t / bit_s would leave int64)
+        p["bit_s"] = t.number("bit_s", check=lambda v: v >= Ts, expect=f"a bit duration in s >= Ts = {Ts:g}")
         p["order"] = t.integer("order", 9, check=lambda v: v in _PRBS_TAPS,
                                expect=f"one of {sorted(_PRBS_TAPS)}")
     t.done()

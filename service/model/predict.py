@@ -46,6 +46,17 @@ _SQRT2PI = np.sqrt(2.0 * np.pi)
 
 
 # -- Gaussian expectations of piecewise-linear maps (statistical linearization) ---------------------
+def pwl_pieces(fn, b: np.ndarray):
+    """A piecewise-linear map ``fn`` with kinks ``b`` (sorted, unique): the points
+    ext = [b_0 - pad, b, b_-1 + pad], fn(ext) and the slopes of the K + 1 pieces. The map is linear
+    beyond its outer kinks, so any step past them gives the outer slopes; pad = max(1, max |b|) is
+    one that float64 does not lose (b +- 1 is b beyond 2^53: a kink at 1e20 gave the slope 0 / 0)."""
+    pad = max(1.0, float(np.max(np.abs(b))))
+    ext = np.concatenate([[b[0] - pad], b, [b[-1] + pad]])
+    fv = fn(ext)
+    return ext, fv, np.diff(fv) / np.diff(ext)
+
+
 def gauss_pwl(fn, knots: np.ndarray, mu: np.ndarray, sigma: np.ndarray, *, second: bool = False):
     """E[f(U)] and E[f'(U)] (and E[f(U)^2] with ``second``) for U ~ N(mu, sigma^2), f piecewise
     linear with kinks at ``knots``.
@@ -58,10 +69,12 @@ def gauss_pwl(fn, knots: np.ndarray, mu: np.ndarray, sigma: np.ndarray, *, secon
     numpy more than the arithmetic).
     """
     b = np.unique(np.asarray(knots, float))
-    ext = np.concatenate([[b[0] - 1.0], b, [b[-1] + 1.0]])
-    fv = fn(ext)
-    slope = (np.diff(fv) / np.diff(ext))[:, None]           # K+1 pieces
-    icpt = fv[:-1, None] - slope * ext[:-1, None]
+    ext, fv, slope = pwl_pieces(fn, b)
+    slope = slope[:, None]                                  # K+1 pieces
+    # each piece's intercept from its end nearer 0: from a far end (a saturation at 1e20 beside a
+    # dead zone of 0.01) f - s x cancels to rounding of 1e20 and the dead zone's offset is lost
+    near = np.where(np.abs(ext[:-1]) <= np.abs(ext[1:]), 0, 1) + np.arange(ext.size - 1)
+    icpt = fv[near, None] - slope * ext[near, None]
     mu, sg = np.broadcast_arrays(np.asarray(mu, float), np.asarray(sigma, float))
     shape = mu.shape
     mu, sg = mu.ravel(), sg.ravel()
@@ -196,7 +209,7 @@ DISTORTION_TERMS = 20     # Hermite terms of a colored noise's distortion (Predi
 # jitter or a nonlinearity (on 10^6 samples of the seed: 2325 steady states, 5.9 s of 42 s in the
 # mean responses, under the profiler). Read-only arrays, shared by threads (a :class:`Memo`: they
 # may compute one twice, never wrongly). Only means of at most _OWN_MEAN_BYTES are kept: the horizon
-# is 60 s of samples, and at Ts = 1 us one mean response is gigabytes.
+# is 60 s of samples (at most HORIZON_MAX), about 100 MB of mean response at Ts = 57 us and below.
 _OWN_MEAN = Memo(9, flush=True)
 _OWN_MEAN_BYTES = 16 << 20
 # The gain fluctuation's and the distortion's damped-cosine fits of a nonlinear model, by the same
@@ -205,13 +218,19 @@ _OWN_MEAN_BYTES = 16 << 20
 _COLORS = Memo(65, flush=True)
 
 
+HORIZON_MAX = 1 << 20
+"""The most samples of the model's own command a prediction averages over (the 60 s horizon holds
+for Ts >= 57 us; at Ts = 1 us it is 1 s): the mean response keeps several arrays of that length."""
+
+
 class Predictor:
     """Predictions for one model. ``horizon_s`` sets how long a command history is averaged over
-    for signal-dependent approximations (jitter, nonlinear actuator gains)."""
+    for signal-dependent approximations (jitter, nonlinear actuator gains), at most
+    :data:`HORIZON_MAX` samples."""
 
     def __init__(self, model, horizon_s: float = 60.0):
         self.model = model
-        self.horizon = max(int(np.ceil(horizon_s / model.Ts)), 2)
+        self.horizon = min(max(int(np.ceil(horizon_s / model.Ts)), 2), HORIZON_MAX)
         m = model
         self._act_src = [e for e in m.effects.values() if hasattr(e, "drive_linear")]
         self._nonlin = [e for e in m.effects.values() if hasattr(e, "knots")]
@@ -510,10 +529,11 @@ class Predictor:
             rho = Rn[:, ch] / s2
             fj, knots = self._channel_map(ch)
             b = np.unique(knots)
-            ext = np.concatenate([[b[0] - 1.0], b, [b[-1] + 1.0]])
-            slope = np.diff(fj(ext)) / np.diff(ext)
+            slope = pwl_pieces(fj, b)[2]
             delta = np.diff(slope)                                  # the slope's change at each kink
-            z = (b[:, None] - u[:, ch]) / s                         # (K, N)
+            # (K, N), clipped at 40 std: phi(40) = exp(-800) is 0 in float64 as it is beyond, and the
+            # Hermite functions stay finite (40^19): a kink 1e16 std away made 0 * inf = NaN
+            z = np.clip((b[:, None] - u[:, ch]) / s, -40.0, 40.0)
             wphi = s * delta[:, None] * np.exp(-0.5 * z * z) / _SQRT2PI
             # c_j / sqrt(j!) = s sum_i Delta_i phi h_(j-2)(z) / sqrt(j (j - 1)), h_n = He_n / sqrt(n!)
             cj = np.empty((J - 1, N))
@@ -654,8 +674,8 @@ class Predictor:
         mdl = self.model
         notes = []
         # the mean response over the horizon only where a term depends on the signal (the
-        # nonlinearities' gains, the jitter's slope, the quantizer's spread): at Ts = 1 us the
-        # horizon is 6e7 samples, a minute and gigabytes for a model that needs none of it
+        # nonlinearities' gains, the jitter's slope, the quantizer's spread): at Ts <= 57 us the
+        # horizon is 10^6 samples, seconds and 100s of MB for a model that needs none of it
         needs_mean = bool(self._nonlin) or "sensor.quantization" in mdl.effects or "sensor.jitter" in mdl.effects
         mean = self._own_mean() if needs_mean else None
         burn = min(mean.t.size // 2, _settle_samples(mdl)) if needs_mean else 0

@@ -4,6 +4,12 @@ A :class:`Table` wraps one TOML table. Each accessor validates one key (type, sh
 finiteness) and :meth:`Table.done` rejects every key that was not asked for, so a misspelled key is
 an error, never a silent default. All messages are one line: ``<source>: [table] key: expected ...,
 got ...``.
+
+Every number of a model file is finite and at most :data:`MAGNITUDE_MAX` in magnitude: the
+predictions and the analysis square a model's numbers (variances), sum the squares over a record
+and take their squares again (the spread of a variance estimate is a fourth moment), and all of it
+must stay finite in float64 (max 1.8e308): (1e50)^4 = 1e200 leaves 1e108 for the sums and the
+plant's gains. No sensor or plant written in any unit system needs more.
 """
 
 from __future__ import annotations
@@ -18,6 +24,10 @@ from .errors import ModelError
 
 _MISSING = object()
 _FLOAT_MAX = sys.float_info.max
+
+MAGNITUDE_MAX = 1e50
+"""The largest magnitude of any number in a model file (see the module docstring)."""
+_MAGNITUDE = f"of magnitude at most {MAGNITUDE_MAX:g} (its square and fourth power must stay finite in float64)"
 
 
 def _show(value: Any) -> str:
@@ -79,6 +89,8 @@ class Table:
         v = float(v)
         if check is not None and not check(v):
             raise self.error(key, f"expected {expect}, got {_show(v)}")
+        if abs(v) > MAGNITUDE_MAX:
+            raise self.error(key, f"expected {expect} {_MAGNITUDE}, got {_show(v)}")
         return v
 
     def integer(self, key: str, default: Any = _MISSING, *,
@@ -120,6 +132,8 @@ class Table:
             raise self.error(key, f"expected {what}, got {_show(v)}")
         if not np.all(np.isfinite(arr)) or (check is not None and not check(arr)):
             raise self.error(key, f"expected {what}, got {_show(v)}")
+        if np.any(np.abs(arr) > MAGNITUDE_MAX):
+            raise self.error(key, f"expected {what} {_MAGNITUDE}, got {_show(v)}")
         return arr
 
     def matrix(self, key: str, default: Any = _MISSING, *, rows: int | None = None,
@@ -137,6 +151,8 @@ class Table:
         arr = np.asarray(v, float)
         if not np.all(np.isfinite(arr)):
             raise self.error(key, f"expected finite numbers, got {_show(v)}")
+        if np.any(np.abs(arr) > MAGNITUDE_MAX):
+            raise self.error(key, f"expected numbers {_MAGNITUDE}, got {_show(v)}")
         if (rows is not None and arr.shape[0] != rows) or (cols is not None and arr.shape[1] != cols):
             want = f"{rows if rows is not None else 'any'} x {cols if cols is not None else 'any'}"
             raise self.error(key, f"expected shape {want}, got {arr.shape[0]} x {arr.shape[1]}")

@@ -178,6 +178,10 @@ def _map(fn, v):
     return [fn(float(x)) for x in v] if isinstance(v, (list, tuple)) else fn(float(v))
 
 
+TAU_MAX_TS = 1e15
+"""The longest AR(1)/Gauss-Markov correlation time, in sample periods (see :func:`parse_rho_tau`)."""
+
+
 def parse_rho_tau(table: Table, n: int, Ts: float) -> tuple[np.ndarray, np.ndarray]:
     """AR(1)/Gauss-Markov correlation: ``rho`` or ``tau_s`` (rho = exp(-Ts/tau_s)), exactly one."""
     if table.has("rho") == table.has("tau_s"):
@@ -187,5 +191,8 @@ def parse_rho_tau(table: Table, n: int, Ts: float) -> tuple[np.ndarray, np.ndarr
         with np.errstate(divide="ignore", over="ignore"):          # a huge Ts: tau = inf
             tau = np.where(rho > 0, -Ts / np.log(np.where(rho > 0, rho, 0.5)), np.nan)
         return rho, tau
-    tau = table.vector("tau_s", n, check=lambda v: bool(np.all(v > 0)), expect="time constants in s > 0")
+    # rho = exp(-Ts / tau_s) must stay below 1 in float64 (Ts / tau_s above 2^-53): a longer
+    # correlation time is a walk over any record, and rho = 1 makes the stationary covariance singular
+    tau = table.vector("tau_s", n, check=lambda v: bool(np.all((v > 0) & (v <= TAU_MAX_TS * Ts))),
+                       expect=f"time constants in s > 0 and at most {TAU_MAX_TS:g} Ts = {TAU_MAX_TS * Ts:g} s")
     return np.exp(-Ts / tau), tau
