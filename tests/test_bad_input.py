@@ -151,3 +151,81 @@ def test_every_built_in_scenario_still_loads():
         assert TS_MIN <= model.Ts <= TS_MAX, name
     for name in scenario_names():
         assert predict_report(load_model(name))["Ts"] > 0
+
+
+# -- 2. recordings whose values the analysis cannot square --------------------------------------------
+def write_record(path, model, n: int, seed: int, edit=None) -> None:
+    """A noiselab recording of ``model`` (n samples of truth, command and measurement, the wire
+    contract as ``simulate`` writes it), its arrays first given to ``edit(x, u, y)``."""
+    from service.nodes import mcapio, wire
+
+    b = model.simulate(n, seed=seed)
+    x, u, y = b.x.copy(), b.u.copy(), b.y.copy()
+    if edit is not None:
+        edit(x, u, y)
+    t, pub = wire.sample_times(0, n, model.Ts)
+    with mcapio.RecordingWriter(path) as w:
+        w.write_interleaved([(wire.key(model.name, kind), kind, 0, pub, pub,
+                              wire.encode_batch(kind, 0, t, arr, topic=wire.key(model.name, kind)))
+                             for kind, arr in (("truth", x), ("command", u), ("measurement", y))])
+
+
+@pytest.fixture(scope="module")
+def seed_model():
+    return load_model("seed")
+
+
+def _set(arr, k, value):
+    arr[k, 0] = value
+
+
+@pytest.mark.parametrize("command, kind, k, value, field", [
+    ("diagnose", "y", 100, 1e308, "y[0] = 1e+308 at seq 100"),      # 'min() arg is an empty sequence' in search
+    ("analyze", "y", 2500, 1e300, "y[0] = 1e+300 at seq 2500"),     # 'cannot convert float NaN to integer' in allan
+    ("analyze", "y", 10, -1e51, "y[0] = -1e+51 at seq 10"),
+    ("diagnose", "u", 2999, 1e200, "u[0] = 1e+200 at seq 2999"),
+])
+def test_a_value_the_analysis_cannot_square_is_refused_at_load(command, kind, k, value, field, seed_model,
+                                                              tmp_path, capsys):
+    """One value beyond 1e50 in a recording: refused where the recording becomes arrays, naming the
+    file, the topic, the field and the seq (both commands read it there)."""
+    rec = tmp_path / "spike.mcap"
+    write_record(rec, seed_model, 3000, 1, lambda x, u, y: _set({"y": y, "u": u}[kind], k, value))
+    topic = "noiselab/seed/" + {"y": "measurement", "u": "command"}[kind]
+    assert_bad(cli(capsys, command, rec, "--model", "seed"), str(rec), topic, field, "1e+50", "float64")
+
+
+def test_a_foreign_field_beyond_the_bound_is_refused_naming_it(tmp_path, capsys):
+    """A JSON MCAP of another source (--measurement TOPIC:FIELD): the field and the sample named."""
+    from mcap.writer import Writer
+
+    rec = tmp_path / "imu.mcap"
+    with open(rec, "wb") as fh:
+        w = Writer(fh)
+        w.start()
+        sid = w.register_schema("imu", "jsonschema", b'{"type": "object"}')
+        cid = w.register_channel("/imu", "json", sid)
+        rng = np.random.default_rng(3)
+        for k in range(2000):
+            a = 1e60 if k == 1234 else float(rng.normal(0, 0.01))
+            w.add_message(cid, log_time=k * 10_000_000, publish_time=k * 10_000_000, sequence=k,
+                          data=f'{{"accel": {{"x": {a!r}}}}}'.encode())
+        w.finish()
+    assert_bad(cli(capsys, "analyze", rec, "--model", "seed", "--measurement", "/imu:accel.x"),
+               str(rec), "/imu", "accel.x = 1e+60 at sample 1234", "1e+50")
+
+
+def test_values_up_to_the_bound_are_analysed(seed_model, tmp_path, capsys):
+    """The bound is where the estimators stay finite: a record scaled so its largest value is 1e50
+    (the seed model then far off, by 1e100 in variance) is analysed, with a finite model error."""
+    import json
+
+    rec = tmp_path / "loud.mcap"
+
+    def scale(x, u, y):
+        y *= 1e50 / np.max(np.abs(y))
+    write_record(rec, seed_model, 3000, 2, scale)
+    rc, out, err = cli(capsys, "analyze", rec, "--model", "seed", "--json")
+    assert rc == 0, err
+    rep = json.loads(out)
+    assert np.isfinite(rep["error"]) and rep["error"] > 1e50

@@ -50,7 +50,7 @@ def pwl_pieces(fn, b: np.ndarray):
     """A piecewise-linear map ``fn`` with kinks ``b`` (sorted, unique): the points
     ext = [b_0 - pad, b, b_-1 + pad], fn(ext) and the slopes of the K + 1 pieces. The map is linear
     beyond its outer kinks, so any step past them gives the outer slopes; pad = max(1, max |b|) is
-    one that float64 does not lose (b +- 1 is b beyond 2^53: a kink at 1e20 gave the slope 0 / 0)."""
+    one that float64 does not lose (b +- 1 rounds to b beyond 2^53, and the slope would be 0 / 0)."""
     pad = max(1.0, float(np.max(np.abs(b))))
     ext = np.concatenate([[b[0] - pad], b, [b[-1] + pad]])
     fv = fn(ext)
@@ -532,7 +532,7 @@ class Predictor:
             slope = pwl_pieces(fj, b)[2]
             delta = np.diff(slope)                                  # the slope's change at each kink
             # (K, N), clipped at 40 std: phi(40) = exp(-800) is 0 in float64 as it is beyond, and the
-            # Hermite functions stay finite (40^19): a kink 1e16 std away made 0 * inf = NaN
+            # Hermite functions stay finite (40^19); unclipped, a kink 1e16 std away gives 0 * inf
             z = np.clip((b[:, None] - u[:, ch]) / s, -40.0, 40.0)
             wphi = s * delta[:, None] * np.exp(-0.5 * z * z) / _SQRT2PI
             # c_j / sqrt(j!) = s sum_i Delta_i phi h_(j-2)(z) / sqrt(j (j - 1)), h_n = He_n / sqrt(n!)
