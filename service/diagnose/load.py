@@ -101,10 +101,10 @@ def load_noiselab(path: str, device: str | None = None, truth: bool = True, Ts: 
     try:
         dev = rec.device(device)
     except (KeyError, ValueError, mcapio.McapIoError):
-        names = ", ".join(sorted(rec.devices))
+        names = ", ".join(mcapio.shown(n) for n in sorted(rec.devices))
         raise AnalysisError(f"{path}: device {device!r} not found or ambiguous (devices: {names})") from None
     notes = [] if rec.complete else [f"the recording is unfinished: {rec.note}"]
-    notes += [f"{td.topic}: {td.duplicates} repeated message{'s' if td.duplicates > 1 else ''} "
+    notes += [f"{mcapio.shown(td.topic)}: {td.duplicates} repeated message{'s' if td.duplicates > 1 else ''} "
               "(same seq, same sample) counted once" for td in dev.streams.values() if td.duplicates]
     if len(dev.measurement) < 2:
         raise AnalysisError(f"{path}: only {len(dev.measurement)} measurement samples")
@@ -114,7 +114,7 @@ def load_noiselab(path: str, device: str | None = None, truth: bool = True, Ts: 
     y = meas.values[keep]
     t = meas.t[keep]
     if Ts is not None and t.size >= 2:
-        _check_period(np.diff(t), Ts, f"{path}: {meas.topic}", notes)
+        _check_period(np.diff(t), Ts, f"{path}: {mcapio.shown(meas.topic)}", notes)
     u = _aligned(_same_segment(path, dev.command, dev.measurement, k, notes), seq[keep], notes, "command")
     x = _aligned(_same_segment(path, dev.truth, dev.measurement, k, notes), seq[keep], notes, "truth")
     if u is not None and np.isnan(u).any():
@@ -123,7 +123,7 @@ def load_noiselab(path: str, device: str | None = None, truth: bool = True, Ts: 
         if v is not None:
             _check_magnitude(v, f"{path}: {td.topic}", wire.VECTOR_FIELD[td.kind], seq[keep], "seq")
     command = command_used(model, None if u is None else dev.command.topic, notes)
-    return Series(t=t - t[0], y=y, u=u, truth=x, source=f"{path} [{dev.name}]", notes=notes,
+    return Series(t=t - t[0], y=y, u=u, truth=x, source=f"{path} [{mcapio.shown(dev.name)}]", notes=notes,
                   starts_at_rest=bool(seq[keep][0] == 0), command=command)
 
 
@@ -160,7 +160,7 @@ def _pick_segment(path: str, meas: mcapio.TopicData, segment: int | None, notes:
     """(index, TopicData) of the stream segment to analyse; a note when the source restarted."""
     segs = meas.segments
     if segment is not None and not (isinstance(segment, int) and 1 <= segment <= len(segs)):
-        raise AnalysisError(f"{path}: segment {segment!r} asked for, but {meas.topic} has "
+        raise AnalysisError(f"{path}: segment {segment!r} asked for, but {mcapio.shown(meas.topic)} has "
                             f"{len(segs)} stream segment{'s' if len(segs) > 1 else ''} (1..{len(segs)})")
     if len(segs) == 1:
         return 0, meas
@@ -186,7 +186,7 @@ def _restart_note(td: mcapio.TopicData, k: int, chosen: bool) -> str:
         shown = ", ".join(fmt(x) for x in xs[:most])
         return shown + (f", ... ({len(xs)} in all)" if len(xs) > most else "")
     times = "once" if len(at) == 1 else f"{len(at)} times"
-    return (f"{td.topic}: the source restarted {times} (seq back to {listed(back)} at log time "
+    return (f"{mcapio.shown(td.topic)}: the source restarted {times} (seq back to {listed(back)} at log time "
             f"{listed(at, lambda s: f'{s:+.3f} s')} from the first message): {len(lens)} stream segments "
             f"of {listed(lens)} samples; analysed segment {k + 1}"
             + (" (the one with the longest gap-free run)" if chosen else ""))
@@ -199,7 +199,8 @@ def _same_segment(path: str, td: mcapio.TopicData | None, meas: mcapio.TopicData
         return td
     if len(td.segments) == len(meas.segments):
         return td.segment(k)
-    why = (f"{td.topic} has {len(td.segments)} stream segments, {meas.topic} {len(meas.segments)}: "
+    why = (f"{mcapio.shown(td.topic)} has {len(td.segments)} stream segments, {mcapio.shown(meas.topic)} "
+           f"{len(meas.segments)}: "
            "which of its samples go with the analysed ones is unclear")
     if td.kind == "truth":
         notes.append(f"{why}; the truth is not used")

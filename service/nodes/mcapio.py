@@ -71,6 +71,7 @@ __all__ = [
     "Recording",
     "RecoverStats",
     "ScanReport",
+    "shown",
     "TopicData",
     "gaps",
     "iter_messages",
@@ -107,8 +108,19 @@ _CORRUPTION_ERRORS: tuple[type[BaseException], ...] = (
 ) + ((_zstd.ZstdError,) if _zstd is not None else ())
 
 
+def shown(text: str) -> str:
+    """``text`` fit for a one-line message: control characters (a newline in a foreign file's
+    topic) escaped as Python writes them, everything else (non-ASCII letters too) as it is."""
+    text = str(text)
+    return text if text.isprintable() else "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
 class McapIoError(ValueError):
-    """A recording that cannot be written or read as noiselab data (one-line message)."""
+    """A recording that cannot be written or read as noiselab data (one-line message: whatever a
+    file's topics or a library's error text hold, control characters come out escaped)."""
+
+    def __str__(self) -> str:
+        return shown(super().__str__())
 
 
 class NotMcapError(McapIoError):
@@ -707,9 +719,6 @@ def _cut_record(f, at: int, size: int) -> tuple[int, int] | None:
     return (opcode, end) if end > size else None
 
 
-_CUT_CHUNK_MAX = 1 << 31      # bytes a cut chunk may decompress to (its header's uncompressed size, capped)
-
-
 def _cut_chunk_records(f, at: int, size: int) -> Iterator:
     """Schema, Channel and Message records of the chunk at ``at`` that the file's end cuts, up to
     the first one the cut (or damage) reaches: the compressed prefix is decompressed as far as
@@ -725,7 +734,7 @@ def _cut_chunk_records(f, at: int, size: int) -> Iterator:
     except (struct.error, UnicodeDecodeError):
         return
     data = buf[off + 8: off + 8 + rlen]
-    limit = min(usize, _CUT_CHUNK_MAX)
+    limit = min(usize, _CHUNK_MAX)
     dec = b""
     try:
         if comp == "":
@@ -1162,16 +1171,34 @@ PARALLEL_DECODE = 200_000   # messages over a recording's topics from which two 
 _MESSAGE_HEADER = 31        # opcode 1, length 8, channel 2, sequence 4, log_time 8, publish_time 8
 
 
+def _read_span(f, offset: int, length: int) -> bytes | None:
+    """``length`` bytes at ``offset``, or None when the span does not lie inside the file (a
+    damaged index: reading it as asked would allocate whatever it says)."""
+    size = os.fstat(f.fileno()).st_size
+    if not (0 <= offset <= size and 0 <= length <= size - offset):
+        return None
+    f.seek(offset)
+    return f.read(length)
+
+
+_CHUNK_MAX = 1 << 30
+"""Bytes a chunk may decompress to (its header's uncompressed size is trusted up to this): chunks
+are kilobytes to megabytes; a damaged size must not make the reader allocate it."""
+
+
 def _chunk_records(f, ci, path: str) -> bytes:
     """The decompressed, CRC-checked records of the chunk that ``ci`` (a ChunkIndex) points to."""
     import zlib
 
-    f.seek(ci.chunk_start_offset)
-    buf = f.read(ci.chunk_length)
+    buf = _read_span(f, ci.chunk_start_offset, ci.chunk_length)
     try:
+        if buf is None:
+            raise CorruptRecordingError("the index points outside the file")
         if buf[0] != 0x06:
             raise CorruptRecordingError("not a chunk record")
         _mst, _met, usize, ucrc = struct.unpack_from("<QQQI", buf, 9)
+        if usize > _CHUNK_MAX:
+            raise CorruptRecordingError(f"an uncompressed size of {usize} bytes")
         off = 9 + 28
         (clen,) = struct.unpack_from("<I", buf, off)
         comp = buf[off + 4: off + 4 + clen].decode()
@@ -1187,12 +1214,15 @@ def _chunk_records(f, ci, path: str) -> bytes:
     return dec
 
 
-def _walk_offsets(dec: bytes, cids: set[int]) -> dict[int, list[int]]:
-    """Offsets of the message records of channels ``cids`` in a chunk, by walking every record."""
+def _walk_offsets(dec: bytes, cids: set[int]) -> dict[int, list[int]] | None:
+    """Offsets of the message records of channels ``cids`` in a chunk, by walking every record;
+    None when a record's header is cut by the chunk's end."""
     unpack_q, unpack_h = struct.Struct("<Q").unpack_from, struct.Struct("<H").unpack_from
     out: dict[int, list[int]] = {cid: [] for cid in cids}
     pos, n = 0, len(dec)
     while pos < n:
+        if pos + (11 if dec[pos] == 0x05 else 9) > n:
+            return None
         (rl,) = unpack_q(dec, pos + 1)
         if dec[pos] == 0x05:
             got = out.get(unpack_h(dec, pos + 9)[0])
@@ -1209,8 +1239,9 @@ def _index_offsets(f, ci, cids: list[int]) -> dict[int, np.ndarray] | None:
     if not mio or not all(cid in mio for cid in cids):
         return None
     base = min(mio.values())
-    f.seek(base)
-    sec = f.read(ci.message_index_length)
+    sec = _read_span(f, base, ci.message_index_length)
+    if sec is None:
+        return None
     out = {}
     for cid in cids:
         at = mio[cid] - base
@@ -1221,6 +1252,8 @@ def _index_offsets(f, ci, cids: list[int]) -> dict[int, np.ndarray] | None:
         if ch != cid or nbytes % 16 or at + 15 + nbytes > len(sec) or nbytes + 6 > rec_len:
             return None
         pairs = np.frombuffer(sec, dtype="<u8", count=nbytes // 8, offset=at + 15).reshape(-1, 2)
+        if pairs.size and pairs[:, 1].max() >= _CHUNK_MAX:
+            return None                        # an offset past any chunk: a damaged index
         out[cid] = np.sort(pairs[:, 1]).astype(np.int64)
     return out
 
@@ -1238,7 +1271,7 @@ def _topic_messages(dec: bytes, u8: np.ndarray, offs: np.ndarray, cids: set[int]
     if offs.size == 0:
         e = np.empty(0, np.int64)
         return e, e, e.astype(np.uint64), e.astype(np.uint64)
-    if offs[0] < 0 or offs[-1] + _MESSAGE_HEADER > n:
+    if offs.min() < 0 or offs.max() + _MESSAGE_HEADER > n:
         return None
     if np.any(u8[offs] != 0x05):
         return None
@@ -1297,8 +1330,11 @@ def _collect_fast(path: str, kinds: tuple[str, ...], report: ScanReport):
                 continue                       # the index does not account for every message: walk
             break
         report.messages += sum(counts.values())
-        for m in reader.iter_metadata():
-            report.metadata[m.name] = dict(m.metadata)
+        try:
+            for m in reader.iter_metadata():
+                report.metadata[m.name] = dict(m.metadata)
+        except (*_CORRUPTION_ERRORS, OSError):
+            return None                        # a damaged metadata index: the stream reader says where
     report.complete = True
     return raw, encodings
 
@@ -1319,7 +1355,11 @@ def _collect_chunks(f, path, chunks, cids_of, use_index: bool):
         if use_index and offs is None:
             return None
         if offs is None:
-            offs = {cid: np.asarray(v, np.int64) for cid, v in _walk_offsets(dec, set(present)).items()}
+            walked = _walk_offsets(dec, set(present))
+            if walked is None:
+                raise CorruptRecordingError(f"{path}: finished file with a damaged chunk at byte "
+                                            f"{ci.chunk_start_offset}; {_salvage(path)}")
+            offs = {cid: np.asarray(v, np.int64) for cid, v in walked.items()}
         for topic, cids in cids_of.items():
             here = [offs[c] for c in cids if c in offs]
             if not here:
@@ -1404,8 +1444,8 @@ def read_recording(path: str | os.PathLike, kinds: Iterable[str] = wire.KINDS) -
         kind, ktopic = job[2], job[3]
         payloads = raw[ktopic][0]
         if isinstance(payloads, _Packed):
-            return wire.decode_packed(payloads.blob, payloads.lens, kind, topic=ktopic)
-        return wire.decode_batch(payloads, kind, topic=ktopic)
+            return wire.decode_packed(payloads.blob, payloads.lens, kind, topic=shown(ktopic))
+        return wire.decode_batch(payloads, kind, topic=shown(ktopic))
 
     sizes = [len(raw[j[3]][0]) for j in jobs]
     if len(jobs) >= 2 and sum(sizes) >= PARALLEL_DECODE and parallel.can_fork():
