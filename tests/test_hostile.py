@@ -10,15 +10,11 @@ recorder's answer to a query, process exit); every timeout is a failure bound, n
 from __future__ import annotations
 
 import json
-import os
 import random
 import subprocess
 import sys
-import threading
-from pathlib import Path
 
 import numpy as np
-import pytest
 import zenoh
 
 from livechild import ROOT
@@ -45,11 +41,6 @@ def sample(kind: str, seq: int, vec, Ts: float = 0.01) -> bytes:
 def cli(*args, timeout: float = 120) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "service.cli", *map(str, args)], capture_output=True, text=True,
                           cwd=ROOT, timeout=timeout)
-
-
-def no_traceback(child) -> None:
-    assert not any("Traceback" in ln or "Error:" in ln and "noiselab" not in ln for ln in child.err), \
-        child.stderr_text()
 
 
 # ------------------------------------------------------------------ the recorder's books
@@ -293,3 +284,208 @@ def test_analyze_of_a_recording_nested_deep_is_one_line_exit_2(tmp_path):
     assert len(lines) == 1 and lines[0].startswith("noiselab: "), r.stderr
     assert "noiselab/seed/measurement" in lines[0] and f"deeper than {wire.MAX_DEPTH}" in lines[0], lines[0]
     assert r.stdout == ""
+
+
+# ------------------------------------------------------------------------------- the fuzz test
+
+FUZZ_SEED = 41
+FAR = 10**9               # a valid-looking seq this far ahead of its stream's is a forged one
+HOSTILE_KINDS = ("control", "measurement", "command", "truth", "health", "end")
+
+
+def hostile_messages(rng: random.Random, kind: str, dim: int) -> list[tuple[str, bytes]]:
+    """Malformed and hostile payloads for topic ``kind`` (vector length ``dim`` where it has one),
+    each tagged with what makes it bad; every one breaks the wire contract, the stream's vector
+    length or the stream's seq (a valid-looking one far ahead), so a recorder must skip each.
+    Generated from ``rng``: the list is the same for a seed."""
+    field = wire.VECTOR_FIELD.get(kind)
+    if kind == "health":
+        base = {"seq": 0, "t": 0.5, **{name: rng.choice([0, 1, 12.5]) for name in wire.HEALTH_FIELDS}}
+        slot = "lateness_p50_us"
+    elif kind == "end":
+        base = {"seq": 0, "t": 0.5, "samples": 50, "counts": {"measurement": 50}, "reason": "stopped"}
+        slot = "samples"
+    else:
+        base = {"seq": 0, "t": 0.5, field: [round(rng.uniform(-1, 1), 6) for _ in range(dim)]}
+        slot = field
+
+    def with_(**changes) -> bytes:
+        obj = {**base, **changes}
+        return json.dumps({k: v for k, v in obj.items() if v is not ...}, separators=(",", ":")).encode()
+
+    good = with_()
+    out = [("truncated", good[:rng.randrange(1, len(good))]) for _ in range(2)]
+    out += [("wrong type", with_(seq=v)) for v in rng.sample(["1", 1.5, True, None, [1], {}], 2)]
+    out += [("wrong type", with_(t=v)) for v in rng.sample(["0.1", True, None, [0.1]], 2)]
+    out += [("wrong type", with_(**{slot: v})) for v in rng.sample(["0.1", {"a": 1}, ["0.1"], [True], [None], [[0.1]]], 2)]
+    out += [("missing key", with_(t=...))]
+    out += [("NaN literal", good.replace(b'"t":0.5', b'"t":' + rng.choice([b"NaN", b"Infinity", b"-Infinity"])))]
+    out += [("huge number", good.replace(b'"t":0.5', b'"t":1e400')),
+            ("huge number", good.replace(b'"t":0.5', b'"t":1' + b"0" * 400)),
+            ("huge number", good.replace(b'"t":0.5', b'"t":1' + b"0" * 5000))]
+    out += [("huge string", with_(note="x" * (2 << 20))), ("huge string", with_(**{slot: "y" * 100_000}))]
+    out += [("deep nesting", deep()), ("deep nesting", b'{"":' * DEEP + b"1" + b"}" * DEEP),
+            ("deep nesting", with_(**{slot: "DEEP"}).replace(b'"DEEP"', deep(50_000)))]
+    out += [("seq out of range", with_(seq=v)) for v in (-1, -10**20, 10**26, 2**63)]
+    out += [("unknown key", with_(z=1)), ("not an object", rng.choice([b"[1,2]", b'"sample"', b"null", b"42"])),
+            ("binary garbage", bytes(rng.randrange(256) for _ in range(rng.randrange(1, 300)))),
+            ("binary garbage", b"\xff\xfe" + good), ("empty", b"")]
+    if field is not None:
+        out += [("wrong length", with_(**{field: v})) for v in ([], [0.1] * (dim + 1), [0.25] * 1000)]
+        out += [("wrong length", b'{"seq":0,"t":0.5,"' + field.encode() + b'":[' + b",".join([b"0.1"] * 10**6) + b"]}")]
+    if kind == "control":
+        out += [("beyond magnitude", with_(u=[rng.choice([1e308, -1e150, 1e101])])) for _ in range(2)]
+    if kind != "end":                  # one end of stream per stream, seq 0: an end is never gated by seq
+        out += [("far ahead", with_(seq=FAR + 1000 * i + rng.randrange(1000), t=float(FAR))) for i in range(2)]
+    for why, payload in out:           # the generator's own check: each one is bad, as tagged
+        assert why == "far ahead" or not_a_sample(kind, payload, dim), (why, payload[:80])
+    rng.shuffle(out)
+    return out
+
+
+def not_a_sample(kind: str, payload: bytes, dim: int) -> bool:
+    """``payload`` breaks the wire contract of ``kind``, or (a vector kind) has not ``dim`` elements."""
+    decoders = {"health": wire.decode_health, "end": wire.decode_end}
+    try:
+        obj = decoders[kind](payload) if kind in decoders else wire.decode(payload, kind)
+    except wire.WireError:
+        return True
+    return kind in wire.VECTOR_FIELD and len(obj[wire.VECTOR_FIELD[kind]]) != dim
+
+
+class GenuineStream(Collector):
+    """A Collector of the genuine streams only (the hostile messages published alongside are
+    left out: those that break the contract or the vector length, and the forged seqs)."""
+
+    def __init__(self, dims: dict):
+        super().__init__()
+        self.dims = dims
+
+    def __call__(self, sample) -> None:
+        kind = str(sample.key_expr).rsplit("/", 1)[1]
+        payload = sample.payload.to_bytes()
+        try:
+            obj = wire.decode_health(payload) if kind == "health" else wire.decode(payload, kind)
+        except wire.WireError:
+            return
+        if obj["seq"] < FAR and (kind == "health" or len(obj[wire.VECTOR_FIELD[kind]]) == self.dims[kind]):
+            super().__call__(sample)
+
+
+def client_config(port: int) -> zenoh.Config:
+    conf = session_config(connect=[ep(port)])
+    conf.insert_json5("mode", '"client"')
+    return conf
+
+
+def test_fuzz_hostile_messages_into_a_live_closed_loop(spawn, tmp_path):
+    """A closed loop on a router (emulator with an external command, a P controller, a recorder,
+    a live analyzer, all separate processes) while a session here publishes, in three bursts as
+    the stream goes on, malformed and hostile messages generated with a fixed seed (truncated
+    JSON, wrong types, NaN literals, huge numbers and strings, deep nesting, wrong lengths,
+    seqs out of range, unknown keys, binary garbage, empty payloads, valid-looking messages far
+    ahead) onto the control, measurement, command, truth, health and end topics.
+
+    Each node keeps running and ends cleanly (exit 0, no traceback); the recording holds every
+    message of the emulator and of the controller with no gap and nothing else on those topics,
+    and is analysable; the recorder counts exactly the messages it was sent, per topic; the live
+    analyzer exactly those on its two topics; the emulator exactly the controls it had to reject.
+    The bursts wait on the stream's progress, the counts on the nodes' own answers: no sleep."""
+    rng = random.Random(FUZZ_SEED)
+    f = tmp_path / "loop.toml"
+    f.write_text(LOOP_TOML)
+    model = load_model(f)
+    dims = {"control": model.m, "measurement": model.p, "command": model.m, "truth": model.n_x,
+            "health": 0, "end": 0}
+    sent = {kind: hostile_messages(rng, kind, dims[kind]) for kind in HOSTILE_KINDS}
+    bursts = [[], [], []]
+    for kind, msgs in sent.items():
+        for i, (_, payload) in enumerate(msgs):
+            bursts[i % 3].append((kind, payload))
+    for b in bursts:
+        rng.shuffle(b)
+    per_topic = {wire.key("loop", kind): len(msgs) for kind, msgs in sent.items()}
+    to_analyzer = len(sent["measurement"]) + len(sent["command"])
+    rejected_controls = sum(why != "far ahead" for why, _ in sent["control"])
+    assert sum(per_topic.values()) > 150 and {why for msgs in sent.values() for why, _ in msgs} >= {
+        "truncated", "wrong type", "NaN literal", "huge number", "huge string", "deep nesting", "wrong length",
+        "seq out of range", "unknown key", "binary garbage", "empty", "far ahead", "beyond magnitude"}
+
+    port = free_port()
+    router = spawn("router", "router", "--listen", ep(port), "--duration", "120")
+    router.wait_line(ROUTER_MARK)
+    client = ["--mode", "client", "--connect", ep(port)]
+    ctl = spawn("p_controller", CONTROLLER, "--name", "loop", "--kp", "8", "--r", "0.3", *client,
+                "--duration", "120", script=True)
+    out = tmp_path / "fuzzed.mcap"
+    rec = spawn("record", "record", *client, "--out", out, "--json")
+    an = spawn("analyze", "analyze", "--live", "--model", f, "--device", "loop", *client,
+               "--window", "30", "--update", "0.5", "--json")
+    ctl.wait_line("p_controller: ready")
+    rec.wait_line(READY_MARK)
+    an.wait_line(ANALYZER_READY)
+    # the emulator runs until stopped (SIGINT ends its stream cleanly): the test goes at the
+    # stream's pace, whatever the machine's speed
+    emu = spawn("emulate", "emulate", f, *client, "--duration", "600", "--seed", "9",
+                "--wait-subscribers", "20", "--json")
+    watch = GenuineStream(dims)
+    summaries = Collector()
+    meas, ctrl, health = (wire.key("loop", k) for k in ("measurement", "control", "health"))
+    with zenoh.open(client_config(port)) as observer, zenoh.open(client_config(port)) as attacker:
+        subs = [observer.declare_subscriber(k, watch) for k in (meas, ctrl, health)]
+        subs.append(observer.declare_subscriber(wire.key("loop", wire.ANALYSIS), summaries))
+        pubs = {kind: attacker.declare_publisher(wire.key("loop", kind), **transport.DATA_QOS) for kind in HOSTILE_KINDS}
+        # every stream has begun at the recorder and the analyzer before the first hostile message
+        # (their link from the router carries the stream's first messages before this burst)
+        watch.wait_for(lambda: watch.last_seq(meas) >= 20 and watch.last_seq(ctrl) >= 10 and watch.count(health) >= 1,
+                       "measurement seq 20, control seq 10 and a health report")
+        for burst in bursts:
+            k = watch.last_seq(meas)
+            for kind, payload in burst:
+                pubs[kind].put(payload)
+            watch.wait_for(lambda: watch.last_seq(meas) >= k + 50, f"measurement seq {k + 50}")
+        # the recorder answers a query only once it has taken everything that came before it on
+        # the same link: then it has every hostile message (an end-of-stream query of no source)
+        replies = list(attacker.get("noiselab/fuzz/end", target=zenoh.QueryTarget.ALL,
+                                    consolidation=zenoh.ConsolidationMode.NONE, timeout=T_EVENT,
+                                    priority=zenoh.Priority.DATA, **transport.DATA_QOS))
+        assert [json.loads(r.ok.payload.to_bytes())["out"] for r in replies if r.ok is not None] == [str(out)], replies
+        summaries.wait_for(lambda: any(json.loads(p)["malformed"] == to_analyzer
+                                       for p, _ in summaries.by_key[wire.key("loop", wire.ANALYSIS)]),
+                           f"an analysis summary counting {to_analyzer} malformed", timeout=T_EVENT)
+        assert emu.interrupt() == 0, emu.stderr_text()
+        for s in subs:
+            s.undeclare()
+    rec.wait_line("noiselab record: noiselab/loop ended")
+    for child in (rec, an, ctl, router):
+        assert child.interrupt() == 0, child.stderr_text()
+    for child in (emu, rec, an, ctl):
+        assert not any("Traceback" in ln for ln in child.err), child.stderr_text()
+
+    # the emulator: ran in closed loop, rejected exactly the bad controls, its end acknowledged
+    es = emu.json()
+    n = es["samples"]
+    assert waited_for_subscribers(emu) and n > 150 and es["diverged_at"] is None
+    assert es["rejected_controls"] == rejected_controls, (es["rejected_controls"], rejected_controls)
+    assert sum("rejected a control" in ln for ln in emu.err) == 1, emu.stderr_text()
+    assert len(es["end"]["acks"]) == 1 and es["end"]["acks"][0]["complete"], es["end"]
+    # the recorder: every message of the emulator and the controller, no gap, and the counts right
+    rs = rec.json()
+    check_summary_topics(rs["topics"], "loop", n)
+    c = rs["topics"][ctrl]
+    assert (c["first_seq"], c["gaps"], c["restarts"]) == (0, [], []) and c["count"] == c["last_seq"] + 1, c
+    assert rs["malformed"] == sum(per_topic.values()) and rs["malformed_topics"] == per_topic, \
+        (rs["malformed_topics"], per_topic)
+    assert rs["unended"] == {}
+    dev = mcapio.read_recording(out).device("loop")
+    for kind in ("truth", "command", "measurement"):
+        assert np.array_equal(dev.streams[kind].seq, np.arange(n)), kind
+    controls = [wire.decode(m.data, "control") for _, _, m in file_messages(out)[ctrl]]
+    assert [u["seq"] for u in controls] == list(range(c["count"]))
+    # the live analyzer: counted each hostile message on its topics once, analysed the stream
+    fa = an.json()
+    assert fa["malformed"] == to_analyzer and fa["updates"] > 0, fa
+    # the recording is analysable offline
+    r = cli("analyze", out, "--model", f, "--json")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["samples"] > 0

@@ -55,6 +55,8 @@ def main(argv: list[str] | None = None) -> int:
         def on_measurement(sample) -> None:
             try:
                 msg = wire.decode(sample.payload.to_bytes(), "measurement")
+                if len(msg["y"]) != 1:
+                    raise wire.WireError(f"y has {len(msg['y'])} elements, not 1")
             except wire.WireError:
                 with lock:
                     counts["bad"] += 1
