@@ -16,7 +16,7 @@ import struct
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from mcap.writer import CompressionType, Writer
 
@@ -152,6 +152,14 @@ def mutate(blob: bytes, recs, ops) -> bytes:
 
 @SETTINGS
 @given(which=st.integers(0, 3), ops=st.lists(mutation, min_size=1, max_size=5))
+# cases found by this test, each an exception other than ValueError before the reader checked them:
+@example(which=0, ops=[("flip", 0.9861467835556362, 145)])              # MemoryError (index length)
+@example(which=1, ops=[("record", 0.875, False), ("flip", 0.95, 1)])     # MemoryError (index length)
+@example(which=0, ops=[("word", 0.9660936904166955, 2**64 - 1)])        # OverflowError (index length)
+@example(which=2, ops=[("word", 0.7327658089218658, 2**64 - 1)])        # IndexError (offset past 2**63)
+@example(which=2, ops=[("word", 0.9790542617217443, 0)])                # McapError (metadata index)
+@example(which=1, ops=[("word", 0.944049352921388, 2**31)])             # OSError (metadata index)
+@example(which=2, ops=[("nocrc", 0.4918430023992272), ("flip", 0.9793803816179105, 238)])  # EndOfFile
 def test_mutated_noiselab_files(tmp_path, which, ops):
     blob, recs = base(which)
     path = tmp_path / "mutated.mcap"
@@ -226,6 +234,8 @@ message = st.tuples(st.integers(0, 3), payloads(), st.integers(0, 2**64 - 1), st
 @given(channels=st.lists(channel, min_size=1, max_size=4), msgs=st.lists(message, max_size=25),
        compression=st.sampled_from([CompressionType.ZSTD, CompressionType.NONE]),
        chunk_size=st.sampled_from([64, 1024, 1 << 20]))
+@example(channels=[{"topic": "a\n/measurement", "encoding": "json", "schema": "none"}],   # a topic with a
+         msgs=[(0, b"{}", 0, 0, 0)], compression=CompressionType.NONE, chunk_size=1024)  # newline, echoed
 def test_odd_channels_and_messages(tmp_path, channels, msgs, compression, chunk_size):
     path = tmp_path / "odd.mcap"
     with open(path, "wb") as f:
