@@ -562,6 +562,26 @@ def test_without_a_command_topic_the_assumed_command_is_named(tmp_path):
     assert not any("command" in n for n in s.notes)
 
 
+def test_replay_topics_of_an_unfinished_file_do_not_depend_on_its_payloads(tmp_path):
+    """replay republishes messages as recorded: the topics of a cut file whose measurements a
+    reader refuses (a bad payload, a seq twice with different data) are still listed."""
+    from service.nodes.replay import replay_topics
+
+    full = tmp_path / "full.mcap"
+    with RecordingWriter(full, chunk_size=1 << 20, compression="none") as w:
+        for k in range(20):
+            one_message(w, float(k), seq=k, name="dev")
+            w.write(wire.key("dev", "command"), "command", k, k, k, wire.encode(k, k * Ts, [0.0], kind="command"))
+        one_message(w, 99.0, seq=3, name="dev")                                  # seq 3 again, other data
+        w.write("noiselab/odd/measurement", "measurement", 0, 0, 0, b'{"seq": 0, "t": "soon"}')
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(full.read_bytes()[:-200])                                    # no summary: read in full
+    with pytest.raises(ValueError):
+        read_recording(cut)
+    assert replay_topics(str(cut)) == ["noiselab/dev/command", "noiselab/dev/measurement",
+                                       "noiselab/odd/measurement"]
+
+
 # ---------------------------------------------------------------------------- gaps()
 
 

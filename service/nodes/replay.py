@@ -36,13 +36,13 @@ class ReplaySummary:
 
 
 def replay_topics(path: str) -> list[str]:
-    """The topics of a recording, from its summary (raises NotMcapError for a file that is not
-    MCAP); an unfinished file is read for its devices' topics."""
+    """The topics (without a leading ``/``) of a recording, from its summary (raises NotMcapError
+    for a file that is not MCAP); an unfinished file is read for the topics of its intact messages.
+    Payloads are not decoded: replay republishes them as recorded, whatever they hold."""
     topics = mcapio.channel_topics(path)
     if topics is not None:
         return topics
-    rec = mcapio.read_recording(path)
-    return sorted({td.topic for dev in rec.devices.values() for td in dev.streams.values()})
+    return sorted({channel.topic.lstrip("/") for _, channel, _ in mcapio.iter_messages(path)})
 
 
 def _device_of(key: str) -> str | None:
