@@ -280,7 +280,8 @@ def test_disk_full_is_one_line_naming_the_file(tmp_path):
     assert msg.startswith("/dev/full: cannot write it (No space left on device)") and "\n" not in msg
     assert "recover" not in msg                      # nothing of it is on any disk
     assert not Path("/dev/full").is_file() and os.path.exists("/dev/full")
-    with pytest.raises(mcapio.McapIoError, match="No space left"):
+    assert isinstance(e.value, mcapio.McapWriteError)   # not a bad message: callers stop on it
+    with pytest.raises(mcapio.McapWriteError, match="No space left"):
         one_message(w, 0.0)                          # the writer stays ended, with the same reason
 
 

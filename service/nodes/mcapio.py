@@ -64,6 +64,7 @@ __all__ = [
     "CorruptRecordingError",
     "DeviceData",
     "McapIoError",
+    "McapWriteError",
     "NotMcapError",
     "PARTIAL_SUFFIX",
     "RecordingExistsError",
@@ -121,6 +122,12 @@ class McapIoError(ValueError):
 
     def __str__(self) -> str:
         return shown(super().__str__())
+
+
+class McapWriteError(McapIoError):
+    """The output file cannot be written (disk full, a vanished directory, ...): the writer has
+    ended; every later write raises this again. Not a bad message: a caller that skips bad
+    messages stops on this one."""
 
 
 class NotMcapError(McapIoError):
@@ -344,7 +351,7 @@ class RecordingWriter:
                     f"`noiselab recover {self.writing_path} -o FIXED.mcap`") if held and self._out.created else ""
             self._failure = (f"{self.writing_path}: cannot write it "
                              f"({e.strerror or type(e).__name__}){where}{kept}")
-            raise McapIoError(self._failure) from None
+            raise McapWriteError(self._failure) from None
 
     # -- context manager
     def __enter__(self) -> RecordingWriter:
@@ -387,7 +394,9 @@ class RecordingWriter:
 
     def _check_open(self) -> None:
         if self._closed:
-            raise McapIoError(self._failure or f"{self.path}: recording is already finished")
+            if self._failure:
+                raise McapWriteError(self._failure)
+            raise McapIoError(f"{self.path}: recording is already finished")
 
     def channel(self, topic: str, kind: str) -> int:
         """Channel id of ``topic`` (registering its schema and channel on first use).
