@@ -13,6 +13,7 @@ import json
 import random
 import subprocess
 import sys
+import threading
 
 import numpy as np
 import zenoh
@@ -489,3 +490,26 @@ def test_fuzz_hostile_messages_into_a_live_closed_loop(spawn, tmp_path):
     r = cli("analyze", out, "--model", f, "--json")
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout)["samples"] > 0
+
+
+def test_emulator_survives_a_hostile_answer_to_its_end_of_stream(spawn):
+    """A peer that answers the emulator's end-of-stream query (as a recorder would) with JSON
+    nested 200,000 deep: the emulator counts it as an error of its end of stream, says so, and
+    exits 0 (the answer's parse raised RecursionError: a traceback at the very end)."""
+    port = free_port()
+    answered = threading.Event()
+
+    def answer(query) -> None:
+        query.reply(query.key_expr, deep())
+        answered.set()
+
+    with zenoh.open(session_config(listen=[ep(port)])) as session:
+        queryable = session.declare_queryable("noiselab/seed/end", answer)
+        emu = spawn("emulate", "emulate", "seed", "--connect", ep(port), "--duration", "0.2", "--json")
+        assert emu.finish() == 0, emu.stderr_text()
+        queryable.undeclare()
+    assert answered.is_set(), "the emulator did not query its end of stream"
+    end = emu.json()["end"]
+    assert end["acks"] == [] and end["errors"] == ["an acknowledgement that is not JSON"], end
+    assert any("end of stream: an acknowledgement that is not JSON" in ln for ln in emu.err), emu.stderr_text()
+    assert not any("Traceback" in ln for ln in emu.err), emu.stderr_text()

@@ -79,6 +79,8 @@ __all__ = [
     "encode",
     "encode_batch",
     "key",
+    "loads",
+    "nesting_depth",
     "parse_key",
     "period_ns",
     "publish_time_ns",
@@ -282,7 +284,7 @@ def encode_health(seq: int, t: float, stats: dict) -> bytes:
 def decode_health(data: bytes | bytearray | memoryview | str, *, topic: str | None = None) -> dict:
     """Parse and validate a health payload."""
     where = topic or "health topic"
-    obj = _loads(data, where)
+    obj = loads(data, where)
     if not isinstance(obj, dict) or set(obj) != {"seq", "t", *HEALTH_FIELDS}:
         raise WireError(f"{where}: health payload must have keys seq, t, {', '.join(HEALTH_FIELDS)}")
     _check_seq_field(obj, where)
@@ -323,7 +325,7 @@ def encode_analysis(seq: int, t: float, summary: dict) -> bytes:
 
 def decode_analysis(data, *, topic: str | None = None) -> dict:
     where = topic or "analysis topic"
-    obj = _loads(data, where)
+    obj = loads(data, where)
     if not isinstance(obj, dict) or not {"seq", "t", "error"} <= set(obj):
         raise WireError(f"{where}: analysis payload must be an object with seq, t, error")
     _check_seq_field(obj, where)
@@ -371,7 +373,7 @@ def encode_end(seq: int, t: float, samples: int, counts: dict, reason: str) -> b
 def decode_end(data, *, topic: str | None = None) -> dict:
     """Parse and validate an end-of-stream payload (:func:`end_schema`)."""
     where = topic or "end topic"
-    obj = _loads(data, where)
+    obj = loads(data, where)
     if not isinstance(obj, dict) or set(obj) != {"seq", "t", "samples", "counts", "reason"}:
         raise WireError(f"{where}: end payload must have keys seq, t, samples, counts, reason")
     for name in ("seq", "samples"):
@@ -596,7 +598,10 @@ def _check_bounds(data: bytes) -> None:
         raise WireError(f"payload nests arrays/objects deeper than {MAX_DEPTH}")
 
 
-def _loads(data: bytes | bytearray | memoryview | str, where: str):
+def loads(data: bytes | bytearray | memoryview | str, where: str):
+    """Parse untrusted UTF-8 JSON (a payload, a reply to a query, a message read from a file)
+    within :data:`MAX_PAYLOAD_BYTES` and :data:`MAX_DEPTH`, NaN/Infinity refused: the value, or
+    a one-line WireError naming ``where``."""
     try:
         raw = data.encode("utf-8") if isinstance(data, str) else bytes(data)
         _check_bounds(raw)
@@ -679,7 +684,7 @@ def decode(data: bytes | bytearray | memoryview | str, kind: str | None = None, 
     ``topic`` (or the kind) and the seq.
     """
     where = topic if topic is not None else (f"{kind} topic" if kind else "payload")
-    return _validate(_loads(data, where), kind, where)
+    return _validate(loads(data, where), kind, where)
 
 
 # A JSON number (RFC 8259), possessive: numbers are followed by "," or "]" so nothing is given back.
