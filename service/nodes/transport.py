@@ -175,7 +175,7 @@ def end_stream(session, publisher, payload: bytes, timeout: float) -> dict:
                 errors.append(reply.err.payload.to_string())
                 continue
             try:
-                acks.append(json.loads(ok.payload.to_bytes()))
+                acks.append(wire.loads(ok.payload.to_bytes(), "end-of-stream acknowledgement"))
             except ValueError:
                 errors.append("an acknowledgement that is not JSON")
     return {"acks": acks, "errors": errors, "timed_out": "Timeout" in errors,
@@ -220,7 +220,7 @@ class JoinRequest:
             return
         try:                                   # a source answers for its own topics only
             name = wire.check_name(str(ok.key_expr).split("/")[1])
-            got = json.loads(ok.payload.to_bytes())
+            got = wire.loads(ok.payload.to_bytes(), "join point answer")
         except (ValueError, IndexError):
             return
         if str(ok.key_expr) != f"{wire.PREFIX}/{name}/{JOIN}" or not isinstance(got, dict):
