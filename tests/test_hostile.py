@@ -513,3 +513,18 @@ def test_emulator_survives_a_hostile_answer_to_its_end_of_stream(spawn):
     assert end["acks"] == [] and end["errors"] == ["an acknowledgement that is not JSON"], end
     assert any("end of stream: an acknowledgement that is not JSON" in ln for ln in emu.err), emu.stderr_text()
     assert not any("Traceback" in ln for ln in emu.err), emu.stderr_text()
+
+
+def test_replay_of_a_file_with_a_deep_payload_republishes_it(tmp_path):
+    """`noiselab replay` looks at the first payload of each stream (is its seq the MCAP
+    sequence?); one nested 100,000 deep in a crafted file crashed it (RecursionError). It now
+    republishes the file as it is, that payload included (a replay does not judge payloads: the
+    sinks do), and exits 0."""
+    path = tmp_path / "deep-first.mcap"
+    with mcapio.RecordingWriter(path) as w:
+        w.write("noiselab/d/measurement", "measurement", 0, 0, 0, b'{"seq":0,"t":0.0,"y":' + deep(100_000) + b"}")
+        for k in range(1, 5):
+            w.write("noiselab/d/measurement", "measurement", k, k * 10**7, k * 10**7, sample("measurement", k, [0.5]))
+    r = cli("replay", path, "--fast", "--listen", ep(free_port()), "--json")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["messages"] == 5 and "Traceback" not in r.stderr

@@ -11,7 +11,6 @@ live stream it describes instead of one topic after another."""
 
 from __future__ import annotations
 
-import json
 import sys
 import threading
 import time
@@ -64,7 +63,7 @@ def _joinable(key: str) -> bool:
 def _seq_matches(message) -> bool:
     """The message's MCAP sequence is its payload's seq (as noiselab's recorder writes it)."""
     try:
-        obj = json.loads(message.data)
+        obj = wire.loads(message.data, "replay")
         return isinstance(obj, dict) and obj.get("seq") == message.sequence
     except ValueError:
         return False
