@@ -202,7 +202,7 @@ class Ingest:
         self.out = out
         self.log = log
         self.books: dict[str, TopicBook] = {}
-        self.gates: dict[str, wire.SeqGate] = {}  # topic -> its seq gate (held: (seq, t, payload, rx_ns))
+        self.gates: dict[str, wire.SeqGate] = {}  # topic -> its seq gate (held: (seq, t, payload, rx_ns, dim))
         self.dims: dict[str, int] = {}            # vector topic -> its vector's length (first message)
         self.malformed = 0
         self.malformed_topics: dict[str, int] = {}
