@@ -7,9 +7,11 @@ Exit codes (DESIGN.md): 0 success, 2 bad input (one line on stderr naming what i
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
+import re
 import sys
 import time
 from pathlib import Path
@@ -60,50 +62,53 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"noiselab: {message}\n")
 
 
-def _positive_float(name):
+# -- numeric flags: every number on the command line is read by one of these (argparse ``type=``),
+# so nan, inf, a negative count or a duration no timer can wait is a one-line usage error (exit 2)
+SECONDS_MAX = 1e9
+"""The longest duration, timeout or period a flag takes, s (about 32 years): beyond any run, and
+inside the range of the OS's timers (``threading.TIMEOUT_MAX`` is 9.2e9 s on Linux), so that a wait
+or a sample count (duration / Ts) computed from it never overflows."""
+SPEED_MIN, SPEED_MAX = 1e-3, 1e6
+"""The pace of an emulation or a replay, times real time: the wall-clock period Ts / speed (Ts up to
+a day) stays under :data:`SECONDS_MAX`; a million times real time is no pace at all (``simulate``
+and ``replay --fast`` run as fast as they can)."""
+COUNT_MAX = 1000
+"""The largest count a flag takes (``--max-effects``: the catalogue has 13 effects; ``--wait-peers``)."""
+
+
+def _bounded(lo, hi, *, lo_open: bool = False, integer: bool = False, what: str = "a number"):
+    """An argparse ``type``: a finite number (an integer when ``integer``) from ``lo`` (excluded when
+    ``lo_open``) to ``hi`` (None: no upper bound). argparse names the flag in its message."""
+    want = f"{what} {'>' if lo_open else '>='} {lo:g}" + ("" if hi is None else f" and <= {hi:g}")
+
     def conv(text):
         try:
-            v = float(text)
+            v = int(text) if integer else float(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}")
-        if not math.isfinite(v) or v <= 0:
-            raise argparse.ArgumentTypeError(f"{name} must be a finite number > 0, got {text!r}")
+            raise argparse.ArgumentTypeError(f"expected {want}, got {text!r}") from None
+        ok = (integer or math.isfinite(v)) and (v > lo if lo_open else v >= lo) and (hi is None or v <= hi)
+        if not ok:
+            raise argparse.ArgumentTypeError(f"expected {want}, got {text!r}")
         return v
     return conv
 
 
-def _nonneg_float(name):
-    def conv(text):
-        try:
-            v = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}")
-        if not math.isfinite(v) or v < 0:
-            raise argparse.ArgumentTypeError(f"{name} must be a finite number >= 0, got {text!r}")
-        return v
-    return conv
+def seconds_arg(zero: bool = False):
+    """Seconds, > 0 (>= 0 with ``zero``) and at most :data:`SECONDS_MAX`."""
+    return _bounded(0.0, SECONDS_MAX, lo_open=not zero, what="seconds")
 
 
-def _count(name):
-    def conv(text):
-        try:
-            v = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be an integer >= 1, got {text!r}")
-        if v < 1:
-            raise argparse.ArgumentTypeError(f"{name} must be an integer >= 1, got {text!r}")
-        return v
-    return conv
+def speed_arg():
+    """A pace, times real time, from :data:`SPEED_MIN` to :data:`SPEED_MAX`."""
+    return _bounded(SPEED_MIN, SPEED_MAX, what="a factor (times real time)")
 
 
-def _seed(text):
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"seed must be an integer >= 0, got {text!r}")
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"seed must be an integer >= 0, got {text!r}")
-    return v
+def count_arg(lo: int = 1):
+    """An integer from ``lo`` to :data:`COUNT_MAX`."""
+    return _bounded(lo, COUNT_MAX, integer=True, what="an integer")
+
+
+_seed = _bounded(0, None, integer=True, what="an integer seed")
 
 
 # -- predict ------------------------------------------------------------------------------------
@@ -236,6 +241,7 @@ def cmd_simulate(args) -> int:
     if n < 1:
         raise UsageError(f"--duration {args.duration:g} s is shorter than one sample (Ts = {model.Ts:g} s)")
     out = Path(args.out) if args.out else Path("recordings") / f"{model.name}-seed{args.seed}.mcap"
+    _check_out(str(out), args.force)
     t0 = time.perf_counter()
     rep = write_simulation(model, n, args.seed, out, force=args.force, progress=args.progress or None)
     dt = time.perf_counter() - t0
@@ -382,6 +388,7 @@ def cmd_run(args) -> int:
     from .nodes.runner import run_pipeline
 
     model = load_model(args.model)              # bad input fails here, before any process starts
+    _check_out_dir(args.out)
     rep = run_pipeline(args.model, model.name, duration=args.duration, seed=args.seed, out_dir=Path(args.out),
                        force=args.force, analyze=not args.no_analyze, speed=args.speed)
     emu, rec = rep["emulator"] or {}, rep["recorder"] or {}
@@ -488,24 +495,61 @@ def png_path(args) -> str | None:
         raise UsageError(f"{args.rrd}: is a directory; give a file name") from None
 
 
+def _make_dir(path: str, d: Path) -> None:
+    """Make directory ``d`` (and its parents) for the output ``path``: a file in the way, or a
+    directory that cannot be made, is a usage error naming it, before any work."""
+    blocker = next((q for q in (d, *d.parents) if q.exists()), None)
+    if blocker is not None and not blocker.is_dir():
+        where = "is a file" if blocker == Path(path) else f"{blocker} is a file"
+        raise UsageError(f"{path}: {where}, not a directory")
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise UsageError(f"{path}: cannot make its directory {d} ({e.strerror or e})") from None
+
+
+def _check_out_dir(path: str) -> None:
+    """An output directory (``run``, ``demo``), made now if missing."""
+    _make_dir(path, Path(path))
+
+
 def _check_out(path: str | None, force: bool):
     """An output path, checked before any work: a directory in its place, a parent that cannot be
-    made or an existing file (without --force) is a usage error now, not after the run. A missing
-    parent directory is made, as `simulate`, `record` and `recover` make theirs."""
+    made, an existing file (without --force) or a file that cannot be created there (``/proc``, a
+    read-only file system: tried by creating and removing it) is a usage error now, not after the
+    run. A missing parent directory is made, as `simulate`, `record` and `recover` make theirs."""
     if not path:
         return
     p = Path(path)
     if p.is_dir():
         raise UsageError(f"{path}: is a directory; give a file name")
-    blocker = next((q for q in (p.parent, *p.parent.parents) if q.exists()), None)
-    if blocker is not None and not blocker.is_dir():
-        raise UsageError(f"{path}: {blocker} is a file, not a directory")
-    try:
-        p.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise UsageError(f"{path}: cannot make its directory {p.parent} ({e.strerror})") from None
+    _make_dir(path, p.parent)
     if p.exists() and not force:
-        raise UsageError(f"{path}: exists (use --force to overwrite)")
+        raise UsageError(f"{path}: already exists (use --force to overwrite)")
+    try:
+        if p.exists():
+            os.close(os.open(p, os.O_WRONLY | os.O_APPEND | os.O_NONBLOCK))   # opened, not changed
+        else:
+            os.close(os.open(p, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644))
+            os.unlink(p)
+    except OSError as e:
+        raise UsageError(f"{path}: cannot write it ({e.strerror or e})") from None
+
+
+@contextlib.contextmanager
+def _writing(path: str):
+    """Writing the output ``path`` (an .rrd, a PNG, a fitted model): an OS error (disk full, ...) is
+    a usage error naming the path and the error. Rerun reports its file errors as RuntimeError
+    ending in ``(os error N)``; any other RuntimeError is a bug and passes."""
+    try:
+        yield
+    except OSError as e:
+        raise UsageError(f"{path}: cannot write it ({e.strerror or e})") from None
+    except RuntimeError as e:
+        m = re.search(r"\(os error (\d+)\)", str(e))
+        if m is None:
+            raise
+        raise UsageError(f"{path}: cannot write it ({os.strerror(int(m.group(1)))})") from None
 
 
 def cmd_analyze(args) -> int:
@@ -532,11 +576,13 @@ def _analyze_cmd(args, read) -> int:
     extra = {}
     if args.rrd:
         from viewers.rerun_log import log_comparisons
-        log_comparisons([cmp], args.rrd)
+        with _writing(args.rrd):
+            log_comparisons([cmp], args.rrd)
         extra["rrd"] = args.rrd
     if png:
         from viewers.summary_png import write_summary_png
-        write_summary_png([cmp], png)
+        with _writing(png):
+            write_summary_png([cmp], png)
         extra["png"] = png
     rep = analysis_report(cmp, series, extra)
     lines = report_lines(cmp, series) + [f"wrote {extra[k]}" for k in ("rrd", "png") if k in extra]
@@ -563,7 +609,8 @@ def _diagnose_cmd(args, read) -> int:
                    max_effects=args.max_effects, log=log)
     extra = {}
     if args.fit_out:
-        Path(args.fit_out).write_text(rep["fitted_model"])
+        with _writing(args.fit_out):
+            Path(args.fit_out).write_text(rep["fitted_model"])
         extra["fit_out"] = args.fit_out
     comps = rep["comparisons"]
     if series.truth is not None:
@@ -571,11 +618,13 @@ def _diagnose_cmd(args, read) -> int:
             c.truth = series.truth
     if args.rrd:
         from viewers.rerun_log import log_comparisons
-        log_comparisons(comps, args.rrd)
+        with _writing(args.rrd):
+            log_comparisons(comps, args.rrd)
         extra["rrd"] = args.rrd
     if png:
         from viewers.summary_png import write_summary_png
-        write_summary_png(comps, png)
+        with _writing(png):
+            write_summary_png(comps, png)
         extra["png"] = png
     _emit(args, diagnosis_json(rep, series, extra), diagnosis_lines(rep, series, extra))
     return 0
@@ -583,18 +632,18 @@ def _diagnose_cmd(args, read) -> int:
 
 def cmd_demo(args) -> int:
     from .demo import cmd_demo as run
+    _check_out_dir(args.out)
     return run(args)
 
 
 def _burn(text):
-    if text == "auto":
-        return text
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--burn must be 'auto' or seconds >= 0, got {text!r}")
-    if not math.isfinite(v) or v < 0:
-        raise argparse.ArgumentTypeError(f"--burn must be 'auto' or seconds >= 0, got {text!r}")
+    """'auto' or seconds >= 0 (:func:`seconds_arg`), kept as text."""
+    if text != "auto":
+        try:
+            seconds_arg(zero=True)(text)
+        except argparse.ArgumentTypeError:
+            raise argparse.ArgumentTypeError(
+                f"expected 'auto' or seconds >= 0 and <= {SECONDS_MAX:g}, got {text!r}") from None
     return text
 
 
@@ -611,7 +660,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     ss = sub.add_parser("simulate", help="simulate a model as fast as possible into an MCAP recording")
     ss.add_argument("model", help="model file (TOML) or built-in scenario name")
-    ss.add_argument("--duration", type=_positive_float("--duration"), required=True, help="seconds of signal")
+    ss.add_argument("--duration", type=seconds_arg(), required=True, help="seconds of signal")
     ss.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
     ss.add_argument("--out", help="output .mcap (default recordings/<name>-seed<N>.mcap)")
     ss.add_argument("--force", action="store_true", help="overwrite an existing output file")
@@ -623,17 +672,17 @@ def build_parser() -> argparse.ArgumentParser:
 
     se = sub.add_parser("emulate", help="real-time emulator: publish truth, command, measurement over Zenoh")
     se.add_argument("model", help="model file (TOML) or built-in scenario name")
-    se.add_argument("--duration", type=_positive_float("--duration"), help="seconds of samples (default: until stopped)")
+    se.add_argument("--duration", type=seconds_arg(), help="seconds of samples (default: until stopped)")
     se.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
-    se.add_argument("--wait-subscribers", type=float, default=0.0, metavar="S",
+    se.add_argument("--wait-subscribers", type=seconds_arg(zero=True), default=0.0, metavar="S",
                     help="wait up to S seconds for a subscriber before the first sample")
-    se.add_argument("--wait-peers", type=int, default=0, metavar="N",
+    se.add_argument("--wait-peers", type=count_arg(lo=0), default=0, metavar="N",
                     help="before waiting for subscribers, wait until N peers are connected (several sinks)")
-    se.add_argument("--stale", type=_positive_float("--stale"), default=0.5, metavar="S",
+    se.add_argument("--stale", type=seconds_arg(), default=0.5, metavar="S",
                     help="closed loop: a control input older than S seconds is stale, zero is applied (default 0.5)")
-    se.add_argument("--end-timeout", type=_positive_float("--end-timeout"), default=10.0, metavar="S",
+    se.add_argument("--end-timeout", type=seconds_arg(), default=10.0, metavar="S",
                     help="at the end, wait up to S seconds for the recorders to acknowledge every message (default 10)")
-    se.add_argument("--speed", type=_positive_float("--speed"), default=1.0, metavar="X",
+    se.add_argument("--speed", type=speed_arg(), default=1.0, metavar="X",
                     help="run X times faster than real time (sample times stay on the Ts grid; default 1)")
     se.add_argument("--json", action="store_true", help="machine-readable summary on stdout")
     add_transport_args(se)
@@ -642,7 +691,7 @@ def build_parser() -> argparse.ArgumentParser:
     sr = sub.add_parser("record", help="record Zenoh streams to MCAP")
     sr.add_argument("--key", default="noiselab/**", help="key expression to record (default noiselab/**)")
     sr.add_argument("--out", required=True, help="output .mcap")
-    sr.add_argument("--duration", type=_positive_float("--duration"), help="seconds (default: until SIGINT/SIGTERM)")
+    sr.add_argument("--duration", type=seconds_arg(), help="seconds (default: until SIGINT/SIGTERM)")
     sr.add_argument("--force", action="store_true", help="overwrite an existing output file")
     sr.add_argument("--json", action="store_true", help="machine-readable summary on stdout")
     add_transport_args(sr)
@@ -658,17 +707,17 @@ def build_parser() -> argparse.ArgumentParser:
     sp2 = sub.add_parser("replay", help="republish a recording over Zenoh, paced by its publish times")
     sp2.add_argument("recording", help=".mcap to replay")
     pace = sp2.add_mutually_exclusive_group()
-    pace.add_argument("--speed", type=_positive_float("--speed"), default=1.0, help="playback speed (default 1)")
+    pace.add_argument("--speed", type=speed_arg(), default=1.0, help="playback speed (default 1)")
     pace.add_argument("--fast", action="store_true", help="as fast as possible")
     sp2.add_argument("--prefix", help="publish under PREFIX/<topic> instead of <topic>")
-    sp2.add_argument("--wait-subscribers", type=float, default=0.0, metavar="S",
+    sp2.add_argument("--wait-subscribers", type=seconds_arg(zero=True), default=0.0, metavar="S",
                      help="wait up to S seconds for subscribers before the first message")
     sp2.add_argument("--json", action="store_true", help="machine-readable summary on stdout")
     add_transport_args(sp2)
     sp2.set_defaults(func=cmd_replay)
 
     so = sub.add_parser("router", help="a Zenoh router in this process")
-    so.add_argument("--duration", type=_positive_float("--duration"), help="seconds (default: until stopped)")
+    so.add_argument("--duration", type=seconds_arg(), help="seconds (default: until stopped)")
     add_transport_args(so)
     so.set_defaults(func=cmd_router)
 
@@ -686,12 +735,12 @@ def build_parser() -> argparse.ArgumentParser:
     sa.add_argument("--force", action="store_true", help="overwrite existing output files")
     sa.add_argument("--json", action="store_true", help="machine-readable report")
     sa.add_argument("--live", action="store_true", help="analyse a live Zenoh stream instead of a file")
-    sa.add_argument("--window", type=_positive_float("--window"), default=60.0, metavar="S",
+    sa.add_argument("--window", type=seconds_arg(), default=60.0, metavar="S",
                     help="live: rolling window in seconds (default 60)")
-    sa.add_argument("--update", type=_positive_float("--update"), default=0.5, metavar="S",
+    sa.add_argument("--update", type=seconds_arg(), default=0.5, metavar="S",
                     help="live: seconds between updates (default 0.5)")
-    sa.add_argument("--duration", type=_positive_float("--duration"), help="live: stop after S seconds")
-    sa.add_argument("--rank-every", type=_nonneg_float("--rank-every"), default=0.0, metavar="S",
+    sa.add_argument("--duration", type=seconds_arg(), help="live: stop after S seconds")
+    sa.add_argument("--rank-every", type=seconds_arg(zero=True), default=0.0, metavar="S",
                     help="live: re-rank the candidate missing effects on the window every S s (default 0: never)")
     add_transport_args(sa)
     sa.set_defaults(func=cmd_analyze)
@@ -702,7 +751,7 @@ def build_parser() -> argparse.ArgumentParser:
     sd.add_argument("--fit-out", metavar="FITTED.toml", help="write the extended model file here")
     sd.add_argument("--rrd", help="write the Rerun recording (one revision per added effect) here")
     sd.add_argument("--png", help="write the PNG summary here (default: next to --rrd)")
-    sd.add_argument("--max-effects", type=_count("--max-effects"), default=3, metavar="K",
+    sd.add_argument("--max-effects", type=count_arg(), default=3, metavar="K",
                     help="add at most K effects (default 3)")
     sd.add_argument("--device", help="device name in a noiselab recording with several devices")
     sd.add_argument("--measurement", metavar="TOPIC:FIELD", help="foreign recordings: topic and JSON field(s)")
@@ -713,13 +762,13 @@ def build_parser() -> argparse.ArgumentParser:
     sd.set_defaults(func=cmd_diagnose)
 
     sm = sub.add_parser("demo", help="the seed lesson live (Zenoh, MCAP), diagnosed against the lesson's own model")
-    sm.add_argument("--duration", type=_positive_float("--duration"), default=1200.0,
+    sm.add_argument("--duration", type=seconds_arg(), default=1200.0,
                     help="seconds of samples (default 1200: the bias walk needs ~20 min of data to show)")
-    sm.add_argument("--speed", type=_positive_float("--speed"), default=20.0, metavar="X",
+    sm.add_argument("--speed", type=speed_arg(), default=20.0, metavar="X",
                     help="emulate X times faster than real time (default 20)")
     sm.add_argument("--seed", type=_seed, default=1, help="random seed (default 1)")
     sm.add_argument("--out", default="recordings", help="output directory (default recordings/)")
-    sm.add_argument("--max-effects", type=_count("--max-effects"), default=3, metavar="K",
+    sm.add_argument("--max-effects", type=count_arg(), default=3, metavar="K",
                     help="add at most K effects (default 3)")
     sm.add_argument("--force", action="store_true", help="overwrite existing demo files")
     sm.add_argument("--json", action="store_true", help="machine-readable summary")
@@ -727,11 +776,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     sn = sub.add_parser("run", help="emulator and recorder as separate processes on loopback")
     sn.add_argument("model", help="model file (TOML) or built-in scenario name")
-    sn.add_argument("--duration", type=_positive_float("--duration"), required=True, help="seconds of samples")
+    sn.add_argument("--duration", type=seconds_arg(), required=True, help="seconds of samples")
     sn.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
     sn.add_argument("--out", default="recordings", help="output directory (default recordings/)")
     sn.add_argument("--force", action="store_true", help="overwrite an existing output file")
-    sn.add_argument("--speed", type=_positive_float("--speed"), default=1.0, metavar="X",
+    sn.add_argument("--speed", type=speed_arg(), default=1.0, metavar="X",
                     help="emulate X times faster than real time (default 1)")
     sn.add_argument("--no-analyze", action="store_true", help="do not start the live analysis node")
     sn.add_argument("--json", action="store_true", help="machine-readable summary")

@@ -8,7 +8,12 @@ is wrong and exit 2, never a traceback, and nothing already recorded lost (DESIG
 
 from __future__ import annotations
 
+import resource
+import signal
+import subprocess
+import sys
 import tomllib
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -229,3 +234,244 @@ def test_values_up_to_the_bound_are_analysed(seed_model, tmp_path, capsys):
     assert rc == 0, err
     rep = json.loads(out)
     assert np.isfinite(rep["error"]) and rep["error"] > 1e50
+
+
+# -- 3. output paths: a file in the way, a path that cannot be written, a full disk -----------------------
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def small_record(tmp_path_factory, seed_model):
+    rec = tmp_path_factory.mktemp("rec") / "seed.mcap"
+    write_record(rec, seed_model, 3000, 5)
+    return rec
+
+
+def test_an_output_under_a_file_is_one_line(tmp_path, capsys):
+    """simulate --out afile/x.mcap and run --out afile/sub, afile a regular file: FileExistsError and
+    NotADirectoryError tracebacks; now one line naming the file in the way, and the file untouched."""
+    afile = tmp_path / "afile"
+    afile.write_text("keep")
+    assert_bad(cli(capsys, "simulate", "seed", "--duration", "1", "--out", afile / "x.mcap"),
+               f"{afile} is a file, not a directory")
+    assert_bad(cli(capsys, "run", "seed", "--duration", "1", "--out", afile / "sub"),
+               f"{afile / 'sub'}: {afile} is a file, not a directory")
+    assert_bad(cli(capsys, "run", "seed", "--duration", "1", "--out", afile), f"{afile}: is a file, not a directory")
+    assert_bad(cli(capsys, "demo", "--duration", "1", "--out", afile / "sub"), f"{afile} is a file, not a directory")
+    assert afile.read_text() == "keep"
+
+
+def test_an_rrd_that_cannot_be_created_is_refused_before_the_analysis(small_record, capsys):
+    """analyze --rrd /proc/x.rrd: Rerun's RuntimeError after the whole analysis; now one line with
+    the OS's reason, before any work (no report on stdout)."""
+    rc, out, err = cli(capsys, "analyze", small_record, "--model", "seed", "--rrd", "/proc/x.rrd")
+    assert_bad((rc, out, err), "/proc/x.rrd: cannot write it (No such file or directory)")
+    assert out == ""
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="no /dev/full")
+@pytest.mark.parametrize("args", [
+    ["simulate", "seed", "--duration", "1", "--out", "/dev/full"],
+    ["analyze", "{rec}", "--model", "seed", "--png", "/dev/full"],
+    ["analyze", "{rec}", "--model", "seed", "--rrd", "/dev/full", "--png", "{tmp}/summary.png"],
+    ["diagnose", "{rec}", "--model", "seed", "--max-effects", "1", "--fit-out", "/dev/full"],
+], ids=["simulate-out", "analyze-png", "analyze-rrd", "diagnose-fit-out"])
+def test_a_full_disk_is_one_line_naming_the_path(args, small_record, tmp_path, capsys):
+    """Every output written into a full disk (/dev/full: ENOSPC at write or close): one line naming
+    the path and the OS error, exit 2 (the PNG's and the fitted model's OSError, Rerun's
+    RuntimeError, were tracebacks). Without --force /dev/full exists and is not overwritten."""
+    argv = [a.format(rec=small_record, tmp=tmp_path) for a in args]
+    assert_bad(cli(capsys, *argv), "/dev/full", "exists", "--force")
+    assert_bad(cli(capsys, *argv, "--force"), "/dev/full: cannot write it (No space left on device)")
+
+
+def _file_limit(nbytes: int):
+    """preexec_fn: files of this process at most ``nbytes`` (a write beyond fails with EFBIG, as a
+    full disk fails with ENOSPC; SIGXFSZ ignored so the write returns the error)."""
+    def limit():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (nbytes, nbytes))
+    return limit
+
+
+def test_simulate_that_runs_out_of_space_keeps_the_recording_it_replaces(tmp_path):
+    """simulate --force onto a recording, the disk full half-way: one line naming the file being
+    written and the OS error, exit 2, and the old recording byte for byte (write-then-rename)."""
+    old = tmp_path / "run.mcap"
+    write_record(old, load_model("seed"), 500, 7)
+    before = old.read_bytes()
+    r = subprocess.run([sys.executable, "-m", "service.cli", "simulate", "seed", "--duration", "100", "--out", old,
+                        "--force"], preexec_fn=_file_limit(200_000), capture_output=True, text=True, cwd=ROOT,
+                       timeout=300)
+    assert_bad((r.returncode, r.stdout, r.stderr), str(old), "cannot write it (File too large)")
+    assert old.read_bytes() == before
+    assert [p.name for p in tmp_path.iterdir()] == ["run.mcap"]
+
+
+def test_record_that_runs_out_of_space_keeps_what_reached_the_disk(tmp_path):
+    """A recorder whose disk fills mid-stream (a real emulator on 127.0.0.1): exit 2, its last line
+    names the file and the OS error, no traceback; every message that reached the disk reads back
+    (the measurement's seqs 0..k with none missing) and `recover` makes a complete file of them."""
+    from service.nodes import mcapio
+    from service.nodes.runner import free_port
+
+    port = free_port()
+    out = tmp_path / "rec.mcap"
+    rec = subprocess.Popen([sys.executable, "-m", "service.cli", "record", "--connect", f"tcp/127.0.0.1:{port}",
+                            "--connect-timeout", "60", "--out", out], preexec_fn=_file_limit(250_000), cwd=ROOT,
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    emu = subprocess.Popen([sys.executable, "-m", "service.cli", "emulate", "seed", "--listen",
+                            f"tcp/127.0.0.1:{port}", "--duration", "3600", "--speed", "20", "--wait-subscribers", "60",
+                            "--end-timeout", "1"], cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        _, err = rec.communicate(timeout=300)           # it ends itself when the disk is full
+    finally:
+        emu.kill()
+        emu.wait()
+        if rec.poll() is None:
+            rec.kill()
+    assert rec.returncode == 2 and "Traceback" not in err, err[-3000:]
+    last = err.splitlines()[-1]
+    assert last.startswith(f"noiselab: {out}: cannot write it (File too large)"), err[-3000:]
+    got = mcapio.read_recording(out)
+    assert not got.complete
+    seq = got.device("seed").measurement.seq
+    assert seq.size > 100 and np.array_equal(seq, np.arange(seq.size))
+    fixed = tmp_path / "fixed.mcap"
+    r = subprocess.run([sys.executable, "-m", "service.cli", "recover", out, "-o", fixed], capture_output=True,
+                       text=True, cwd=ROOT, timeout=120)
+    assert r.returncode == 0, r.stderr
+    back = mcapio.read_recording(fixed)
+    assert back.complete and np.array_equal(back.device("seed").measurement.seq, seq)
+
+
+# -- 4. numeric flags of every command ------------------------------------------------------------------------
+# flags where 0 means something (no wait, never, from the start, seed 0); everywhere else 0 is refused
+ZERO_ALLOWED = {"--wait-subscribers", "--wait-peers", "--rank-every", "--burn", "--seed", "--connect-timeout"}
+# what a command needs besides the flag under test to get as far as its flags (none of it is run)
+REQUIRED = {"--duration": "1", "--model": "seed", "--out": "x.mcap", "--output": "y.mcap"}
+
+
+def numeric_flags():
+    """(command, flag, argv without the flag, the flag's type) for every option of every subcommand
+    that converts its text (argparse ``type=``)."""
+    import argparse
+
+    from service.cli import build_parser
+
+    parser = build_parser()
+    subs = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    out = []
+    for command, sp in subs.choices.items():
+        for act in sp._actions:
+            if not act.option_strings or act.type is None:
+                continue
+            flag = max(act.option_strings, key=len)
+            argv = [command]
+            for other in sp._actions:
+                if other is act or not other.required:
+                    continue
+                if other.option_strings:
+                    name = max(other.option_strings, key=len)
+                    argv += [name, REQUIRED[name]]
+                else:
+                    argv.append("x")                        # a positional (model, recording): not opened
+            out.append((command, flag, argv, act.type))
+    return out
+
+
+FLAGS = numeric_flags()
+
+
+def test_the_walk_finds_every_numeric_flag_and_each_uses_the_shared_checks():
+    found = {(c, f) for c, f, _, _ in FLAGS}
+    assert {("emulate", "--wait-subscribers"), ("emulate", "--wait-peers"), ("replay", "--wait-subscribers"),
+            ("emulate", "--connect-timeout"), ("emulate", "--stale"), ("emulate", "--end-timeout"),
+            ("emulate", "--speed"), ("analyze", "--window"), ("analyze", "--update"), ("analyze", "--rank-every"),
+            ("analyze", "--burn"), ("diagnose", "--max-effects"), ("demo", "--speed"), ("run", "--duration"),
+            ("simulate", "--seed"), ("record", "--duration"), ("router", "--connect-timeout")} <= found
+    assert len(FLAGS) >= 31
+    for command, flag, _, kind in FLAGS:
+        assert kind.__qualname__ in ("_bounded.<locals>.conv", "_burn"), (command, flag)
+
+
+@pytest.mark.parametrize("command, flag, argv, kind", FLAGS, ids=[f"{c} {f}" for c, f, _, _ in FLAGS])
+def test_a_bad_number_on_any_flag_is_one_line_exit_2(command, flag, argv, kind, capsys):
+    """nan, inf, -inf, -5, 1e308 (no timer waits that long; duration / Ts overflows), text, an empty
+    string and 0 where it means nothing: refused by argparse before the command runs, one line
+    naming the flag. emulate --wait-subscribers -5 and nan were accepted."""
+    from service.cli import build_parser
+
+    bad = ["nan", "inf", "-inf", "-5", "1e308", "abc", ""] + ([] if flag in ZERO_ALLOWED else ["0"])
+    for value in bad:
+        with pytest.raises(SystemExit) as info:
+            build_parser().parse_args([*argv, f"{flag}={value}"])
+        _, err = capsys.readouterr()
+        assert info.value.code == 2, (flag, value)
+        lines = err.splitlines()
+        assert len(lines) == 1 and lines[0].startswith(f"noiselab: argument {flag}: expected"), (value, err)
+    for value in ["1", "2.5" if flag not in ("--wait-peers", "--max-effects", "--seed") else "2"] + \
+            (["0"] if flag in ZERO_ALLOWED else []):
+        args = build_parser().parse_args([*argv, f"{flag}={value}"])
+        assert args.command == command
+
+
+def test_emulate_wait_subscribers_minus_5_from_the_shell():
+    r = subprocess.run([sys.executable, "-m", "service.cli", "emulate", "seed", "--wait-subscribers", "-5"],
+                       capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert_bad((r.returncode, r.stdout, r.stderr), "--wait-subscribers", "'-5'")
+
+
+# -- 5. --config: the safe defaults hold for what the file does not set ---------------------------------------
+def _config(tmp_path, text: str | None, role: str, **flags):
+    import argparse
+    import json
+
+    from service.nodes import transport
+
+    path = None
+    if text is not None:
+        path = tmp_path / "zenoh.json5"
+        path.write_text(text)
+    args = argparse.Namespace(config=path and str(path), connect=flags.get("connect"), listen=flags.get("listen"),
+                              mode=None, connect_timeout=5.0)
+    conf = transport.build_config(args, role)
+    get = lambda key: json.loads(conf.get_json(key))      # noqa: E731
+    return get, transport.endpoints_of(args, role)
+
+
+UNRELATED = """{
+  // a real JSON5 file: comments, unquoted keys, a trailing comma; it tunes queries only
+  queries_default_timeout: 20000,
+}
+"""
+
+
+@pytest.mark.parametrize("role", ["source", "sink", "router"])
+def test_a_config_file_that_sets_something_else_keeps_the_safe_defaults(role, tmp_path):
+    """--config with a file about something else turned multicast scouting and listening on every
+    interface (zenoh's own tcp/[::]:0) back on; the file's own setting is kept."""
+    without, _ = _config(tmp_path, None, role)
+    get, ends = _config(tmp_path, UNRELATED, role)
+    assert get("queries_default_timeout") == 20000
+    assert get("scouting/multicast/enabled") is False
+    for key in ("listen/endpoints", "connect/endpoints"):
+        assert get(key) == without(key), key
+    if role == "sink":
+        assert get("listen/endpoints") == [] and get("connect/endpoints") == ["tcp/127.0.0.1:7447"]
+        assert ends == {"listen": [], "connect": ["tcp/127.0.0.1:7447"]}
+    else:
+        assert get("listen/endpoints") == ["tcp/127.0.0.1:7447"] and get("connect/endpoints") == []
+        assert ends == {"listen": ["tcp/127.0.0.1:7447"], "connect": []}
+
+
+def test_a_config_file_that_sets_scouting_and_endpoints_wins(tmp_path):
+    text = "{ scouting: { multicast: { enabled: true } }, listen: { endpoints: ['tcp/0.0.0.0:7999'] } }"
+    for role in ("source", "sink"):
+        get, ends = _config(tmp_path, text, role)
+        assert get("scouting/multicast/enabled") is True
+        assert get("listen/endpoints") == ["tcp/0.0.0.0:7999"] and get("connect/endpoints") == []
+        assert ends == {"listen": ["tcp/0.0.0.0:7999"], "connect": []}
+    # command-line endpoints still win over the file's
+    get, _ = _config(tmp_path, text, "sink", connect=["tcp/127.0.0.1:7001"])
+    assert get("connect/endpoints") == ["tcp/127.0.0.1:7001"] and get("listen/endpoints") == ["tcp/0.0.0.0:7999"]

@@ -8,7 +8,8 @@ override its endpoints). An endpoint that cannot be bound, or an explicit ``--co
 cannot be reached at start, is a one-line :class:`TransportError` (exit 2): explicit connects
 give up after ``--connect-timeout`` seconds instead of retrying forever (Zenoh's default for
 peers). A sink on the *default* endpoint waits for its source instead (start the recorder first,
-then the emulator). Once connected, Zenoh reconnects by itself if the other side restarts.
+then the emulator). A config file keeps the safe defaults for what it does not set itself. Once
+connected, Zenoh reconnects by itself if the other side restarts.
 """
 
 from __future__ import annotations
@@ -34,6 +35,8 @@ class TransportError(ValueError):
 
 
 def add_transport_args(parser: argparse.ArgumentParser) -> None:
+    from ..cli import seconds_arg            # the command line's numeric flags, checked in one place
+
     g = parser.add_argument_group("transport (Zenoh)")
     g.add_argument("--connect", action="append", metavar="ENDPOINT",
                    help=f"endpoint to connect to, e.g. {DEFAULT_ENDPOINT} (repeatable)")
@@ -42,7 +45,7 @@ def add_transport_args(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--config", metavar="FILE", help="Zenoh JSON5 configuration file")
     g.add_argument("--mode", choices=("peer", "client"), default=None,
                    help="Zenoh session mode (default peer; a router is always 'router')")
-    g.add_argument("--connect-timeout", type=float, default=5.0, metavar="S",
+    g.add_argument("--connect-timeout", type=seconds_arg(zero=True), default=5.0, metavar="S",
                    help="seconds to reach --connect endpoints before giving up (default 5)")
 
 
@@ -63,11 +66,25 @@ def _insert(conf: "zenoh.Config", key: str, value) -> None:
         raise TransportError(f"zenoh config {key} = {value!r}: {_one_line(exc)}") from None
 
 
+def _set_by(conf: "zenoh.Config", key: str) -> bool:
+    """Whether ``conf`` (read from a config file) sets ``key``: its value differs from a default
+    zenoh.Config's. Zenoh leaves an option the file does not name null (multicast scouting's
+    ``enabled``, ``connect/retry``) and gives its own defaults for the endpoints; a file that spells
+    out exactly zenoh's defaults (listen on ``tcp/[::]:0``, connect to nothing) is taken as silent."""
+    return conf.get_json(key) != zenoh.Config().get_json(key)
+
+
 def build_config(args: argparse.Namespace, role: str) -> "zenoh.Config":
-    """The session configuration of a node of ``role`` from the shared transport flags."""
+    """The session configuration of a node of ``role`` from the shared transport flags.
+
+    The safe defaults (multicast scouting off; a source or router listens on
+    :data:`DEFAULT_ENDPOINT`, a sink connects to it) hold for every setting that neither the command
+    line nor the ``--config`` file sets: a file that only tunes something else does not turn
+    scouting or listening on every interface back on."""
     if role not in ROLES:
         raise ValueError(role)
-    if getattr(args, "config", None):
+    from_file = bool(getattr(args, "config", None))
+    if from_file:
         path = Path(args.config)
         if not path.is_file():
             raise TransportError(f"--config {args.config}: no such file")
@@ -75,27 +92,31 @@ def build_config(args: argparse.Namespace, role: str) -> "zenoh.Config":
             conf = zenoh.Config.from_file(str(path))
         except zenoh.ZError as exc:
             raise TransportError(f"--config {args.config}: {_one_line(exc)}") from None
-        from_file = True
     else:
         conf = zenoh.Config()
-        from_file = False
+
+    def in_file(key: str) -> bool:
+        return from_file and _set_by(conf, key)
+
     mode = "router" if role == "router" else (getattr(args, "mode", None) or "peer")
     _insert(conf, "mode", mode)
-    if not from_file:
+    if not in_file("scouting/multicast/enabled"):
         _insert(conf, "scouting/multicast/enabled", False)
     connect = list(getattr(args, "connect", None) or [])
     listen = list(getattr(args, "listen", None) or [])
     explicit_connect = bool(connect)
-    if not from_file and not connect and not listen:
+    file_listen, file_connect = in_file("listen/endpoints"), in_file("connect/endpoints")
+    if not (connect or listen or file_listen or file_connect):
         if role == "sink":
             connect = [DEFAULT_ENDPOINT]      # default: wait for the source to appear
-            _insert(conf, "connect/retry", {"period_init_ms": 100, "period_max_ms": 1000,
-                                            "period_increase_factor": 2})
+            if not in_file("connect/retry"):
+                _insert(conf, "connect/retry", {"period_init_ms": 100, "period_max_ms": 1000,
+                                                "period_increase_factor": 2})
         else:
             listen = [DEFAULT_ENDPOINT]
-    if listen or not from_file:
+    if listen or not file_listen:
         _insert(conf, "listen/endpoints", listen)
-    if connect or not from_file:
+    if connect or not file_connect:
         _insert(conf, "connect/endpoints", connect)
     if explicit_connect:
         timeout_ms = int(max(0.0, float(getattr(args, "connect_timeout", 5.0))) * 1000)
@@ -269,9 +290,12 @@ def check_key_expr(text: str) -> str:
 
 
 def endpoints_of(args: argparse.Namespace, role: str) -> dict:
-    """Listen/connect endpoints as they will be used (for messages and summaries)."""
-    connect = list(getattr(args, "connect", None) or [])
-    listen = list(getattr(args, "listen", None) or [])
-    if not getattr(args, "config", None) and not connect and not listen:
-        (connect if role == "sink" else listen).append(DEFAULT_ENDPOINT)
-    return {"listen": listen, "connect": connect}
+    """Listen/connect endpoints as they will be used (for messages and summaries): the command
+    line's, else the config file's, else the defaults (:func:`build_config`)."""
+    conf = build_config(args, role)
+    mode = json.loads(conf.get_json("mode"))
+    out = {}
+    for what in ("listen", "connect"):
+        ends = json.loads(conf.get_json(f"{what}/endpoints"))
+        out[what] = list((ends.get(mode) or []) if isinstance(ends, dict) else ends)
+    return out
