@@ -19,8 +19,15 @@ from service import one_blas_thread
 one_blas_thread()
 
 import pytest  # noqa: E402
+from hypothesis import HealthCheck, settings  # noqa: E402
 
 from livechild import Child  # noqa: E402
+
+# Hypothesis measures time in two checks, which would make a property test depend on the machine's
+# speed: the deadline per example and the "too slow" health check on data generation. Both are off
+# for every property test of the suite (a test's own @settings inherit this profile).
+settings.register_profile("noiselab", deadline=None, suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile("noiselab")
 
 
 @pytest.fixture

@@ -242,8 +242,10 @@ _TOY = """
 
     import signal
     signal.signal(signal.SIGALRM, interrupt)
-    signal.setitimer(signal.ITIMER_REAL, 0.2)          # the child never answers: result() is waiting
     try:
+        # the child never answers: result() is waiting when the alarm comes (on a busy machine it
+        # may come before result() is called; it is still caught here, and cancel() stops the child)
+        signal.setitimer(signal.ITIMER_REAL, 0.2)
         slow.result()
         interrupted = "no"
     except KeyboardInterrupt:
