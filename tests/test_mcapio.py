@@ -1082,6 +1082,22 @@ def test_iter_time_ordered_on_an_unfinished_file(tmp_path):
     assert sorted(items) == sorted((c.topic, m.publish_time, m.sequence) for _, c, m in iter_messages(cut))
 
 
+def test_iter_time_ordered_replays_a_restarted_source_one_stream_after_the_other(tmp_path):
+    """A recording in which the source restarted (sample times begin again): replay's order is
+    the recorded one, stream after stream, not the two streams' samples merged by their equal
+    sample times; in a finished file and in a cut one."""
+    path = tmp_path / "restart.mcap"
+    items = [(k, float(k)) for k in range(30)] + [(k, 100.0 + k) for k in range(20)]
+    write_stream(path, items, kinds=("truth", "command", "measurement"))
+    recorded = [(c.topic, m.data) for _, c, m in iter_messages(path)]
+    assert [(c.topic, m.data) for _, c, m in mcapio.iter_time_ordered(path)] == recorded
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(path.read_bytes()[:-100])
+    report = mcapio.ScanReport()
+    assert [(c.topic, m.data) for _, c, m in mcapio.iter_time_ordered(cut, report=report)] == recorded
+    assert not report.complete
+
+
 def test_write_interleaved_puts_the_topics_of_a_sample_together(tmp_path):
     """RecordingWriter.write_interleaved (noiselab simulate's writer): file order is truth,
     command, measurement of sample k, then k + 1; the data read back exactly."""

@@ -831,7 +831,8 @@ def iter_time_ordered(path: str | os.PathLike, *, report: ScanReport | None = No
                       ) -> Iterator[tuple[Schema | None, Channel, Message]]:
     """Yield ``(schema, channel, message)`` of ``path`` merged across channels by publish_time
     (the sample time: the order a live source published them), each channel in file order; ties
-    go truth, command, measurement, then other topics.
+    go truth, command, measurement, then other topics. A source that restarted (its sample times
+    begin again: :class:`_Segments`) comes out one stream segment after the other.
 
     A streaming k-way merge (heapq.merge) of one iterator per channel. A finished file is read
     chunk by chunk through its chunk index: a chunk is decompressed once, when the first channel
@@ -901,6 +902,7 @@ def _merge_chunks(path: str, f, summary, report: ScanReport):
     def channel_messages(cid: int):
         schema = summary.schemas.get(channels[cid].schema_id)
         channel = channels[cid]
+        segment = _Segments()
         for ci in chunks_of[cid]:
             off = ci.chunk_start_offset
             got = decoded.get(off)
@@ -910,14 +912,34 @@ def _merge_chunks(path: str, f, summary, report: ScanReport):
             refs[off] -= 1
             if refs[off] == 0:
                 del decoded[off]
+            r = rank[cid]
             for m in mine:
-                yield schema, channel, m
+                yield (segment(m.publish_time), m.publish_time, r), (schema, channel, m)
 
     rank = _tie_rank(channels)
-    for item in heapq.merge(*(channel_messages(cid) for cid in channels),
-                            key=lambda it: (it[2].publish_time, rank[it[1].id])):
+    for _key, item in heapq.merge(*(channel_messages(cid) for cid in channels), key=operator.itemgetter(0)):
         report.messages += 1
         yield item
+
+
+class _Segments:
+    """Numbers one channel's stream segments as its messages come, in file order: a publish_time
+    (the sample time) that steps back to or below every earlier one starts a new segment (the
+    source restarted; the rule :func:`_streams` applies to seq). The time-ordered merge keys on
+    (segment, publish_time), so a restarted recording replays as it was recorded, one stream after
+    the other, not the two streams' samples interleaved by their equal sample times."""
+
+    __slots__ = ("n", "low", "prev")
+
+    def __init__(self) -> None:
+        self.n, self.low, self.prev = 0, None, None
+
+    def __call__(self, pub: int) -> int:
+        if self.prev is not None and pub < self.prev and pub <= self.low:
+            self.n += 1
+        self.low = pub if self.low is None or pub < self.low else self.low
+        self.prev = pub
+        return self.n
 
 
 def _merge_stream(path: str, report: ScanReport):
@@ -926,16 +948,17 @@ def _merge_stream(path: str, report: ScanReport):
     import heapq
     from collections import deque
 
-    queues: dict[int, deque] = {}
-    heads: list = []                       # heap of (publish_time, tie rank, cid), one per non-empty queue
+    queues: dict[int, deque] = {}          # per channel: ((segment, publish_time), item)
+    heads: list = []                       # heap of (segment, publish_time, tie rank, cid), one per non-empty queue
     ranks: dict[int, tuple] = {}
+    segments: dict[int, _Segments] = {}
 
     def pop():
-        _, _, c = heapq.heappop(heads)
+        *_, c = heapq.heappop(heads)
         q = queues[c]
-        out = q.popleft()
+        out = q.popleft()[1]
         if q:
-            heapq.heappush(heads, (q[0][2].publish_time, ranks[c], c))
+            heapq.heappush(heads, (*q[0][0], ranks[c], c))
         return out
 
     for item in _scan(path, None, report):
@@ -943,11 +966,13 @@ def _merge_stream(path: str, report: ScanReport):
         q = queues.get(channel.id)
         if q is None:
             q = queues[channel.id] = deque()
+            segments[channel.id] = _Segments()
             topic = _norm(channel.topic)
             ranks[channel.id] = (_KIND_RANK.get(topic.rsplit("/", 1)[-1], 3), topic, channel.id)
+        key = (segments[channel.id](item[2].publish_time), item[2].publish_time)
         if not q:
-            heapq.heappush(heads, (item[2].publish_time, ranks[channel.id], channel.id))
-        q.append(item)
+            heapq.heappush(heads, (*key, ranks[channel.id], channel.id))
+        q.append((key, item))
         while len(heads) == len(queues):
             yield pop()
     while heads:
