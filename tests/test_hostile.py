@@ -10,12 +10,14 @@ recorder's answer to a query, process exit); every timeout is a failure bound, n
 from __future__ import annotations
 
 import json
+import os
 import random
 import subprocess
 import sys
 import threading
 
 import numpy as np
+import pytest
 import zenoh
 
 from livechild import ROOT
@@ -93,6 +95,20 @@ def test_recorder_skips_what_does_not_continue_its_stream(tmp_path):
     assert "y has 2 elements at seq 0; the stream's have 1" in text
     assert "seq 1000000000000 jumps from the stream's last seq 9 and no message followed it" in text
     assert f"deeper than {wire.MAX_DEPTH}" in text
+
+
+def test_recorder_tells_a_bad_message_from_a_file_that_takes_none():
+    """A message the writer refuses (a sample time before the epoch) is skipped and counted; a
+    file that takes no more (a full disk: /dev/full) stops the recorder with McapWriteError
+    instead of counting every later message as malformed."""
+    with mcapio.RecordingWriter("/dev/full", force=True, chunk_size=1024) as w:
+        ing = Ingest(w, "/dev/full", log=open(os.devnull, "w"))
+        ing.add([("noiselab/d/measurement", b'{"seq":0,"t":-1.0,"y":[0.5]}')], 1_000)
+        assert (ing.malformed, ing.messages) == (1, 0)
+        with pytest.raises(mcapio.McapWriteError, match="No space left"):
+            for k in range(1, 1000):
+                ing.add([("noiselab/d/measurement", sample("measurement", k, [0.5]))], 1_000)
+        assert ing.malformed == 1
 
 
 def test_recorder_says_which_sources_vanished_without_an_end_of_stream(spawn, tmp_path):

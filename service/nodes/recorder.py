@@ -379,7 +379,9 @@ class Ingest:
         """Write one message that has passed every check (``dim``: its vector's length), and book it."""
         try:
             self.w.write(key, kind, seq, int(round(t * 1e9)), rx_ns, payload)
-        except mcapio.McapIoError as exc:
+        except mcapio.McapWriteError:
+            raise                                # the file takes no more: not a bad message
+        except mcapio.McapIoError as exc:        # this message cannot be written (its times)
             self._skip(key, exc)
             return
         book = self.books.get(key)
