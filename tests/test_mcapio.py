@@ -322,6 +322,37 @@ def test_write_errors_of_a_regular_file_keep_the_old_file_and_what_was_written(t
     assert recover(partial, tmp_path / "fixed.mcap").total == len(m)
 
 
+def test_a_write_error_at_the_close_keeps_what_was_flushed(tmp_path):
+    """The disk fills while the file is finished (its summary does not fit, as a recorder's last
+    chunk and summary on a full disk): McapWriteError, and the file with the messages flushed
+    before stays for recover (a recorder flushes every 0.25 s: that is the recording)."""
+    path = tmp_path / "run.mcap"
+    script = textwrap.dedent(f"""
+        import os, resource, signal, sys
+        from service.nodes import mcapio, wire
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        w = mcapio.RecordingWriter({str(path)!r}, chunk_size=1 << 20)
+        for k in range(110):                  # the last chunk and the summary wait in the file's buffer
+            w.write("noiselab/d/measurement", "measurement", k, k, k,
+                    wire.encode(k, k * 0.01, [float(k)], kind="measurement"))
+            if k == 99:
+                w.flush()
+                size = os.path.getsize({str(path)!r})
+                resource.setrlimit(resource.RLIMIT_FSIZE, (size + 50, size + 50))
+        try:
+            w.close()
+        except mcapio.McapWriteError as e:
+            print(e)
+            sys.exit(3)
+    """)
+    proc = subprocess.run([sys.executable, "-c", script], cwd=REPO, timeout=60,
+                          env={**os.environ, "PYTHONPATH": str(REPO)}, capture_output=True, text=True)
+    assert proc.returncode == 3, proc.stderr
+    assert proc.stdout.startswith(f"{path}: cannot write it (File too large)")
+    m = read_recording(path).device("d").measurement
+    assert m.seq.tolist()[:100] == list(range(100))
+
+
 def test_bad_output_paths_are_one_line_errors(tmp_path):
     afile = tmp_path / "afile"
     afile.write_text("x")

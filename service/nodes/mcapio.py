@@ -238,17 +238,14 @@ class _Output:
         return self.writing != self.target
 
     def commit(self) -> None:
-        """Close the finished file (on disk first when it replaces one) and give it its name."""
-        try:
-            if self.replaces:
-                self.file.flush()
-                os.fsync(self.file.fileno())
-            self.file.close()
-            if self.replaces:
-                os.replace(self.writing, self.target)
-        except OSError as e:
-            self.abandon(keep=False)
-            raise _os_error(self.writing, e, "cannot finish it") from None
+        """Close the finished file (on disk first when it replaces one) and give it its name. An
+        OSError is the caller's to handle (:meth:`abandon`: whether to keep the file is its call)."""
+        if self.replaces:
+            self.file.flush()
+            os.fsync(self.file.fileno())
+        self.file.close()
+        if self.replaces:
+            os.replace(self.writing, self.target)
 
     def abandon(self, keep: bool) -> None:
         """Close without committing; the file stays where it is if ``keep`` (else it is removed
@@ -380,8 +377,8 @@ class RecordingWriter:
         else:
             try:
                 self._out.commit()
-            except McapIoError:
-                pass                            # the body's own exception is the one to see
+            except OSError:                     # the body's own exception is the one to see
+                self._out.abandon(keep=True)
 
     @property
     def closed(self) -> bool:
@@ -544,8 +541,8 @@ class RecordingWriter:
             return
         with self._io():
             self._writer.finish()
+            self._out.commit()
         self._closed = True
-        self._out.commit()
 
 
 # --------------------------------------------------------------------------- scanning
@@ -1569,13 +1566,13 @@ def recover(broken_path: str | os.PathLike, out_path: str | os.PathLike, force: 
         for name, data in report.metadata.items():
             writer.add_metadata(name, data)
         writer.finish()
+        target.commit()
     except OSError as e:            # the output's disk or directory; the input is only read
         target.abandon(keep=False)
         raise _os_error(target.writing, e, "cannot write it") from None
     except BaseException:
         target.abandon(keep=False)
         raise
-    target.commit()
     return RecoverStats(messages=dict(counts),
                         already_complete=bool(report.complete and report.intact),
                         note=report.note)
