@@ -587,6 +587,9 @@ def test_without_a_command_topic_the_assumed_command_is_named(tmp_path):
                          "offset": 0.0, "phase_rad": 0.0}
     assert ("no command topic in the recording: the analysis assumes the model's own command ([command] "
             "kind = 'sine', amplitude = 0.8, frequency_hz = 0.7, offset = 0.0, phase_rad = 0.0)") in s.notes
+    from service.diagnose.load import load_foreign
+    s = load_foreign(str(bare), "noiselab/dev/measurement:y[0]", None, seed.Ts, model=seed)   # a foreign file
+    assert s.u is None and s.command["source"] == "model" and any("assumes the model's own" in n for n in s.notes)
     full = tmp_path / "full.mcap"
     write_stream(full, [(k, float(k)) for k in range(50)], kinds=("command", "measurement"))
     s = load_noiselab(str(full), model=seed)

@@ -259,11 +259,9 @@ def _longest_run(seq: np.ndarray, notes: list, what: str) -> slice:
     return slice(a, b)
 
 
-def load_foreign(path: str, spec: str, time_field: str | None, Ts: float | None = None, *, model=None) -> Series:
+def load_foreign(path: str, spec: str, time_field: str | None, Ts: float, *, model=None) -> Series:
     """``model``: as for :func:`load_noiselab` (a foreign recording's command is never read: the
     model's own command is named in a note)."""
-    if Ts is None:
-        Ts = model.Ts
     topic, fields = _split_spec(spec)
     getters = [_field_getter(f)[0] for f in fields]
     tget = _field_getter(time_field)[0] if time_field else None
