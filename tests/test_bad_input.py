@@ -98,6 +98,23 @@ def test_the_ends_of_the_sample_periods_range_predict(capsys, tmp_path):
     assert '"stable": false' in out and '"var_y": null' in out
 
 
+def test_simulate_of_a_plant_that_diverges_is_one_line(tmp_path, capsys):
+    """The seed's spring made stiff (k = 2.5e10 N/m): stable, but forward Euler at 10 ms diverges.
+    simulate says where in one line (the sample that is not finite), with no numpy overflow warning
+    before it, and leaves no file; predict says the plant is not stable, also without warnings."""
+    import warnings
+
+    f = tmp_path / "stiff.toml"
+    f.write_text(edited(SEED, {("plant", "k"): 2.5e10}))
+    out = tmp_path / "stiff.mcap"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        assert_bad(cli(capsys, "simulate", f, "--duration", "10", "--out", out), "noiselab/seed/truth", "not finite")
+        rc, text, err = cli(capsys, "predict", f)
+    assert not out.exists()
+    assert rc == 0 and err == "" and "the plant is not stable" in text
+
+
 GENERAL = """\
 name = "general"
 [sampling]
@@ -475,3 +492,208 @@ def test_a_config_file_that_sets_scouting_and_endpoints_wins(tmp_path):
     # command-line endpoints still win over the file's
     get, _ = _config(tmp_path, text, "sink", connect=["tcp/127.0.0.1:7001"])
     assert get("connect/endpoints") == ["tcp/127.0.0.1:7001"] and get("listen/endpoints") == ["tcp/0.0.0.0:7999"]
+
+
+# -- 6. property tests of the model-file parser -----------------------------------------------------------------
+# Any text, any bytes, any TOML-shaped table given to the model loader: a model, or a ValueError
+# (ModelError) whose message is one line; never another exception. Numbers are drawn around the
+# bounds (the sample period's range, 1e50) and far beyond them (1e308, 5e-324, nan, inf, integers of
+# 400 digits), values of every TOML type where numbers belong, tables where values belong.
+import datetime as _dt  # noqa: E402
+
+from hypothesis import HealthCheck, example, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+from service.model import ModelError  # noqa: E402
+from service.model.effects import CATALOGUE  # noqa: E402
+from service.model.model import _from_data  # noqa: E402
+
+MODEL_KEYS = sorted({
+    "name", "description", "sampling", "plant", "command", "process", "actuator", "sensor", "Ts",
+    "discretization", "m", "c", "k", "A", "B", "C", "D", "L", "kind", "amplitude", "frequency_hz", "offset",
+    "phase_rad", "time_s", "f0_hz", "f1_hz", "duration_s", "bit_s", "order", "std", "psd", "rho", "tau_s",
+    "limit", "width", "initial_std", "step", "error", "std_s", "density", *(e.split(".")[1] for e in CATALOGUE),
+})
+keys = st.one_of(st.sampled_from(MODEL_KEYS), st.text(max_size=6))
+numbers = st.one_of(
+    st.floats(),                                                        # nan, inf, subnormals, 1.8e308
+    st.integers(-(10**400), 10**400), st.integers(-3, 20),
+    st.sampled_from([0.0, -0.0, 5e-324, 1e-300, 1e-50, 9e-7, 1e-6, 0.01, 0.97, 1.0, 86400.0, 86401.0, 1e15,
+                     1e50, 1.0000000000000002e50, 1e51, 1e300, -1e300, -1.0, 7, 9]),
+)
+# magnitudes spread evenly over the whole range a model file allows, 1e-50 to 1e50, either sign
+inside = st.builds(lambda e, sign: sign * 10.0**e, st.floats(-50, 50), st.sampled_from([1.0, 1.0, -1.0]))
+scalars = st.one_of(numbers, numbers, st.booleans(), st.text(max_size=8),
+                    st.sampled_from(["zoh", "euler", "sine", "prbs", "chirp", "step", "none", "external", "seed"]),
+                    st.dates(), st.times(), st.datetimes(timezones=st.sampled_from([None, _dt.timezone.utc])))
+values = st.recursive(scalars, lambda inner: st.one_of(st.lists(inner, max_size=4),
+                                                       st.dictionaries(keys, inner, max_size=4)), max_leaves=10)
+tables = st.dictionaries(keys, values, max_size=6)
+
+
+def _toml_key(k: str) -> str:
+    return _toml_str(k)
+
+
+def _toml_str(s: str) -> str:
+    out = []
+    for ch in s:
+        if ch in '"\\':
+            out.append("\\" + ch)
+        elif ord(ch) < 0x20 or ord(ch) == 0x7F:
+            out.append(f"\\u{ord(ch):04x}")
+        else:
+            out.append(ch)
+    return '"' + "".join(out) + '"'
+
+
+def _toml_value(v) -> str:
+    """Any value of a TOML-shaped dict as TOML (nested tables inline, nan and inf as TOML spells them)."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        return "nan" if v != v else ("inf" if v > 0 else "-inf") if v in (float("inf"), float("-inf")) else repr(v)
+    if isinstance(v, str):
+        return _toml_str(v)
+    if isinstance(v, (_dt.date, _dt.time)):
+        return v.isoformat()
+    if isinstance(v, list):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    return "{" + ", ".join(f"{_toml_key(k)} = {_toml_value(x)}" for k, x in v.items()) + "}"
+
+
+def toml_text(d: dict) -> str:
+    return "".join(f"{_toml_key(k)} = {_toml_value(v)}\n" for k, v in d.items())
+
+
+def _is_numeric(d: dict, path: tuple) -> bool:
+    for k in path:
+        d = d[k]
+    flat = d if isinstance(d, list) else [d]
+    flat = [x for row in flat for x in (row if isinstance(row, list) else [row])]
+    return bool(flat) and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in flat)
+
+
+def _leaves(d, path=()):
+    for k, v in d.items():
+        yield path + (k,)
+        if isinstance(v, dict):
+            yield from _leaves(v, path + (k,))
+
+
+@st.composite
+def model_shaped(draw) -> dict:
+    """A valid model's table (the seed, or the general two-input plant with a nonlinear actuator)
+    with 1 to 4 edits: a key set to any value (numbers mostly), a key deleted, a key added anywhere."""
+    d = tomllib.loads(draw(st.sampled_from([SEED, GENERAL])))
+    for _ in range(draw(st.integers(1, 4))):
+        paths = list(_leaves(d))
+        op = draw(st.sampled_from(["inside", "inside", "number", "number", "value", "delete", "add"]))
+        numeric = [p for p in paths if _is_numeric(d, p)]
+        path = draw(st.sampled_from(numeric if op in ("number", "inside") and numeric else paths))
+        node = d
+        for k in path[:-1]:
+            node = node[k]
+        if op == "delete":
+            del node[path[-1]]
+        elif op == "add":
+            (node[path[-1]] if isinstance(node[path[-1]], dict) else node)[draw(keys)] = draw(values)
+        else:
+            node[path[-1]] = draw({"number": numbers, "inside": inside, "value": values}[op])
+    return d
+
+
+def model_or_one_line_error(load) -> object:
+    """``load()``'s model, or None after checking its error is a one-line ValueError."""
+    try:
+        return load()
+    except ValueError as exc:
+        assert isinstance(exc, ModelError), type(exc)
+        msg = str(exc)
+        assert msg and "\n" not in msg and "\r" not in msg, msg
+        return None
+
+
+PROPERTY = settings(derandomize=True, database=None, deadline=None,
+                    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large,
+                                           HealthCheck.filter_too_much, HealthCheck.function_scoped_fixture])
+
+
+@settings(PROPERTY, max_examples=300)
+@given(data=st.one_of(st.binary(max_size=300), st.text(max_size=300).map(str.encode)))
+def test_any_bytes_give_a_model_or_one_line_error(data, tmp_path_factory):
+    f = tmp_path_factory.mktemp("bytes", numbered=True) / "any.toml"
+    f.write_bytes(data)
+    model_or_one_line_error(lambda: load_model(f))
+
+
+@settings(PROPERTY, max_examples=300)
+@given(d=st.one_of(tables, model_shaped()))
+def test_any_toml_table_gives_a_model_or_one_line_error(d):
+    """The table as TOML text through the parser, and as a dict through the same validation (the
+    diagnosis' trial models take that way)."""
+    text = toml_text(d)
+    assert tomllib.loads(text) == d or any(isinstance(v, float) and v != v for v in _all_values(d))
+    a = model_or_one_line_error(lambda: parse_model(text, "prop.toml"))
+    b = model_or_one_line_error(lambda: _from_data(d, "prop.toml", text))
+    assert (a is None) == (b is None)
+    if a is not None:
+        assert TS_MIN <= a.Ts <= TS_MAX and np.all(np.isfinite(a.Ad)) and np.all(np.isfinite(a.S_proc))
+
+
+def _all_values(d):
+    for v in d.values():
+        if isinstance(v, dict):
+            yield from _all_values(v)
+        elif isinstance(v, list):
+            yield from _all_values({i: x for i, x in enumerate(v)})
+        else:
+            yield v
+
+
+@settings(PROPERTY, max_examples=200)
+@given(d=model_shaped())
+# each a traceback before the bounds (OverflowError, ValueError, ValueError, LinAlgError) or inf
+@example(d=tomllib.loads(edited(SEED, {("sampling", "Ts"): 1e300})))
+@example(d=tomllib.loads(edited(SEED, {("sampling", "Ts"): 1e-300})))
+@example(d=tomllib.loads(edited(GENERAL, {("actuator", "saturation", "limit"): 1e20})))
+@example(d=tomllib.loads(edited(SEED, {("actuator",): {"ar1": {"std": 0.1, "tau_s": 1e50}}})))
+@example(d=tomllib.loads(edited(SEED, {("sensor", "white", "std"): 1e300})))
+# stable in continuous time, not as forward Euler at 10 ms: numpy's overflow warnings on stderr
+@example(d=tomllib.loads(edited(SEED, {("plant", "k"): 2.5e10})))
+def test_predict_of_any_edited_model_is_a_report_or_one_line_exit_2(d, tmp_path_factory, capsys):
+    """`noiselab predict FILE` in this process: exit 0 with a report and nothing on stderr (no numpy
+    warning either) when the file is a model (its numbers inside the bounds: a stable model's
+    variances are finite numbers, not null), else exit 2 and one line naming the file."""
+    import json
+    import warnings
+
+    f = tmp_path_factory.mktemp("predict", numbered=True) / "edited.toml"
+    f.write_text(toml_text(d))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        rc, out, err = cli(capsys, "predict", f, "--json")
+    if rc == 0:
+        rep = json.loads(out)
+        assert err == ""
+        if rep["stable"]:
+            assert None not in rep["var_y"] and all(None not in v for v in rep["contributions"].values()), rep
+    else:
+        assert_bad((rc, out, err), str(f))
+
+
+@settings(PROPERTY, max_examples=3)
+@given(d=model_shaped())
+def test_predict_of_a_bad_model_file_from_the_shell(d, tmp_path_factory):
+    """The same from the shell, a few files (each run pays the interpreter's start)."""
+    from hypothesis import assume
+
+    text = toml_text(d)
+    assume(model_or_one_line_error(lambda: parse_model(text, "bad.toml")) is None)
+    f = tmp_path_factory.mktemp("shell", numbered=True) / "bad.toml"
+    f.write_text(text)
+    r = subprocess.run([sys.executable, "-m", "service.cli", "predict", f], capture_output=True, text=True,
+                       cwd=ROOT, timeout=120)
+    assert_bad((r.returncode, r.stdout, r.stderr), str(f))

@@ -663,7 +663,11 @@ class Predictor:
         horizon of the model's own command. The bias walk is reported as a rate, not a variance."""
         if self._steady_cache is not None:
             return self._steady_cache
-        if np.any(np.linalg.eigvals(self.model.Ac).real > 0):
+        # unstable in continuous time, or only as discretized (forward Euler over a Ts beyond
+        # 2 / |eigenvalue|: a stiff spring at the seed's 10 ms)
+        unstable = (np.any(np.linalg.eigvals(self.model.Ac).real > 0)
+                    or np.any(np.abs(np.linalg.eigvals(self.model.Ad)) > 1))
+        if unstable:
             # an unstable plant's mean response overflows on the way: its contributions come out
             # None and the callers say the plant is unstable; the overflow warnings are no news
             with np.errstate(over="ignore", invalid="ignore"):
