@@ -308,10 +308,7 @@ def cmd_record(args) -> int:
 
     transport.check_key_expr(args.key)
     out = Path(args.out)
-    if out.exists() and not args.force:
-        raise UsageError(f"{out}: exists (use --force to overwrite)")
-    if not out.parent.is_dir():
-        raise UsageError(f"{out.parent}: no such directory")
+    _check_out(args.out, args.force)
     stop = _stop_on_signals()
     import threading
     ready = threading.Event()

@@ -3,25 +3,45 @@ is wrong and exit 2, never a traceback, and nothing already recorded lost (DESIG
 
 1. Model files: the sample period's range (1 us to a day), the magnitude of every number (at most
    1e50), correlation times whose rho rounds to 1; the predictions of models inside those bounds
-   (far nonlinearity kinks, the finest Ts) are finite; every built-in scenario still loads.
+   (far nonlinearity kinks, the finest Ts, a plant that diverges as discretized) are finite or say
+   the plant is unstable, without numpy warnings; every built-in scenario still loads.
+2. Recordings: a value beyond 1e50 is refused where the recording becomes arrays, naming topic,
+   field and seq; values up to it are analysed.
+3. Output paths: a file in the way, a path that cannot be created, a full disk (/dev/full; and a
+   file-size limit mid-write, for simulate --force and for a live recorder, whose file up to the
+   fault reads back and is recovered).
+4. Every numeric flag of every command, walked: nan, inf, -5, 0, 1e308, text.
+5. --config: zenoh's defaults do not come back for what the file does not set.
+6. Property tests (hypothesis) of the model-file parser and of `noiselab predict`.
 """
 
 from __future__ import annotations
 
+import argparse
+import datetime as _dt
+import json
 import resource
 import signal
 import subprocess
 import sys
 import tomllib
+import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, assume, example, given, settings
+from hypothesis import strategies as st
 
-from service.cli import main, predict_report
-from service.model import dumps_toml, load_model, parse_model, scenario_names
-from service.model.model import TS_MAX, TS_MIN, scenario_text
+from service.cli import build_parser, main, predict_report
+from service.model import ModelError, dumps_toml, load_model, parse_model, scenario_names
+from service.model.effects import CATALOGUE
+from service.model.model import TS_MAX, TS_MIN, _from_data, scenario_text
 from service.model.predict import HORIZON_MAX
+from service.nodes import mcapio, transport, wire
+from service.nodes.runner import free_port
+
+ROOT = Path(__file__).resolve().parents[1]
 
 SEED = scenario_text("seed")
 
@@ -67,8 +87,8 @@ def assert_bad(result, *parts: str) -> str:
 # -- 1. model files ---------------------------------------------------------------------------------
 @pytest.mark.parametrize("Ts", [1e300, 1e-300, 86401.0, 9e-7])
 def test_predict_refuses_a_sample_period_out_of_its_range(Ts, tmp_path, capsys):
-    """Ts = 1e300 overflowed the mean response (OverflowError in lsim), Ts = 1e-300 asked numpy for
-    a horizon of 6e301 samples (ValueError): both tracebacks; the range is 1 us to a day."""
+    """The sample period is 1 us to a day: outside, one line naming the range (Ts = 1e300 overflows
+    the mean response in lsim, Ts = 1e-300 asks numpy for a horizon of 6e301 samples)."""
     f = tmp_path / "ts.toml"
     f.write_text(edited(SEED, {("sampling", "Ts"): Ts}))
     line = assert_bad(cli(capsys, "predict", f), str(f), "[sampling] Ts", f"{TS_MIN:g}", f"{TS_MAX:g}")
@@ -76,8 +96,8 @@ def test_predict_refuses_a_sample_period_out_of_its_range(Ts, tmp_path, capsys):
 
 
 def test_predict_refuses_a_white_noise_whose_square_overflows(tmp_path, capsys):
-    """sensor.white std = 1e300 was accepted and predicted var_y = inf; every number of a model file
-    is at most 1e50 in magnitude, and the message says why."""
+    """sensor.white std = 1e300 (var_y = inf): every number of a model file is at most 1e50 in
+    magnitude, and the message says why."""
     f = tmp_path / "loud.toml"
     f.write_text(edited(SEED, {("sensor", "white", "std"): 1e300}))
     assert_bad(cli(capsys, "predict", f), "[sensor.white] std", "magnitude at most 1e+50", "float64", "1e+300")
@@ -85,8 +105,8 @@ def test_predict_refuses_a_white_noise_whose_square_overflows(tmp_path, capsys):
 
 def test_the_ends_of_the_sample_periods_range_predict(capsys, tmp_path):
     """Ts = 1 us and a day are models: the seed at 1 us (its quantizer needs the mean response over
-    the horizon: 6e7 samples of 60 s before, now at most HORIZON_MAX) and at a day (its forward Euler
-    unstable there: no steady state, said as such) both predict."""
+    the horizon, 60 s or at most HORIZON_MAX samples: 6e7 would be gigabytes) and at a day (its
+    forward Euler unstable there: no steady state, said as such) both predict."""
     fine = parse_model(edited(SEED, {("sampling", "Ts"): TS_MIN}), "fine")
     assert fine.predictor().horizon == HORIZON_MAX
     rep = predict_report(fine)
@@ -102,8 +122,6 @@ def test_simulate_of_a_plant_that_diverges_is_one_line(tmp_path, capsys):
     """The seed's spring made stiff (k = 2.5e10 N/m): stable, but forward Euler at 10 ms diverges.
     simulate says where in one line (the sample that is not finite), with no numpy overflow warning
     before it, and leaves no file; predict says the plant is not stable, also without warnings."""
-    import warnings
-
     f = tmp_path / "stiff.toml"
     f.write_text(edited(SEED, {("plant", "k"): 2.5e10}))
     out = tmp_path / "stiff.mcap"
@@ -146,11 +164,10 @@ std = [0.01, 0.02]
 
 @pytest.mark.parametrize("limit", [1e20, 1e50])
 def test_a_saturation_that_never_clips_predicts_as_none(limit):
-    """A saturation at 1e20 beside a dead zone of 0.01 (colored actuator noise): the prediction
-    raised 'array must not contain infs or NaNs' (the slope past the kink at 1e20 came out 0 / 0,
-    its Hermite terms 0 * inf) and, with that fixed, lost the dead zone's offset to the rounding of
-    1e20 (var_y 1.3e-5 off). A limit the drive never reaches is no limit: var_y equals the model's
-    without the saturation."""
+    """A saturation at 1e20 beside a dead zone of 0.01 (colored actuator noise): a limit the drive
+    never reaches is no limit, var_y equals the model's without the saturation (the slope past a
+    kink at 1e20 must not be 0 / 0, its Hermite terms not 0 * inf, nor the dead zone's offset lost
+    to the rounding of 1e20: 1.3e-5 of var_y)."""
     far = predict_report(parse_model(edited(GENERAL, {("actuator", "saturation", "limit"): limit}), "far"))
     none = predict_report(parse_model(edited(GENERAL, {}, drops=[("actuator", "saturation")]), "none"))
     np.testing.assert_allclose(far["var_y"], none["var_y"], rtol=1e-13)
@@ -179,8 +196,6 @@ def test_every_built_in_scenario_still_loads():
 def write_record(path, model, n: int, seed: int, edit=None) -> None:
     """A noiselab recording of ``model`` (n samples of truth, command and measurement, the wire
     contract as ``simulate`` writes it), its arrays first given to ``edit(x, u, y)``."""
-    from service.nodes import mcapio, wire
-
     b = model.simulate(n, seed=seed)
     x, u, y = b.x.copy(), b.u.copy(), b.y.copy()
     if edit is not None:
@@ -240,8 +255,6 @@ def test_a_foreign_field_beyond_the_bound_is_refused_naming_it(tmp_path, capsys)
 def test_values_up_to_the_bound_are_analysed(seed_model, tmp_path, capsys):
     """The bound is where the estimators stay finite: a record scaled so its largest value is 1e50
     (the seed model then far off, by 1e100 in variance) is analysed, with a finite model error."""
-    import json
-
     rec = tmp_path / "loud.mcap"
 
     def scale(x, u, y):
@@ -254,8 +267,6 @@ def test_values_up_to_the_bound_are_analysed(seed_model, tmp_path, capsys):
 
 
 # -- 3. output paths: a file in the way, a path that cannot be written, a full disk -----------------------
-ROOT = Path(__file__).resolve().parents[1]
-
 
 @pytest.fixture(scope="module")
 def small_record(tmp_path_factory, seed_model):
@@ -265,11 +276,14 @@ def small_record(tmp_path_factory, seed_model):
 
 
 def test_an_output_under_a_file_is_one_line(tmp_path, capsys):
-    """simulate --out afile/x.mcap and run --out afile/sub, afile a regular file: FileExistsError and
-    NotADirectoryError tracebacks; now one line naming the file in the way, and the file untouched."""
+    """simulate --out afile/x.mcap, record --out afile/x.mcap, run and demo --out afile/sub, afile a
+    regular file (FileExistsError and NotADirectoryError from mkdir): one line naming the file in
+    the way, before any work, and the file untouched."""
     afile = tmp_path / "afile"
     afile.write_text("keep")
     assert_bad(cli(capsys, "simulate", "seed", "--duration", "1", "--out", afile / "x.mcap"),
+               f"{afile} is a file, not a directory")
+    assert_bad(cli(capsys, "record", "--duration", "1", "--out", afile / "x.mcap"),
                f"{afile} is a file, not a directory")
     assert_bad(cli(capsys, "run", "seed", "--duration", "1", "--out", afile / "sub"),
                f"{afile / 'sub'}: {afile} is a file, not a directory")
@@ -279,8 +293,8 @@ def test_an_output_under_a_file_is_one_line(tmp_path, capsys):
 
 
 def test_an_rrd_that_cannot_be_created_is_refused_before_the_analysis(small_record, capsys):
-    """analyze --rrd /proc/x.rrd: Rerun's RuntimeError after the whole analysis; now one line with
-    the OS's reason, before any work (no report on stdout)."""
+    """analyze --rrd /proc/x.rrd (Rerun's RuntimeError once the analysis is done): one line with the
+    OS's reason, before any work (no report on stdout)."""
     rc, out, err = cli(capsys, "analyze", small_record, "--model", "seed", "--rrd", "/proc/x.rrd")
     assert_bad((rc, out, err), "/proc/x.rrd: cannot write it (No such file or directory)")
     assert out == ""
@@ -294,9 +308,9 @@ def test_an_rrd_that_cannot_be_created_is_refused_before_the_analysis(small_reco
     ["diagnose", "{rec}", "--model", "seed", "--max-effects", "1", "--fit-out", "/dev/full"],
 ], ids=["simulate-out", "analyze-png", "analyze-rrd", "diagnose-fit-out"])
 def test_a_full_disk_is_one_line_naming_the_path(args, small_record, tmp_path, capsys):
-    """Every output written into a full disk (/dev/full: ENOSPC at write or close): one line naming
-    the path and the OS error, exit 2 (the PNG's and the fitted model's OSError, Rerun's
-    RuntimeError, were tracebacks). Without --force /dev/full exists and is not overwritten."""
+    """Every output written into a full disk (/dev/full: ENOSPC at write or close; the PNG's and
+    the fitted model's OSError, Rerun's RuntimeError): one line naming the path and the OS error,
+    exit 2. Without --force /dev/full exists and is not overwritten."""
     argv = [a.format(rec=small_record, tmp=tmp_path) for a in args]
     assert_bad(cli(capsys, *argv), "/dev/full", "exists", "--force")
     assert_bad(cli(capsys, *argv, "--force"), "/dev/full: cannot write it (No space left on device)")
@@ -329,9 +343,6 @@ def test_record_that_runs_out_of_space_keeps_what_reached_the_disk(tmp_path):
     """A recorder whose disk fills mid-stream (a real emulator on 127.0.0.1): exit 2, its last line
     names the file and the OS error, no traceback; every message that reached the disk reads back
     (the measurement's seqs 0..k with none missing) and `recover` makes a complete file of them."""
-    from service.nodes import mcapio
-    from service.nodes.runner import free_port
-
     port = free_port()
     out = tmp_path / "rec.mcap"
     rec = subprocess.Popen([sys.executable, "-m", "service.cli", "record", "--connect", f"tcp/127.0.0.1:{port}",
@@ -372,10 +383,6 @@ REQUIRED = {"--duration": "1", "--model": "seed", "--out": "x.mcap", "--output":
 def numeric_flags():
     """(command, flag, argv without the flag, the flag's type) for every option of every subcommand
     that converts its text (argparse ``type=``)."""
-    import argparse
-
-    from service.cli import build_parser
-
     parser = build_parser()
     subs = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
     out = []
@@ -415,10 +422,9 @@ def test_the_walk_finds_every_numeric_flag_and_each_uses_the_shared_checks():
 @pytest.mark.parametrize("command, flag, argv, kind", FLAGS, ids=[f"{c} {f}" for c, f, _, _ in FLAGS])
 def test_a_bad_number_on_any_flag_is_one_line_exit_2(command, flag, argv, kind, capsys):
     """nan, inf, -inf, -5, 1e308 (no timer waits that long; duration / Ts overflows), text, an empty
-    string and 0 where it means nothing: refused by argparse before the command runs, one line
-    naming the flag. emulate --wait-subscribers -5 and nan were accepted."""
-    from service.cli import build_parser
-
+    string and 0 where it means nothing (emulate --wait-subscribers -5 and nan among them): refused
+    by argparse before the command runs, one line naming the flag; 1, 2.5 and 0 where it means
+    something are taken."""
     bad = ["nan", "inf", "-inf", "-5", "1e308", "abc", ""] + ([] if flag in ZERO_ALLOWED else ["0"])
     for value in bad:
         with pytest.raises(SystemExit) as info:
@@ -441,11 +447,6 @@ def test_emulate_wait_subscribers_minus_5_from_the_shell():
 
 # -- 5. --config: the safe defaults hold for what the file does not set ---------------------------------------
 def _config(tmp_path, text: str | None, role: str, **flags):
-    import argparse
-    import json
-
-    from service.nodes import transport
-
     path = None
     if text is not None:
         path = tmp_path / "zenoh.json5"
@@ -453,7 +454,9 @@ def _config(tmp_path, text: str | None, role: str, **flags):
     args = argparse.Namespace(config=path and str(path), connect=flags.get("connect"), listen=flags.get("listen"),
                               mode=None, connect_timeout=5.0)
     conf = transport.build_config(args, role)
-    get = lambda key: json.loads(conf.get_json(key))      # noqa: E731
+
+    def get(key):
+        return json.loads(conf.get_json(key))
     return get, transport.endpoints_of(args, role)
 
 
@@ -466,8 +469,8 @@ UNRELATED = """{
 
 @pytest.mark.parametrize("role", ["source", "sink", "router"])
 def test_a_config_file_that_sets_something_else_keeps_the_safe_defaults(role, tmp_path):
-    """--config with a file about something else turned multicast scouting and listening on every
-    interface (zenoh's own tcp/[::]:0) back on; the file's own setting is kept."""
+    """--config with a file about something else: multicast scouting stays off and the endpoints are
+    the defaults' (not zenoh's own tcp/[::]:0, every interface); the file's own setting is kept."""
     without, _ = _config(tmp_path, None, role)
     get, ends = _config(tmp_path, UNRELATED, role)
     assert get("queries_default_timeout") == 20000
@@ -499,14 +502,6 @@ def test_a_config_file_that_sets_scouting_and_endpoints_wins(tmp_path):
 # (ModelError) whose message is one line; never another exception. Numbers are drawn around the
 # bounds (the sample period's range, 1e50) and far beyond them (1e308, 5e-324, nan, inf, integers of
 # 400 digits), values of every TOML type where numbers belong, tables where values belong.
-import datetime as _dt  # noqa: E402
-
-from hypothesis import HealthCheck, example, given, settings  # noqa: E402
-from hypothesis import strategies as st  # noqa: E402
-
-from service.model import ModelError  # noqa: E402
-from service.model.effects import CATALOGUE  # noqa: E402
-from service.model.model import _from_data  # noqa: E402
 
 MODEL_KEYS = sorted({
     "name", "description", "sampling", "plant", "command", "process", "actuator", "sensor", "Ts",
@@ -667,9 +662,6 @@ def test_predict_of_any_edited_model_is_a_report_or_one_line_exit_2(d, tmp_path_
     """`noiselab predict FILE` in this process: exit 0 with a report and nothing on stderr (no numpy
     warning either) when the file is a model (its numbers inside the bounds: a stable model's
     variances are finite numbers, not null), else exit 2 and one line naming the file."""
-    import json
-    import warnings
-
     f = tmp_path_factory.mktemp("predict", numbered=True) / "edited.toml"
     f.write_text(toml_text(d))
     with warnings.catch_warnings():
@@ -688,8 +680,6 @@ def test_predict_of_any_edited_model_is_a_report_or_one_line_exit_2(d, tmp_path_
 @given(d=model_shaped())
 def test_predict_of_a_bad_model_file_from_the_shell(d, tmp_path_factory):
     """The same from the shell, a few files (each run pays the interpreter's start)."""
-    from hypothesis import assume
-
     text = toml_text(d)
     assume(model_or_one_line_error(lambda: parse_model(text, "bad.toml")) is None)
     f = tmp_path_factory.mktemp("shell", numbered=True) / "bad.toml"
