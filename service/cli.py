@@ -412,7 +412,7 @@ def analysis_report(cmp, series, extra: dict | None = None) -> dict:
                                              "flagged": int(np.sum(v.flagged)), "x_label": v.x_label})
     rep = {"recording": series.source, "model": cmp.model_name, "model_source": cmp.model_source,
            "samples": int(cmp.t.size), "Ts": cmp.Ts, "error": cmp.error, "error_per_view": cmp.error_per_view,
-           "views": views,
+           "views": views, "command": series.command,
            "regions": [{"view": r.view, "output": r.output, "from": r.x_lo, "to": r.x_hi, "points": r.points,
                         "max_abs_z": r.max_abs_z, "direction": r.direction} for r in cmp.regions],
            "notes": series.notes + cmp.notes}
@@ -433,15 +433,22 @@ def report_lines(cmp, series) -> list[str]:
 
 
 def load_series(args, model, truth: bool = True, read=None):
-    """``read``: the file's reading begun by :func:`_read_early` (or None)."""
+    """``read``: the file's reading begun by :func:`_read_early` (or None). A command the analysis
+    assumes (the recording has none: the model's own stands in) is said on stderr, whatever the
+    output format, besides the report's notes and its ``command`` field."""
     from .diagnose import load as dload
 
     path = args.recording
     _check_recording(path)
     if args.measurement:
-        return dload.load_foreign(path, args.measurement, args.time, model.Ts)
-    return dload.load_noiselab(path, args.device, truth=truth, Ts=model.Ts,
-                               rec=None if read is None else read.result())
+        series = dload.load_foreign(path, args.measurement, args.time, model.Ts, model=model)
+    else:
+        series = dload.load_noiselab(path, args.device, truth=truth, Ts=model.Ts,
+                                     rec=None if read is None else read.result(), model=model)
+    note = dload.command_note(series)
+    if note is not None:
+        print(f"noiselab {args.command}: {note}", file=sys.stderr, flush=True)
+    return series
 
 
 def _read_early(args, truth: bool):

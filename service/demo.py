@@ -102,7 +102,7 @@ def run_demo(out_dir: Path, *, duration: float, speed: float, seed: int, force: 
         f"time over Zenoh on 127.0.0.1, recording to {outs['recording']}, live analysis against seed-nominal ...")
     live = run_pipeline("seed", truth.name, duration=duration, seed=seed, out_dir=out_dir, force=force,
                         analyze=True, speed=speed, analyze_model="seed-nominal", window=120.0, out_name="demo-seed")
-    series = load_noiselab(str(outs["recording"]), truth=True, Ts=truth.Ts)
+    series = load_noiselab(str(outs["recording"]), truth=True, Ts=truth.Ts, model=nominal)
     y, u = series.y, series.u
     say(f"2/3 diagnosing {y.shape[0]} samples against seed-nominal ...")
     rep = diagnose(nominal, series.t, y, u, at_rest=series.starts_at_rest, max_effects=max_effects)

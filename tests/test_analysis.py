@@ -479,6 +479,42 @@ def test_a_model_ts_slightly_off_the_records_is_noted(seed_recording, tmp_path):
             assert notes == [], notes
 
 
+def _record_of(w: mcapio.RecordingWriter, model, n: int, seed: int, kinds=("truth", "command", "measurement"),
+               start_ns: int = 0) -> None:
+    """``n`` samples of ``model`` from rest (seq 0) on the topics ``kinds``, written by ``w`` as
+    ``simulate`` writes them; publish times from ``start_ns`` (a stream started later)."""
+    b = model.simulate(n, seed=seed)
+    t, pub = wire.sample_times(0, n, model.Ts)
+    arrays = {"truth": b.x, "command": b.u, "measurement": b.y}
+    w.write_interleaved([(wire.key(model.name, kind), kind, 0, pub + start_ns, pub + start_ns,
+                          wire.encode_batch(kind, 0, t, arrays[kind], topic=wire.key(model.name, kind)))
+                         for kind in kinds])
+
+
+def test_the_command_analysed_is_named_in_the_json_and_an_assumed_one_on_stderr(seed_recording, tmp_path):
+    """A recording without a command topic (a sensor log) is analysed with the model's own
+    [command]: analyze and diagnose say so on stderr once (with --json too, stdout staying JSON)
+    and their JSON's ``command`` names it (source "model", its kind and parameters); a recording
+    with a command topic gives source "recording" and its topic, and nothing on stderr."""
+    seed = load_model("seed")
+    bare = tmp_path / "no_command.mcap"
+    with mcapio.RecordingWriter(bare) as w:
+        _record_of(w, seed, 3000, 11, kinds=("truth", "measurement"))
+    said = "no command topic in the recording: the analysis assumes the model's own command ([command] kind = 'sine'"
+    for command, extra in (("analyze", []), ("diagnose", ["--max-effects", "1"])):
+        r = cli(command, bare, "--model", "seed", "--json", *extra)
+        assert r.returncode == 0, r.stderr[-2000:]
+        lines = [ln for ln in r.stderr.splitlines() if said in ln]
+        assert len(lines) == 1 and lines[0].startswith(f"noiselab {command}: "), r.stderr
+        rep = json.loads(r.stdout)
+        assert rep["command"] == {"source": "model", "kind": "sine", "amplitude": 0.8, "frequency_hz": 0.7,
+                                  "offset": 0.0, "phase_rad": 0.0}, rep["command"]
+        assert sum(said in n for n in rep["notes"]) == 1
+        r = cli(command, seed_recording, "--model", "seed", "--json", *extra)
+        assert r.returncode == 0 and r.stderr == "", r.stderr[-2000:]
+        assert json.loads(r.stdout)["command"] == {"source": "recording", "topic": "noiselab/seed/command"}
+
+
 # -- 8. a foreign recording ---------------------------------------------------------------------------
 IMU = """
 name = "imu"

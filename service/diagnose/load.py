@@ -135,6 +135,17 @@ def _unfinished_without_measurement(path: str, rec: mcapio.Recording) -> str:
     return f"{rec.note}; none of them is a measurement (a topic ending in /measurement){keep}"
 
 
+ASSUMED_COMMAND = "no command topic in the recording: the analysis assumes"
+"""How the note that names an assumed command begins (:func:`command_used`, :func:`command_note`)."""
+
+
+def command_note(series: Series) -> str | None:
+    """The note naming the command the analysis assumed for want of a recorded one, or None."""
+    if not series.command or series.command.get("source") != "model":
+        return None
+    return next((n for n in series.notes if n.startswith(ASSUMED_COMMAND)), None)
+
+
 def command_used(model, topic: str | None, notes: list) -> dict | None:
     """What the analysis takes as the plant's command, JSON-ready: ``{"source": "recording",
     "topic": ...}``, or ``{"source": "model", "kind": ..., <the [command] table's parameters>}``
@@ -152,7 +163,7 @@ def command_used(model, topic: str | None, notes: list) -> dict | None:
     else:
         said = f"the model's own command ([command] kind = {kind!r}, " + ", ".join(
             f"{k} = {v}" for k, v in table.items()) + ")"
-    notes.append(f"no command topic in the recording: the analysis assumes {said}")
+    notes.append(f"{ASSUMED_COMMAND} {said}")
     return {"source": "model", "kind": kind, **table}
 
 

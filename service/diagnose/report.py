@@ -35,6 +35,7 @@ def diagnosis_json(rep: dict, series=None, extra: dict | None = None) -> dict:
     out["notes"] = (list(series.notes) if series is not None else []) + list(rep.get("notes", []))
     if series is not None:
         out["recording"] = series.source
+        out["command"] = series.command        # recorded, or the model's own assumed (load.command_used)
     out.update(extra or {})
     return _clean(out)
 
