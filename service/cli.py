@@ -109,6 +109,9 @@ def count_arg(lo: int = 1):
 
 
 _seed = _bounded(0, None, integer=True, what="an integer seed")
+_segment = _bounded(1, None, integer=True, what="a segment number")
+"""``--segment N``: a stream segment of a recording whose source restarted, 1 = the first; one
+beyond the recording's segments is refused where they are known (the loader names their count)."""
 
 
 # -- predict ------------------------------------------------------------------------------------
@@ -441,10 +444,14 @@ def load_series(args, model, truth: bool = True, read=None):
     path = args.recording
     _check_recording(path)
     if args.measurement:
+        if args.segment is not None:
+            raise UsageError("--segment takes a stream segment of a noiselab recording whose source restarted; "
+                             "a foreign recording (--measurement) has none")
         series = dload.load_foreign(path, args.measurement, args.time, model.Ts, model=model)
     else:
         series = dload.load_noiselab(path, args.device, truth=truth, Ts=model.Ts,
-                                     rec=None if read is None else read.result(), model=model)
+                                     rec=None if read is None else read.result(), segment=args.segment,
+                                     model=model)
     note = dload.command_note(series)
     if note is not None:
         print(f"noiselab {args.command}: {note}", file=sys.stderr, flush=True)
@@ -737,6 +744,9 @@ def build_parser() -> argparse.ArgumentParser:
     sa.add_argument("--measurement", metavar="TOPIC:FIELD",
                     help="foreign recordings: topic and JSON field(s) of the measurement, e.g. /imu:linear_acceleration.x")
     sa.add_argument("--time", metavar="FIELD", help="foreign recordings: time field in s (or ns if it ends in _ns); default publish_time")
+    sa.add_argument("--segment", type=_segment, metavar="N",
+                    help="a recording whose source restarted (read as stream segments): analyse segment N, 1 = the "
+                         "first (default: the one with the longest gap-free run)")
     sa.add_argument("--burn", type=_burn, default="auto",
                     help="seconds to skip at the start ('auto': the model's transient when the stream starts at rest)")
     sa.add_argument("--force", action="store_true", help="overwrite existing output files")
@@ -763,6 +773,9 @@ def build_parser() -> argparse.ArgumentParser:
     sd.add_argument("--device", help="device name in a noiselab recording with several devices")
     sd.add_argument("--measurement", metavar="TOPIC:FIELD", help="foreign recordings: topic and JSON field(s)")
     sd.add_argument("--time", metavar="FIELD", help="foreign recordings: time field (s, or ns if it ends in _ns)")
+    sd.add_argument("--segment", type=_segment, metavar="N",
+                    help="a recording whose source restarted (read as stream segments): analyse segment N, 1 = the "
+                         "first (default: the one with the longest gap-free run)")
     sd.add_argument("--force", action="store_true", help="overwrite existing output files")
     sd.add_argument("--verbose", action="store_true", help="log the search on stderr")
     sd.add_argument("--json", action="store_true", help="machine-readable report")

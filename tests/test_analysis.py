@@ -515,6 +515,39 @@ def test_the_command_analysed_is_named_in_the_json_and_an_assumed_one_on_stderr(
         assert json.loads(r.stdout)["command"] == {"source": "recording", "topic": "noiselab/seed/command"}
 
 
+def test_a_restarted_source_is_analysed_one_segment_at_a_time_chosen_with_segment(tmp_path):
+    """A recording in which the source restarted (a stream of 1500 samples, then one of 3000 from
+    seq 0 again, 60 s later) is analysed one stream segment at a time: by default the longest,
+    with ``--segment N`` the N-th, each exactly as compare() gives it on that stream alone; the
+    note names the restart and the flag. A segment beyond the recording's, or --segment with a
+    foreign recording, is one line and exit 2 (analyze and diagnose)."""
+    seed = load_model("seed")
+    path = tmp_path / "restarted.mcap"
+    with mcapio.RecordingWriter(path) as w:
+        _record_of(w, seed, 1500, 3)
+        _record_of(w, seed, 3000, 4, start_ns=60 * 10**9)
+    for segment, n, s in ((None, 3000, 4), (1, 1500, 3), (2, 3000, 4)):
+        r = cli("analyze", path, "--model", "seed", "--json", *([] if segment is None else ["--segment", segment]))
+        assert r.returncode == 0, r.stderr[-2000:]
+        rep = json.loads(r.stdout)
+        rec = seed.simulate(n, seed=s)
+        c = compare(seed, rec.t, rec.y, rec.u, burn=None, level=True)      # that stream, from rest
+        assert rep["error"] == c.error and rep["samples"] == c.t.size, (segment, rep["samples"])
+        note, = [x for x in rep["notes"] if "restarted" in x]
+        assert "2 stream segments of 1500, 3000 samples" in note, note
+        assert note.endswith("analysed segment 2 (the one with the longest gap-free run; --segment N takes segment N)"
+                             if segment is None else f"analysed segment {segment} (--segment {segment})"), note
+    for command in ("analyze", "diagnose"):
+        r = cli(command, path, "--model", "seed", "--segment", 3)
+        lines = r.stderr.splitlines()
+        assert r.returncode == 2 and len(lines) == 1 and r.stdout == "", r.stderr[-2000:]
+        assert lines[0] == (f"noiselab: {path}: --segment 3 asked for, but noiselab/seed/measurement has 2 stream "
+                            "segments (1..2)")
+        r = cli(command, path, "--model", "seed", "--segment", 1, "--measurement", "noiselab/seed/measurement:y[0]")
+        lines = r.stderr.splitlines()
+        assert r.returncode == 2 and len(lines) == 1 and "--segment" in lines[0] and "foreign" in lines[0], r.stderr
+
+
 # -- 8. a foreign recording ---------------------------------------------------------------------------
 IMU = """
 name = "imu"

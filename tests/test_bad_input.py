@@ -433,7 +433,7 @@ def test_a_bad_number_on_any_flag_is_one_line_exit_2(command, flag, argv, kind, 
         assert info.value.code == 2, (flag, value)
         lines = err.splitlines()
         assert len(lines) == 1 and lines[0].startswith(f"noiselab: argument {flag}: expected"), (value, err)
-    for value in ["1", "2.5" if flag not in ("--wait-peers", "--max-effects", "--seed") else "2"] + \
+    for value in ["1", "2.5" if flag not in ("--wait-peers", "--max-effects", "--seed", "--segment") else "2"] + \
             (["0"] if flag in ZERO_ALLOWED else []):
         args = build_parser().parse_args([*argv, f"{flag}={value}"])
         assert args.command == command

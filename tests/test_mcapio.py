@@ -566,10 +566,10 @@ def test_analysis_of_a_restarted_recording_takes_one_segment_and_says_so(tmp_pat
     note, = [n for n in s.notes if "restarted" in n]
     assert note == ("noiselab/dev/measurement: the source restarted once (seq back to 0 at log time +0.300 s "
                     "from the first message): 2 stream segments of 300, 500 samples; analysed segment 2 "
-                    "(the one with the longest gap-free run)")
+                    "(the one with the longest gap-free run; --segment N takes segment N)")
     s1 = load_noiselab(str(path), segment=1)
     assert s1.y[:, 0].tolist() == [float(k) for k in range(300)] and s1.u[:, 0].tolist() == s1.y[:, 0].tolist()
-    assert any(n.endswith("analysed segment 1") for n in s1.notes)
+    assert any(n.endswith("analysed segment 1 (--segment 1)") for n in s1.notes)
     with pytest.raises(AnalysisError, match=r"segment 3 asked for, but noiselab/dev/measurement has 2 stream "
                                             r"segments \(1\.\.2\)"):
         load_noiselab(str(path), segment=3)

@@ -86,8 +86,8 @@ def noiselab_kinds(truth: bool = True) -> tuple[str, ...]:
 def load_noiselab(path: str, device: str | None = None, truth: bool = True, Ts: float | None = None,
                   rec: mcapio.Recording | None = None, *, segment: int | None = None, model=None) -> Series:
     """``rec``: the file already read (``mcapio.read_recording(path, kinds=noiselab_kinds(truth))``).
-    ``segment``: the stream segment to analyse (1-based, in file order) when the source restarted;
-    None takes the one with the longest gap-free run. ``model``: the model the data are compared
+    ``segment``: the stream segment to analyse (1-based, in file order; the CLI's ``--segment``)
+    when the source restarted; None takes the one with the longest gap-free run. ``model``: the model the data are compared
     with (its Ts when ``Ts`` is None; its command is named when the recording has none)."""
     if Ts is None and model is not None:
         Ts = model.Ts
@@ -171,7 +171,7 @@ def _pick_segment(path: str, meas: mcapio.TopicData, segment: int | None, notes:
     """(index, TopicData) of the stream segment to analyse; a note when the source restarted."""
     segs = meas.segments
     if segment is not None and not (isinstance(segment, int) and 1 <= segment <= len(segs)):
-        raise AnalysisError(f"{path}: segment {segment!r} asked for, but {mcapio.shown(meas.topic)} has "
+        raise AnalysisError(f"{path}: --segment {segment!r} asked for, but {mcapio.shown(meas.topic)} has "
                             f"{len(segs)} stream segment{'s' if len(segs) > 1 else ''} (1..{len(segs)})")
     if len(segs) == 1:
         return 0, meas
@@ -186,7 +186,7 @@ def _pick_segment(path: str, meas: mcapio.TopicData, segment: int | None, notes:
 
 def _restart_note(td: mcapio.TopicData, k: int, chosen: bool) -> str:
     """One line: how often the source restarted, when (log time from the stream's first message),
-    every segment's length, and which one is analysed."""
+    every segment's length, which one is analysed, and the flag that takes another."""
     starts = td.starts
     lens = np.diff(np.append(starts, len(td))).tolist()
     first_log = np.minimum.reduceat(td.log_ns, starts)          # each segment's first arrival, ns
@@ -199,8 +199,9 @@ def _restart_note(td: mcapio.TopicData, k: int, chosen: bool) -> str:
     times = "once" if len(at) == 1 else f"{len(at)} times"
     return (f"{mcapio.shown(td.topic)}: the source restarted {times} (seq back to {listed(back)} at log time "
             f"{listed(at, lambda s: f'{s:+.3f} s')} from the first message): {len(lens)} stream segments "
-            f"of {listed(lens)} samples; analysed segment {k + 1}"
-            + (" (the one with the longest gap-free run)" if chosen else ""))
+            f"of {listed(lens)} samples; analysed segment {k + 1} "
+            + ("(the one with the longest gap-free run; --segment N takes segment N)" if chosen
+               else f"(--segment {k + 1})"))
 
 
 def _same_segment(path: str, td: mcapio.TopicData | None, meas: mcapio.TopicData, k: int, notes: list):
