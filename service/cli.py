@@ -315,15 +315,22 @@ def cmd_record(args) -> int:
     stop = _stop_on_signals()
     import threading
     ready = threading.Event()
+    writing: list[str] = []
+
+    def subscribed(path: str):
+        writing.append(path)
+        ready.set()
 
     def announce():
         ready.wait()
-        print(f"{READY_MARK} to {args.key}, writing {out}", file=sys.stderr, flush=True)
+        where = writing[0] if writing[0] == str(out) else \
+            f"{writing[0]} (it replaces {out} once the recording is finished)"       # --force over a file
+        print(f"{READY_MARK} to {args.key}, writing {where}", file=sys.stderr, flush=True)
 
     threading.Thread(target=announce, daemon=True).start()
     with transport.open_session(args, "sink") as session:
         s = run_recorder(session, args.key, str(out), duration=args.duration, force=args.force, stop=stop,
-                         ready=ready)
+                         ready=subscribed)
     _emit(args, s.as_dict(), s.lines())
     return 0
 

@@ -39,7 +39,7 @@ from service.model.effects import CATALOGUE
 from service.model.model import TS_MAX, TS_MIN, _from_data, scenario_text
 from service.model.predict import HORIZON_MAX
 from service.nodes import mcapio, transport, wire
-from service.nodes.runner import free_port
+from service.nodes.runner import READY_MARK, free_port
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -371,6 +371,26 @@ def test_record_that_runs_out_of_space_keeps_what_reached_the_disk(tmp_path):
     assert r.returncode == 0, r.stderr
     back = mcapio.read_recording(fixed)
     assert back.complete and np.array_equal(back.device("seed").measurement.seq, seq)
+
+
+def test_record_over_a_file_names_the_file_it_fills(spawn, tmp_path):
+    """record --force onto an existing recording fills OUT.partial and renames it over OUT only
+    once finished (the old file is kept until then): its ready line names the file the bytes go
+    to, not OUT. A new OUT is written as itself, and its ready line says so."""
+    old = tmp_path / "run.mcap"
+    write_record(old, load_model("seed"), 100, 1)
+    before = old.read_bytes()
+    partial = Path(f"{old}{mcapio.PARTIAL_SUFFIX}")
+    rec = spawn("record", "record", "--listen", f"tcp/127.0.0.1:{free_port()}", "--out", old, "--force", "--json")
+    line = rec.wait_line(READY_MARK)
+    assert line == f"{READY_MARK} to noiselab/**, writing {partial} (it replaces {old} once the recording is finished)"
+    assert partial.exists() and old.read_bytes() == before
+    assert rec.interrupt() == 0
+    assert not partial.exists() and old.read_bytes() != before and mcapio.read_recording(old).complete
+    new = tmp_path / "new.mcap"
+    rec = spawn("record", "record", "--listen", f"tcp/127.0.0.1:{free_port()}", "--out", new, "--json")
+    assert rec.wait_line(READY_MARK) == f"{READY_MARK} to noiselab/**, writing {new}"
+    assert rec.interrupt() == 0 and mcapio.read_recording(new).complete
 
 
 # -- 4. numeric flags of every command ------------------------------------------------------------------------

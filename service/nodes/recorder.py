@@ -48,6 +48,7 @@ import json
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -457,9 +458,11 @@ class Ingest:
 
 def run_recorder(session: "zenoh.Session", key_expr: str, out: str, *, duration: float | None = None,
                  force: bool = False, stop: threading.Event | None = None, flush_s: float = 0.25,
-                 chunk_size: int = 64 * 1024, ready: threading.Event | None = None,
+                 chunk_size: int = 64 * 1024, ready: Callable[[str], None] | None = None,
                  log=sys.stderr) -> RecorderSummary:
-    """Record until ``duration`` (wall seconds) or ``stop``. ``ready`` is set once subscribed."""
+    """Record until ``duration`` (wall seconds) or ``stop``. ``ready`` is called once subscribed,
+    with the file the bytes go to until the recording is finished (``RecordingWriter.writing_path``:
+    ``out``, or ``out`` + ``.partial`` while ``force`` keeps an older ``out``)."""
     stop = stop or threading.Event()
     t_start = time.monotonic()
     meta = {"generator": "noiselab record", "key_expr": key_expr, "started_unix_ns": str(time.time_ns())}
@@ -471,7 +474,7 @@ def run_recorder(session: "zenoh.Session", key_expr: str, out: str, *, duration:
         join = transport.JoinRequest(session, key_expr)   # answered while the loop drains the channel
         waiting: list = []                    # samples taken before the join points came
         if ready is not None:
-            ready.set()
+            ready(w.writing_path)
         recv, recv_query = sub.try_recv, queries.try_recv
         pending: list[list] = []          # [query, samples still to take before it may be answered]
         last_flush = last_rx = time.monotonic()
