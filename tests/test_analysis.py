@@ -413,7 +413,41 @@ def bad_inputs(tmp_path_factory, seed_recording) -> dict:
     unstable.write_text(text.replace(plant, "[plant]\nA = [[0.0, 1.0], [30.0, 5.0]]\nB = [[0.0], [1.0]]\n"
                                      "C = [[1.0, 0.0]]\n\n", 1))
     assert "A = " in unstable.read_text() and "k = " not in unstable.read_text()
+    # foreign messages are untrusted: one nested 200,000 deep (Python's parser recursed out of its
+    # stack), a number beyond float64, a time stamp beyond int64 ns (OverflowError tracebacks)
+    deep = d / "deep.mcap"
+    _raw_json_mcap(deep, "/imu", [(k * 10_000_000, b'{"linear_acceleration": {"x": ' + b"[" * 200_000 + b"]" * 200_000
+                                   + b"}}" if k == 300 else _imu_message(k * 10_000_000, float(rec.y[k, 0])))
+                                  for k in range(2000)])
+    huge = d / "huge.mcap"
+    _raw_json_mcap(huge, "/imu", [(k * 10_000_000, _imu_message(k * 10_000_000, float(rec.y[k, 0])) if k != 5 else
+                                   b'{"header": {"stamp_ns": 50000000}, "linear_acceleration": {"x": 1' + b"0" * 400
+                                   + b"}}") for k in range(2000)])
+    late = d / "late.mcap"
+    _raw_json_mcap(late, "/imu", [(k * 10_000_000, _imu_message(10**30 if k == 9 else k * 10_000_000,
+                                                                float(rec.y[k, 0]))) for k in range(2000)])
+    late_publish = d / "late_publish.mcap"          # MCAP's u64 publish_time beyond int64
+    _raw_json_mcap(late_publish, "/imu", [(2**64 - 1 if k == 9 else k * 10_000_000, _imu_message(0, float(rec.y[k, 0])))
+                                          for k in range(2000)])
+    # a topic with a control character (a newline) and a value beyond the analysis' bound: the
+    # one-line message escapes it
+    odd = d / "odd_topic.mcap"
+    topic = "noiselab/a\nb/measurement"
+    y = rec.y.copy()
+    y[7, 0] = 1e60
+    with mcapio.RecordingWriter(odd) as w:
+        t, pub = wire.sample_times(0, 2000, seed.Ts)
+        w.write_batch(topic, "measurement", 0, pub, pub, wire.encode_batch("measurement", 0, t, y, topic=topic))
+    imu = ["--measurement", "/imu:linear_acceleration.x", "--time", "header.stamp_ns"]
     return {
+        "nested 200,000 deep": ([deep, "--model", "seed", *imu], ["deep.mcap: /imu: sample 300", "deeper than 32"]),
+        "number beyond float64": ([huge, "--model", "seed", *imu],
+                                  ["/imu: sample 5: linear_acceleration.x = 1000", "is not a number within float64"]),
+        "stamp beyond int64": ([late, "--model", "seed", *imu],
+                               ["/imu: sample 9: header.stamp_ns = 1000", "is not a number of ns within int64"]),
+        "publish time beyond int64": ([late_publish, "--model", "seed", "--measurement", "/imu:linear_acceleration.x"],
+                                      ["/imu: sample 9: publish_time = 18446744073709551615", "of ns within int64"]),
+        "control character in a topic": ([odd, "--model", "seed"], ["noiselab/a\\nb/measurement: y[0] = 1e+60 at seq 7"]),
         "no measurement topic": ([truth_only, "--model", "seed"], ["no measurement topic"]),
         "missing field": ([seed_recording, "--model", "seed", "--measurement", "noiselab/seed/measurement:y_mm"],
                           ["y_mm", "not found"]),
@@ -434,7 +468,8 @@ def bad_inputs(tmp_path_factory, seed_recording) -> dict:
 
 @pytest.mark.parametrize("case", ["no measurement topic", "missing field", "NaN samples", "too short",
                                   "Ts mismatch", "missing file", "not MCAP", "directory", "unstable plant",
-                                  "rrd without a name", "model first"])
+                                  "rrd without a name", "model first", "nested 200,000 deep", "number beyond float64",
+                                  "stamp beyond int64", "publish time beyond int64", "control character in a topic"])
 def test_bad_input_is_one_line_and_exit_2(bad_inputs, case):
     args, words = bad_inputs[case]
     r = cli("analyze", *args, "--json")

@@ -5,7 +5,10 @@
 * foreign recordings: ``--measurement TOPIC:FIELD`` picks a JSON field (dotted path, ``[i]`` for
   list items, e.g. ``/imu:linear_acceleration.x`` or ``/odom:twist.linear[0]``), time from a field
   (``--time FIELD``, seconds, or ``FIELD_ns`` style integer ns when the name ends in ``_ns``) or
-  from the MCAP publish_time; several FIELDs may be given comma-separated for a vector.
+  from the MCAP publish_time; several FIELDs may be given comma-separated for a vector. A file's
+  message is untrusted: parsed within the wire decoders' bounds (:func:`wire.loads`: size,
+  nesting; NaN and Infinity are not JSON), its fields numbers within float64 (times in ns within
+  int64), else one line naming the topic, the sample and the field.
 
 Gaps (a missing seq, or a time step over 1.5 Ts) are never silently ignored: the analysis uses
 the longest gap-free run and the notes say what was left out. A noiselab stream whose source
@@ -31,8 +34,8 @@ in an estimator.
 
 from __future__ import annotations
 
-import json
 import re
+import reprlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -121,7 +124,7 @@ def load_noiselab(path: str, device: str | None = None, truth: bool = True, Ts: 
         raise AnalysisError(f"{path}: the command topic misses samples inside the analysed run")
     for td, v in ((meas, y), (dev.command, u), (dev.truth, x)):
         if v is not None:
-            _check_magnitude(v, f"{path}: {td.topic}", wire.VECTOR_FIELD[td.kind], seq[keep], "seq")
+            _check_magnitude(v, f"{path}: {mcapio.shown(td.topic)}", wire.VECTOR_FIELD[td.kind], seq[keep], "seq")
     command = command_used(model, None if u is None else dev.command.topic, notes)
     return Series(t=t - t[0], y=y, u=u, truth=x, source=f"{path} [{mcapio.shown(dev.name)}]", notes=notes,
                   starts_at_rest=bool(seq[keep][0] == 0), command=command)
@@ -278,6 +281,8 @@ def load_foreign(path: str, spec: str, time_field: str | None, Ts: float, *, mod
     getters = [_field_getter(f)[0] for f in fields]
     tget = _field_getter(time_field)[0] if time_field else None
     want = topic.lstrip("/")
+    topic = mcapio.shown(topic)                               # as messages name it
+    names = fields if tget is None else fields + [time_field]
     ys, ts = [], []
     ns_time = tget is None or time_field.endswith("_ns")      # integer ns: publish_time or a *_ns field
     found_topic = False
@@ -286,21 +291,24 @@ def load_foreign(path: str, spec: str, time_field: str | None, Ts: float, *, mod
         if channel.topic.lstrip("/") != want:
             continue
         found_topic = True
+        where = f"{path}: {topic}: sample {len(ys)}"
+        try:          # a file's message is untrusted: bounded size and nesting (wire.loads)
+            obj = wire.loads(message.data, where)
+        except wire.WireError as e:
+            enc = channel.message_encoding
+            raise AnalysisError(str(e) + ("" if enc == "json" else
+                                          f" (message encoding {mcapio.shown(enc)!r}: only JSON topics are read)")) from None
         try:
-            obj = json.loads(message.data)
-        except (ValueError, UnicodeDecodeError):
-            raise AnalysisError(f"{path}: {topic}: a message is not JSON (only JSON-encoded topics are supported)")
-        try:
-            ys.append([float(g(obj)) for g in getters])
-            if tget is not None:
-                tv = tget(obj)
-                ts.append(int(tv) if ns_time else float(tv))
-            else:
-                ts.append(message.publish_time)
-        except (KeyError, IndexError, TypeError, ValueError):
-            missing = fields if tget is None else fields + [time_field]
-            raise AnalysisError(f"{path}: {topic}: field {', '.join(missing)} not found in a message "
-                                f"(keys: {', '.join(sorted(obj)) if isinstance(obj, dict) else type(obj).__name__})")
+            got = [g(obj) for g in getters] + ([tget(obj)] if tget is not None else [])
+        except (KeyError, IndexError, TypeError):
+            keys = sorted(obj) if isinstance(obj, dict) else []
+            listed = ", ".join(k if len(k) <= 40 else k[:40] + "..." for k in keys[:12]) + (
+                f", ... ({len(keys)} keys)" if len(keys) > 12 else "") if keys else type(obj).__name__
+            raise AnalysisError(f"{path}: {topic}: field {', '.join(names)} not found in a message "
+                                f"(keys: {mcapio.shown(listed)})") from None
+        ys.append([_number(v, False, where, name) for v, name in zip(got, fields)])
+        ts.append(_number(message.publish_time, True, where, "publish_time") if tget is None else
+                  _number(got[-1], ns_time, where, time_field))
     if not found_topic:
         raise AnalysisError(f"{path}: no topic {topic!r} in the recording")
     notes = [] if report.complete else [f"the recording is unfinished: {report.note}"]
@@ -327,6 +335,20 @@ def load_foreign(path: str, spec: str, time_field: str | None, Ts: float, *, mod
     t, y = t[keep], y[keep]
     return Series(t=t - t[0], y=y, u=None, truth=None, source=f"{path} [{spec}]", notes=notes,
                   command=command_used(model, None, notes))
+
+
+def _number(v, ns: bool, where: str, name: str):
+    """A foreign field's value as a float, or as integer ns (``ns``; numbers written as text
+    too): anything else, or a value beyond float64 (int64 for ns), is refused in one line naming
+    the field and the sample, its value cut short."""
+    try:
+        out = int(v) if ns else float(v)
+        if ns and not -2**63 <= out < 2**63:
+            raise OverflowError
+        return out
+    except (TypeError, ValueError, OverflowError):
+        raise AnalysisError(f"{where}: {name} = {mcapio.shown(reprlib.repr(v))} is not a number"
+                            + (" of ns within int64" if ns else " within float64")) from None
 
 
 def _check_period(dt: np.ndarray, Ts: float, what: str, notes: list) -> None:
