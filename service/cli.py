@@ -11,7 +11,6 @@ import contextlib
 import json
 import math
 import os
-import re
 import sys
 import time
 from pathlib import Path
@@ -560,17 +559,12 @@ def _check_out(path: str | None, force: bool):
 @contextlib.contextmanager
 def _writing(path: str):
     """Writing the output ``path`` (an .rrd, a PNG, a fitted model): an OS error (disk full, ...) is
-    a usage error naming the path and the error. Rerun reports its file errors as RuntimeError
-    ending in ``(os error N)``; any other RuntimeError is a bug and passes."""
+    a usage error naming the path and the error. (The .rrd's bytes are written by Python too,
+    :func:`viewers.rerun_log.log_comparisons`, so its errors are OSErrors.)"""
     try:
         yield
     except OSError as e:
         raise UsageError(f"{path}: cannot write it ({e.strerror or e})") from None
-    except RuntimeError as e:
-        m = re.search(r"\(os error (\d+)\)", str(e))
-        if m is None:
-            raise
-        raise UsageError(f"{path}: cannot write it ({os.strerror(int(m.group(1)))})") from None
 
 
 def cmd_analyze(args) -> int:

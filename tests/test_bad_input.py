@@ -325,6 +325,24 @@ def _file_limit(nbytes: int):
     return limit
 
 
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="no /dev/full")
+@pytest.mark.parametrize("where", ["/dev/full", "file-size limit"])
+def test_an_rrd_that_meets_a_full_disk_is_one_line_and_nothing_after_it(where, small_record, tmp_path):
+    """analyze --rrd into a full disk, at its first byte (/dev/full) or half-way (a file-size limit
+    on the process): exit 2 and exactly one line on stderr, also after the process ends (Rerun
+    wrote the file from a thread of its own: its errors and an exit-time warning of the data it
+    dropped came after our line, and a disk full half-way hung or gave a traceback); no report on
+    stdout, no cut .rrd left."""
+    rrd = "/dev/full" if where == "/dev/full" else str(tmp_path / "cut.rrd")
+    r = subprocess.run([sys.executable, "-m", "service.cli", "analyze", small_record, "--model", "seed", "--rrd", rrd,
+                        "--png", tmp_path / "summary.png", "--force", "--json"], capture_output=True, text=True,
+                       cwd=ROOT, timeout=300, preexec_fn=None if where == "/dev/full" else _file_limit(200_000))
+    reason = "No space left on device" if where == "/dev/full" else "File too large"
+    assert r.returncode == 2 and r.stdout == "", r.stderr[-3000:]
+    assert r.stderr == f"noiselab: {rrd}: cannot write it ({reason})\n"
+    assert where == "/dev/full" or not Path(rrd).exists()
+
+
 def test_simulate_that_runs_out_of_space_keeps_the_recording_it_replaces(tmp_path):
     """simulate --force onto a recording, the disk full half-way: one line naming the file being
     written and the OS error, exit 2, and the old recording byte for byte (write-then-rename)."""

@@ -3,8 +3,10 @@ story on one screen: the data against the model, where they part, and the model 
 across revisions.
 
 Every Rerun call here was checked against the installed rerun-sdk **0.41.0** (package source in
-``site-packages/rerun``): ``rr.RecordingStream(app_id, recording_id=...)``, ``.save(path,
-default_blueprint=...)``, ``.send_columns(path, indexes=[rr.TimeColumn(name, duration=timedelta64[ns]
+``site-packages/rerun``): ``rr.RecordingStream(app_id, recording_id=...)``, ``.binary_stream()``
+(the .rrd encoded in memory; ``BinaryStream.read(flush=True)`` gives it, footer included),
+``.send_blueprint(bp, make_active=False, make_default=True)`` (what ``.save(path,
+default_blueprint=bp)`` sends), ``.send_columns(path, indexes=[rr.TimeColumn(name, duration=timedelta64[ns]
 | sequence=ints)], columns=rr.Scalars.columns(scalars=...))`` (a (N, 2) array gives two scalars per
 row; float seconds are *truncated* to ns by TimeColumn, so times are rounded here first),
 ``rr.Scalars`` / ``rr.SeriesLines`` / ``rr.SeriesPoints`` (the plural archetypes; ``rr.Scalar`` and
@@ -12,8 +14,11 @@ row; float seconds are *truncated* to ns by TimeColumn, so times are rounded her
 ``rr.LineStrips2D``, ``rr.Points2D``, ``rr.AnyValues``, ``rr.TextDocument(..., media_type=
 rr.MediaType.MARKDOWN)``, ``rerun.blueprint`` (``Blueprint``, ``Horizontal``, ``Vertical``, ``Tabs``,
 ``TimeSeriesView``, ``Spatial2DView``, ``TextDocumentView``, ``TimeAxis``, ``VisualBounds2D``,
-``TimePanel``), and ``.flush()`` + ``.disconnect()``, after which the file carries its footer
-(manifest) and ``rerun.chunk.RrdReader(path).store()`` opens it.
+``TimePanel``), and ``.flush()`` + ``.disconnect()``. The bytes are written to the file by
+Python, not by Rerun's file sink: a sink whose file fails (a full disk) hangs ``save``, raises a
+RuntimeError without the OS's reason from ``flush``, logs its errors on stderr and warns at exit
+of the data it dropped; an OSError from Python names the reason and leaves nothing behind.
+``rerun.chunk.RrdReader(path).store()`` opens the file (it needs the footer, the manifest).
 
 Entity layout (r = ``Comparison.revision``, i = output index, v = view name, e = effect id)
 -----------------------------------------------------------------------------------------
@@ -78,6 +83,7 @@ over the PSD, ACF and Allan plots; to the right the error chart over the report.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import re
 import uuid
@@ -687,7 +693,8 @@ def log_comparisons(comparisons: list, path: str, *, app_id: str = "noiselab", h
 
     The file is complete (footer included) when this returns. Parent directories are created.
     Rerun is put in strict mode for these calls (thread-local), so a bad argument raises instead
-    of becoming a warning and a silently empty entity.
+    of becoming a warning and a silently empty entity. A file that cannot be written (disk full,
+    ...) raises the OSError, and a regular file cut short by it is removed.
     """
     import rerun as rr
     from rerun.error_utils import catch_and_log_exceptions   # thread-local strict mode (0.41 source)
@@ -697,9 +704,10 @@ def log_comparisons(comparisons: list, path: str, *, app_id: str = "noiselab", h
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     rec = rr.RecordingStream(app_id, recording_id=uuid.uuid4())
+    stream = rec.binary_stream()        # in memory; written to the file below (module docstring)
     try:
         with catch_and_log_exceptions("noiselab.viewers.log_comparisons", strict=True):
-            rec.save(str(out), default_blueprint=build_blueprint(comps, history=bool(history)))
+            rec.send_blueprint(build_blueprint(comps, history=bool(history)), make_active=False, make_default=True)
             if history:
                 th = seconds_to_ns(np.array([h["t"] for h in history], float))
                 rec.send_columns("/error/history/overall", indexes=[rr.TimeColumn("t", duration=th)],
@@ -751,5 +759,23 @@ def log_comparisons(comparisons: list, path: str, *, app_id: str = "noiselab", h
                         _log_view_2d(rec, rr, f"{base}/{v.name}", v, regs, effects, pv)
                 prev = c
             rec.flush()
+        data = stream.read(flush=True)
     finally:
-        rec.disconnect()     # closes the file sink: writes the footer (manifest)
+        rec.disconnect()
+        stream.read(flush=True)          # whatever an error left in the stream: nothing is dropped with a warning
+    _write_file(out, data)
+
+
+def _write_file(out: Path, data: bytes) -> None:
+    """``data`` to ``out``; on an OSError after the file was opened (disk full), a regular file cut
+    short is removed (a device such as /dev/full is left alone) and the error raised."""
+    f = open(out, "wb")
+    try:
+        f.write(data)
+        f.close()
+    except OSError:
+        with contextlib.suppress(OSError):
+            f.close()                    # closed even when its last flush fails
+        if out.is_file():
+            out.unlink()
+        raise
