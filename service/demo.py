@@ -82,6 +82,7 @@ def _variance_story(models: list, y: np.ndarray, u: np.ndarray, Ts: float) -> li
 
 def run_demo(out_dir: Path, *, duration: float, speed: float, seed: int, force: bool,
              max_effects: int = 3, log=sys.stderr) -> tuple[dict, list[str]]:
+    from .cli import _writing        # each file written: a full disk is one line naming it
     from .diagnose.diagnose import diagnose
     from .diagnose.load import load_noiselab
     from .diagnose.report import diagnosis_json
@@ -106,14 +107,17 @@ def run_demo(out_dir: Path, *, duration: float, speed: float, seed: int, force: 
     y, u = series.y, series.u
     say(f"2/3 diagnosing {y.shape[0]} samples against seed-nominal ...")
     rep = diagnose(nominal, series.t, y, u, at_rest=series.starts_at_rest, max_effects=max_effects)
-    outs["fitted"].write_text(rep["fitted_model"])
+    with _writing(str(outs["fitted"])):
+        outs["fitted"].write_text(rep["fitted_model"])
     comps = rep["comparisons"]
     for c in comps:
         c.truth = series.truth
     from viewers.rerun_log import log_comparisons
     from viewers.summary_png import write_summary_png
-    log_comparisons(comps, str(outs["rrd"]))
-    write_summary_png(comps, str(outs["png"]))
+    with _writing(str(outs["rrd"])):
+        log_comparisons(comps, str(outs["rrd"]))
+    with _writing(str(outs["png"])):
+        write_summary_png(comps, str(outs["png"]))
     say("3/3 the variance story ...")
     lesson = _lesson_check(nominal, y, u)
     story = _variance_story(rep["step_models"], y, u, truth.Ts)
@@ -133,7 +137,8 @@ def run_demo(out_dir: Path, *, duration: float, speed: float, seed: int, force: 
         "diagnosis": diagnosis_json(rep, series),
         "files": {k: str(v) for k, v in outs.items()},
     }
-    outs["summary"].write_text(json.dumps(summary))
+    with _writing(str(outs["summary"])):
+        outs["summary"].write_text(json.dumps(summary))
     return summary, _lines(summary, rep)
 
 

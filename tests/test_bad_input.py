@@ -343,6 +343,35 @@ def test_an_rrd_that_meets_a_full_disk_is_one_line_and_nothing_after_it(where, s
     assert where == "/dev/full" or not Path(rrd).exists()
 
 
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="no /dev/full")
+def test_the_live_analyzer_meets_a_full_disk_at_its_end_in_one_line(spawn):
+    """analyze --live --rrd /dev/full: the .rrd is written when the analyzer stops, after an
+    update it has shown; the full disk is one line naming the file and the OS error, exit 2, no
+    traceback."""
+    port = free_port()
+    an = spawn("analyze", "analyze", "--live", "--model", "seed", "--listen", f"tcp/127.0.0.1:{port}", "--update",
+               "0.5", "--rrd", "/dev/full", "--png", "/dev/full", "--force")
+    spawn("emulate", "emulate", "seed", "--connect", f"tcp/127.0.0.1:{port}", "--connect-timeout", "60",
+          "--duration", "3600", "--wait-subscribers", "60")
+    an.wait_line("model error")                  # an update was made: there is something to write
+    assert an.interrupt() == 2, an.stderr_text()
+    assert "Traceback" not in an.stderr_text()
+    assert an.err[-1] == "noiselab: /dev/full: cannot write it (No space left on device)", an.stderr_text()
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="no /dev/full")
+@pytest.mark.parametrize("name", ["demo-seed-fitted.toml", "demo-seed-diagnosis.rrd", "demo-seed-summary.json"])
+def test_the_demo_meets_a_full_disk_in_one_line(name, tmp_path):
+    """One of the files the demo writes after its live run is a full disk (a link to /dev/full):
+    one line naming it and the OS error, exit 2, no traceback; the recording is kept."""
+    (tmp_path / name).symlink_to("/dev/full")
+    r = subprocess.run([sys.executable, "-m", "service.cli", "demo", "--duration", "20", "--out", tmp_path, "--force"],
+                       capture_output=True, text=True, cwd=ROOT, timeout=600)
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr[-3000:]
+    assert r.stderr.splitlines()[-1] == f"noiselab: {tmp_path / name}: cannot write it (No space left on device)"
+    assert mcapio.read_recording(tmp_path / "demo-seed.mcap").complete
+
+
 def test_simulate_that_runs_out_of_space_keeps_the_recording_it_replaces(tmp_path):
     """simulate --force onto a recording, the disk full half-way: one line naming the file being
     written and the OS error, exit 2, and the old recording byte for byte (write-then-rename)."""

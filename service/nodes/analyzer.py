@@ -382,10 +382,14 @@ def run_live(session, model_spec: str, *, device: str | None, window_s: float, u
         if rrd:
             from viewers.rerun_log import log_comparisons
             from viewers.summary_png import write_summary_png
+
+            from ..cli import _writing               # a full disk: one line naming the file, as offline
             comps = [an.latest[r] for r in sorted(an.latest)]
-            log_comparisons(comps, rrd, history=an.history)
+            with _writing(rrd):
+                log_comparisons(comps, rrd, history=an.history)
             png = png or str(Path(rrd).with_suffix(".png"))
-            write_summary_png(comps, png)
+            with _writing(png):
+                write_summary_png(comps, png)
             out["rrd"], out["png"] = rrd, png
     return out
 
