@@ -90,8 +90,9 @@ def load_noiselab(path: str, device: str | None = None, truth: bool = True, Ts: 
                   rec: mcapio.Recording | None = None, *, segment: int | None = None, model=None) -> Series:
     """``rec``: the file already read (``mcapio.read_recording(path, kinds=noiselab_kinds(truth))``).
     ``segment``: the stream segment to analyse (1-based, in file order; the CLI's ``--segment``)
-    when the source restarted; None takes the one with the longest gap-free run. ``model``: the model the data are compared
-    with (its Ts when ``Ts`` is None; its command is named when the recording has none)."""
+    when the source restarted; None takes the one with the longest gap-free run. ``model``: the
+    model the data are compared with (its Ts when ``Ts`` is None; its command is named when the
+    recording has none)."""
     if Ts is None and model is not None:
         Ts = model.Ts
     if rec is None:
