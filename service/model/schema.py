@@ -20,13 +20,12 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from ..bounds import MAGNITUDE_MAX
 from .errors import ModelError
 
 _MISSING = object()
 _FLOAT_MAX = sys.float_info.max
 
-MAGNITUDE_MAX = 1e50
-"""The largest magnitude of any number in a model file (see the module docstring)."""
 _MAGNITUDE = f"of magnitude at most {MAGNITUDE_MAX:g} (its square and fourth power must stay finite in float64)"
 
 
