@@ -28,9 +28,11 @@ measurement exactly: the live path is the step API's path.
 A control comes from the network: one that breaks the wire contract (including an element
 beyond :data:`wire.MAGNITUDE_MAX`) or whose length is not the model's input count is rejected
 (the previous command stays), counted (``rejected_controls``) and the first one said on stderr.
-A sample whose step is not finite (an unstable plant that has diverged) is not published: the
-emulator says so once, ends its stream there (end of stream as usual) and reports the sample
-(``diverged_at``).
+A sample with a state, command or measurement element that is not finite or beyond
+:data:`wire.MAGNITUDE_MAX` (an unstable plant that has diverged; a plant whose gain takes an
+accepted control past the bound) is not published: the emulator says so once, ends its stream
+at the sample before (end of stream as usual) and reports the sample (``diverged_at``). So every
+sample it publishes is within the bound that the analysis of a recording accepts.
 """
 
 from __future__ import annotations
@@ -43,7 +45,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import zenoh
 
-from . import transport, wire
+from . import mcapio, transport, wire
 
 SPIN_NS = 300_000          # spin the last 0.3 ms before a deadline (sleep overshoots ~0.1 ms)
 
@@ -93,7 +95,7 @@ class _Control:
             self.bad += 1
             if self.bad == 1:
                 print(f"noiselab emulate: {self.name}: rejected a control, the previous command stays "
-                      f"(further ones counted in 'rejected_controls'): {exc}", file=self.log, flush=True)
+                      f"(further ones counted in 'rejected_controls'): {mcapio.shown(exc)}", file=self.log, flush=True)
             return
         with self.lock:
             self.u = u
@@ -164,7 +166,7 @@ def run_emulator(model, session: "zenoh.Session", *, duration: float | None, see
     k = 0
     mono = time.monotonic_ns
     try:
-        # a diverging plant overflows to inf: the encode below refuses it and says so (no numpy warning)
+        # a diverging plant overflows to inf: _beyond stops the stream there and says so (no numpy warning)
         with np.errstate(over="ignore", invalid="ignore"):
             while not stop.is_set() and (n_total is None or k < n_total):
                 deadline = t0 + int(round(k * wall_ns))
@@ -194,16 +196,16 @@ def run_emulator(model, session: "zenoh.Session", *, duration: float | None, see
                     stale = is_stale
                     u = np.zeros(model.m) if (is_stale or rx is None) else u_last
                 t, x, u_applied, y = stepper.step(u)
-                tk = wire.sample_time(k, Ts)
-                try:           # encode refuses NaN/inf: nothing of a sample that is not finite goes out
-                    p_truth = wire.encode(k, tk, x, kind="truth", topic=keys["truth"])
-                    p_command = wire.encode(k, tk, u_applied, kind="command", topic=keys["command"])
-                    p_measurement = wire.encode(k, tk, y, kind="measurement", topic=keys["measurement"])
-                except wire.WireError as exc:
+                beyond = _beyond(x, u_applied, y)
+                if beyond is not None:
                     diverged_at = k
-                    print(f"noiselab emulate: {name}: sample {k} is not finite ({exc}): the plant has diverged; "
-                          "ending the stream here", file=log, flush=True)
+                    print(f"noiselab emulate: {name}: sample {k} has {beyond}, not finite or beyond "
+                          f"{wire.MAGNITUDE_MAX:g}: the plant has diverged; ending the stream here", file=log, flush=True)
                     break
+                tk = wire.sample_time(k, Ts)
+                p_truth = wire.encode(k, tk, x, kind="truth", topic=keys["truth"])
+                p_command = wire.encode(k, tk, u_applied, kind="command", topic=keys["command"])
+                p_measurement = wire.encode(k, tk, y, kind="measurement", topic=keys["measurement"])
                 started[0] = k
                 pubs["truth"].put(p_truth)
                 pubs["command"].put(p_command)
@@ -239,18 +241,34 @@ def run_emulator(model, session: "zenoh.Session", *, duration: float | None, see
                            keys={k_: v for k_, v in keys.items()}, end=end)
 
 
+def _beyond(*vectors) -> str | None:
+    """The first element of ``vectors`` (x, u, y of a sample) that is not finite or beyond
+    :data:`wire.MAGNITUDE_MAX`, named (``"x[1] = inf"``); None when every one is within."""
+    if np.abs(np.concatenate(vectors)).max(initial=0.0) <= wire.MAGNITUDE_MAX:   # NaN compares False
+        return None
+    for what, v in zip(("x", "u", "y"), vectors):
+        bad = np.flatnonzero(~(np.abs(v) <= wire.MAGNITUDE_MAX))
+        if bad.size:
+            return f"{what}[{bad[0]}] = {float(v[bad[0]]):g}"
+    return None
+
+
 def _report_end(name: str, end: dict, counts: dict, timeout: float, log) -> None:
     """Say on ``log`` what went wrong at the end of the stream (nothing when every recorder has
-    acknowledged every message)."""
+    acknowledged every message); ``end["acks"]`` have a recorder's shape
+    (:func:`transport.end_stream` checks them), the same error said once with its count."""
     if end["timed_out"]:
         print(f"noiselab emulate: {name}: end of stream not acknowledged by every recorder within "
               f"{timeout:g} s: the last messages may be lost", file=log, flush=True)
+    errors: dict[str, int] = {}
     for err in end["errors"]:
         if err != "Timeout":
-            print(f"noiselab emulate: {name}: end of stream: {err}", file=log, flush=True)
+            errors[err] = errors.get(err, 0) + 1
+    for err, n in errors.items():
+        print(f"noiselab emulate: {name}: end of stream: {err}" + (f" ({n} answers)" if n > 1 else ""),
+              file=log, flush=True)
     for ack in end["acks"]:
-        short = {kind: t.get("missing", 0) for kind, t in (ack.get("topics") or {}).items()
-                 if kind in counts and t.get("missing", 0)}
+        short = {kind: t["missing"] for kind, t in ack["topics"].items() if kind in counts and t["missing"]}
         if short:
-            print(f"noiselab emulate: {name}: recorder {ack.get('out', '?')} lacks "
+            print(f"noiselab emulate: {name}: recorder {mcapio.shown(ack['out'])} lacks "
                   + ", ".join(f"{n} {kind}" for kind, n in short.items()), file=log, flush=True)

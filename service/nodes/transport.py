@@ -23,7 +23,7 @@ from pathlib import Path
 
 import zenoh
 
-from . import wire
+from . import mcapio, wire
 
 DEFAULT_PORT = 7447
 DEFAULT_ENDPOINT = f"tcp/127.0.0.1:{DEFAULT_PORT}"
@@ -181,8 +181,9 @@ def end_stream(session, publisher, payload: bytes, timeout: float) -> dict:
     links, at the same priority and behind the data, so a recorder sees it only once it has
     received every message before it, and answers once it has written them: after the answers
     the session can be closed. Subscribers that are not recorders do not answer (nothing to wait
-    for). Returns ``{"acks": [the recorders' answers], "errors": [...], "timed_out": bool,
-    "wait_s": s}``."""
+    for). Any peer may answer: an answer is taken only in the shape of a recorder's
+    (:func:`recorder_ack`); any other is an error. Returns ``{"acks": [the recorders' answers],
+    "errors": [one line each], "timed_out": bool, "wait_s": s}``."""
     t0 = time.monotonic()
     publisher.put(payload)
     acks, errors = [], []
@@ -193,14 +194,36 @@ def end_stream(session, publisher, payload: bytes, timeout: float) -> dict:
         for reply in replies:                 # ends when every queryable has answered, or at timeout
             ok = reply.ok
             if ok is None:
-                errors.append(reply.err.payload.to_string())
+                errors.append(_cut(reply.err.payload.to_string()))
                 continue
             try:
-                acks.append(wire.loads(ok.payload.to_bytes(), "end-of-stream acknowledgement"))
+                ack = wire.loads(ok.payload.to_bytes(), "end-of-stream acknowledgement")
             except ValueError:
                 errors.append("an acknowledgement that is not JSON")
+                continue
+            if recorder_ack(ack):
+                acks.append(ack)
+            else:
+                errors.append("an acknowledgement that is not a recorder's answer")
     return {"acks": acks, "errors": errors, "timed_out": "Timeout" in errors,
             "wait_s": time.monotonic() - t0}
+
+
+def recorder_ack(ack) -> bool:
+    """``ack`` has the shape of a recorder's answer to an end-of-stream query (what
+    ``recorder.Ingest.ack`` sends): an object with ``out`` (str), ``complete`` (bool) and
+    ``topics`` ({kind: {"missing": int >= 0, ...}}), the fields the source reads."""
+    if not isinstance(ack, dict) or not isinstance(ack.get("out"), str) or type(ack.get("complete")) is not bool:
+        return False
+    topics = ack.get("topics")
+    return isinstance(topics, dict) and all(
+        isinstance(t, dict) and type(t.get("missing")) is int and t["missing"] >= 0 for t in topics.values())
+
+
+def _cut(text: str, n: int = 200) -> str:
+    """A peer's error text as one line of at most ``n`` characters."""
+    text = mcapio.shown(text)
+    return text if len(text) <= n else text[:n] + "..."
 
 
 JOIN = "@join"
@@ -247,7 +270,7 @@ class JoinRequest:
         if str(ok.key_expr) != f"{wire.PREFIX}/{name}/{JOIN}" or not isinstance(got, dict):
             return
         for topic, seq in got.items():
-            if not (isinstance(topic, str) and type(seq) is int and seq > 0):
+            if not (isinstance(topic, str) and type(seq) is int and 0 < seq <= wire.SEQ_MAX):
                 continue
             try:
                 if wire.parse_key(topic)[0] == name and self.base.intersects(zenoh.KeyExpr(topic)):

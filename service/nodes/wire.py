@@ -25,9 +25,11 @@ Untrusted input (a payload comes from any peer on the network, or from a file)
     vector of some 40,000 elements, or an analysis summary (a few kB), fits many times over.
     ``MAX_DEPTH`` (32 nested arrays/objects): a sample is 2 deep, an analysis summary 6.
     ``seq`` must fit in int64 (:data:`SEQ_MAX`: every reader stores it so). A ``control``
-    element must not exceed :data:`MAGNITUDE_MAX` in magnitude (it drives a simulation).
-    What the bytes cannot tell (a vector's length, a seq far from its stream's) is checked by
-    the node that knows the stream (:class:`SeqGate` for the seq).
+    element must not exceed :data:`MAGNITUDE_MAX` in magnitude (it drives a simulation; the one
+    bound of :mod:`service.bounds`, 1e50, which the models, the emulator's output, the recordings'
+    loader and the live analyzer share). What the bytes cannot tell (a vector's length, a seq
+    that does not continue its stream) is judged by the node that knows the stream, with
+    :class:`SeqGate`.
 
 Time (integer nanoseconds end to end, STYLE.md 13)
     ``Ts_ns = round(Ts * 1e9)`` once (:func:`period_ns`); the MCAP ``publish_time`` of sample k
@@ -157,13 +159,6 @@ far below the depth at which Python's JSON parser recurses out of its stack (~10
 SEQ_MAX = 2**63 - 1
 """Largest ``seq``: readers hold seqs in int64 arrays."""
 
-MAGNITUDE_MAX = 1e100
-"""Largest magnitude of a vector element that a node feeds into a simulation or into
-second-order statistics, in the vector's units: its square, and the sum of squares over any
-record (1e200 * 1e8 samples), stay finite in float64 (max ~1.8e308), as do a stable plant's
-response to it at any physical gain. A ``control`` element beyond it is refused on encode and
-decode (the emulator applies controls from the network); the live analyzer skips measurement
-and command samples beyond it."""
 
 
 # --------------------------------------------------------------------------- keys
