@@ -575,6 +575,108 @@ def test_analysis_of_a_restarted_recording_takes_one_segment_and_says_so(tmp_pat
         load_noiselab(str(path), segment=3)
 
 
+def write_runs(path, model, runs, kinds=("truth", "command", "measurement")):
+    """Runs of ``model`` one after the other in one file, as a recorder writes a source that
+    restarted: ``runs`` = (seed, n, first) per run, samples ``first..n-1`` of a stream of ``n`` from
+    rest (``first`` > 0: the run's first samples were lost); receive times go on across runs."""
+    with RecordingWriter(path) as w:
+        log0 = 0
+        for seed, n, first in runs:
+            b = model.simulate(n, seed=seed)
+            t, pub = wire.sample_times(0, n, model.Ts)
+            arrays = {"truth": b.x, "command": b.u, "measurement": b.y}
+            log = log0 + pub[first:]
+            w.write_interleaved([(wire.key(model.name, kind), kind, first, pub[first:], log,
+                                  wire.encode_batch(kind, first, t[first:], arrays[kind][first:]))
+                                 for kind in kinds])
+            log0 = int(log[-1]) + 10**9
+
+
+def test_a_restart_whose_first_samples_were_lost_is_a_new_segment(tmp_path):
+    """A source restarted and its first samples after the restart never reached the file (seq 0..199,
+    then 5..199 with other data): the step back to a seq the stream already holds with another
+    sample is a restart, not a seq twice with different data; in every topic, and again for a
+    second restart; a late message in the first run does not hide it."""
+    path = tmp_path / "lossy.mcap"
+    write_stream(path, [(k, float(k)) for k in range(200)] + [(k, 1000.0 + k) for k in range(5, 200)],
+                 kinds=("truth", "command", "measurement"))
+    dev = read_recording(path).device("dev")
+    for td in dev.streams.values():
+        assert td.segments == [(0, 200), (200, 395)] and td.duplicates == 0, td.topic
+        assert td.seq.tolist() == list(range(200)) + list(range(5, 200))
+        assert td.values[:, 0].tolist() == [float(k) for k in range(200)] + [1000.0 + k for k in range(5, 200)]
+        assert td.gaps() == []
+    # three runs, the later two missing their starts; the first run with a late message (51 after 52)
+    again = tmp_path / "twice.mcap"
+    first = [(k, float(k)) for k in range(100)]
+    first[51], first[52] = first[52], first[51]
+    write_stream(again, first + [(k, 500.0 + k) for k in range(5, 100)] + [(k, 900.0 + k) for k in range(40, 81)])
+    m = read_recording(again).device("dev").measurement
+    assert m.segments == [(0, 100), (100, 195), (195, 236)] and m.duplicates == 0
+    assert m.seq.tolist() == list(range(100)) + list(range(5, 100)) + list(range(40, 81))
+    assert m.values[195:, 0].tolist() == [900.0 + k for k in range(40, 81)]
+    # a source restarted with the same samples that lost its first ones: the same data, read once
+    same = tmp_path / "same.mcap"
+    write_stream(same, [(k, float(k)) for k in range(100)] + [(k, float(k)) for k in range(5, 100)])
+    m = read_recording(same).device("dev").measurement
+    assert m.segments == [(0, 100)] and m.duplicates == 95 and m.seq.tolist() == list(range(100))
+
+
+def test_two_sources_side_by_side_on_one_key_are_refused(tmp_path):
+    """A seq twice with different data that no restart explains is still refused: two sources
+    publishing on one key at once (their messages interleaved: equal seqs together, one a few seqs
+    ahead, or in bursts), or one forged message amid a stream that goes on."""
+    a = [(k, float(k)) for k in range(100)]              # one source
+    b = [(k, 1000.0 + k) for k in range(100)]            # another one, on the same key
+    cases = {
+        "together": [m for pair in zip(a, b) for m in pair],
+        "ahead": [m for pair in zip(a[5:], b) for m in pair],
+        "ahead by one": [m for pair in zip(a[1:], b) for m in pair],
+        "bursts": [m for k in range(0, 90, 3) for m in a[k + 9:k + 12] + b[k:k + 3]],
+        "forged": a[:60] + [(40, 123.0)] + a[60:],
+    }
+    for name, items in cases.items():
+        path = tmp_path / f"{name}.mcap"
+        write_stream(path, items)
+        with pytest.raises(mcapio.McapIoError, match="comes twice with different data; |comes twice with "
+                                                     r"different data \(and \d+ more such seqs\); "):
+            read_recording(path)
+            pytest.fail(name)
+
+
+def test_analyze_takes_each_run_of_a_lossy_restart_with_segment(tmp_path, capsys):
+    """noiselab analyze of a recording whose source restarted and lost the first 5 samples of its
+    second run: each run is a stream segment, analysed as the same run recorded alone would be
+    (--segment 1, 2; by default the longer one), and the note names the restart."""
+    from service.cli import main
+    from service.model import load_model
+
+    seed = load_model("seed")
+    runs = [(3, 1500, 0), (4, 3000, 5)]
+    both = tmp_path / "restarted.mcap"
+    write_runs(both, seed, runs)
+
+    def analyze(path, *extra):
+        assert main(["analyze", str(path), "--model", "seed", "--json", *extra]) == 0
+        out = capsys.readouterr()
+        return json.loads(out.out)
+
+    for i, run in enumerate(runs):
+        alone = tmp_path / f"run{i + 1}.mcap"
+        write_runs(alone, seed, [run])
+        want = analyze(alone)
+        for extra in (["--segment", str(i + 1)], [] if i == 1 else None):
+            if extra is None:
+                continue
+            rep = analyze(both, *extra)
+            assert (rep["error"], rep["samples"]) == (want["error"], want["samples"]), (i, extra)
+            note, = [n for n in rep["notes"] if "restarted" in n]
+            assert "restarted once (seq back to 5 " in note and "2 stream segments of 1500, 2995 samples" in note
+            assert note.endswith(f"analysed segment {i + 1} " + ("(--segment 2)" if extra[-1:] == ["2"] else
+                                 "(--segment 1)" if extra else
+                                 "(the one with the longest gap-free run; --segment N takes segment N)"))
+
+
 def test_without_a_command_topic_the_assumed_command_is_named(tmp_path):
     from service.model import load_model
 

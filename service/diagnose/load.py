@@ -12,10 +12,10 @@
 
 Gaps (a missing seq, or a time step over 1.5 Ts) are never silently ignored: the analysis uses
 the longest gap-free run and the notes say what was left out. A noiselab stream whose source
-restarted (its seq went back to 0: :class:`mcapio.TopicData` segments) is analysed one stream
+restarted (its seq went back: :class:`mcapio.TopicData` segments) is analysed one stream
 segment at a time: the one with the longest gap-free run unless ``segment`` names another, and a
 note gives every segment's length and when it began. Repeated messages (same seq, same sample) are
-counted once and noted; the reader refuses a seq that comes twice with different data. Without a
+counted once and noted; the reader refuses a seq twice with different data that no restart explains. Without a
 recorded command the analysis runs the model's own ``[command]``: ``Series.command`` and a note
 say which. Irregular timing (steps that differ
 from Ts by more than 0.1 % of Ts, or by more than 4 resolutions of the time field when that is
@@ -210,8 +210,10 @@ def _restart_note(td: mcapio.TopicData, k: int, chosen: bool) -> str:
 
 def _same_segment(path: str, td: mcapio.TopicData | None, meas: mcapio.TopicData, k: int, notes: list):
     """``td``'s segment ``k``, which goes with the measurement's segment ``k`` (a source restarts all
-    its topics together)."""
-    if td is None or len(meas.segments) == 1 and len(td.segments) == 1:
+    its topics together). A topic read as one segment holds every seq once, so it gives any
+    segment's samples by seq (:func:`_aligned`): a restarted source that sent the same samples
+    again on it, as a deterministic command does, had them read as repeats (mcapio._streams)."""
+    if td is None or len(td.segments) == 1:
         return td
     if len(td.segments) == len(meas.segments):
         return td.segment(k)

@@ -1009,10 +1009,11 @@ class TopicData:
     log_time (receive time in ns, any clock); ``values`` float64 (N, dim): x, u or y.
 
     ``starts`` int64: the index where each stream segment begins (``[0]`` for a stream that never
-    restarted). A segment begins where the source restarted: its seq went back, in file order, to
-    a value no higher than any before it (a restarted emulator counts from 0 again), see
-    :func:`_streams`. ``duplicates``: messages dropped as repeats of a sample already read
-    (same seq, same ``t`` and values, bit for bit); the first one read is kept.
+    restarted). A segment begins where the source restarted: its seq stepped back, in file order,
+    below every seq of the segment or to one the segment holds with another sample (a restarted
+    emulator counts from 0 again; its first samples may be lost), see :func:`_streams`.
+    ``duplicates``: messages dropped as repeats of a sample already read (same seq, same ``t`` and
+    values, bit for bit); the first one read is kept.
     """
 
     topic: str
@@ -1053,14 +1054,35 @@ def _streams(path: str, topic: str, kind: str, seq: np.ndarray, t: np.ndarray, v
              pub: np.ndarray, log: np.ndarray) -> TopicData:
     """The TopicData of one topic's messages in file order: split where the source restarted,
     each segment sorted by seq, exact repeats dropped; a seq that comes twice with different data
-    raises McapIoError (the recording cannot say which sample is the real one).
+    where no restart explains it raises McapIoError (the recording cannot say which sample is the
+    real one).
 
-    A restart is a step back, in file order, to a seq no higher than any before it (a restarted
-    source counts from 0 again; a late or reordered message lands between seqs already read and is
-    sorted into its segment). One exception: a message that repeats the earliest sample exactly
-    and is not followed by the next seq is a repeat, not a restart (a re-sent first message).
+    Messages are taken in file order, each continuing the current segment (one run of the source)
+    unless it starts a new one. Only a step back (a seq below the one before it) can: it is
+
+    * a repeat, dropped, when the segment holds that seq with the same sample, bit for bit (``t``
+      and values: a re-sent or twice-routed message); except the segment's lowest seq sent again
+      and followed by its successor, which is a source restarted that sends the same samples
+      again (same seed): a new segment;
+    * a late message, sorted into the segment, when the segment lacks that seq but holds a lower
+      one (a reordered message fills its gap);
+    * a restart, a new segment, when the segment holds that seq with another sample (the source
+      counted again and the samples after its restart were lost before this one) or holds only
+      higher seqs (it counted from below them): provided the file order tells the two runs apart,
+      that is every message between the segment's copy of the seq and this one has a higher seq
+      (the first run went on past it before the source counted again), and the message after
+      this one does not go beyond every seq of the segment (which would be the first run going
+      on, not a new one).
+
+    A seq twice with different data that is not such a restart is ambiguous and refused: at once
+    again with other data (no step back), reached again going forward, or two runs advancing side
+    by side (two sources publishing on one key: the other run's lower seqs come between the two
+    copies, or the first run goes on right after the second one's message). The rule reads only
+    the messages, so a finished recording and the same one cut short (a killed recorder, whose
+    metadata is never written) read alike.
+
     Vectorised: a stream without restarts, repeats or reordering (every seq step > 0) costs one
-    np.diff; the others one stable lexsort.
+    np.diff; the others a stable sort, and a Python step per step back only (:func:`_restarts`).
     """
     n = seq.size
     d = np.diff(seq)
@@ -1070,22 +1092,13 @@ def _streams(path: str, topic: str, kind: str, seq: np.ndarray, t: np.ndarray, v
     vb = np.ascontiguousarray(values, np.float64).reshape(n, -1).view(np.uint64)
 
     def same(a, b):                              # rows a and b hold the same sample, bit for bit
-        return (tb[a] == tb[b]) & (vb[a] == vb[b]).all(axis=1)
+        return (tb[a] == tb[b]) & (vb[a] == vb[b]).all(axis=-1)
 
-    low = np.minimum.accumulate(seq)
-    back = np.flatnonzero((d < 0) & (seq[1:] <= low[:-1])) + 1
-    if back.size:
-        v = seq[back]
-        at_low = v == low[back - 1]
-        first = np.searchsorted(-low, -v, side="left")      # first index of v (low is non-increasing)
-        first = np.minimum(first, n - 1)
-        nxt = np.minimum(back + 1, n - 1)
-        goes_on = (back + 1 < n) & (seq[nxt] == v + 1)
-        repeat = at_low & (seq[first] == v) & same(back, first) & ~goes_on
-        back = back[~repeat]
     seg = np.zeros(n, np.int64)
-    seg[back] = 1
-    np.cumsum(seg, out=seg)
+    back = np.flatnonzero(d < 0) + 1
+    if back.size:
+        seg[_restarts(seq, back, same)] = 1
+        np.cumsum(seg, out=seg)
     order = np.lexsort((seq, seg))                # stable: equal seqs keep their file order
     s2, g2 = seq[order], seg[order]
     twin = np.flatnonzero((s2[1:] == s2[:-1]) & (g2[1:] == g2[:-1]))
@@ -1103,6 +1116,59 @@ def _streams(path: str, topic: str, kind: str, seq: np.ndarray, t: np.ndarray, v
     starts = np.concatenate([[0], np.flatnonzero(np.diff(g2)) + 1]).astype(np.int64)
     return TopicData(topic, kind, seq[order], t[order], pub[order], log[order], values[order],
                      starts=starts, duplicates=int(twin.size))
+
+
+def _restarts(seq: np.ndarray, back: np.ndarray, same) -> list[int]:
+    """The file positions where a new stream segment begins, by :func:`_streams`' rule; ``back``:
+    the positions of the steps back (``seq[i] < seq[i - 1]``), ascending; ``same(a, b)``: whether
+    positions a and b hold the same sample.
+
+    Between two steps back the seqs do not decrease, so the lowest seq of a stretch of the segment
+    is its first one's or a step back's: the seqs between a copy at ``j`` and a step back at ``i``
+    are all higher than ``v`` iff ``seq[j + 1]`` and every step back kept in the segment after
+    ``j + 1`` are. The steps back kept are held as suffix minima (values rising with position), so
+    that question costs a bisection. A copy of ``v`` in the segment is found in a stable argsort of
+    the seqs (the positions of one seq ascending)."""
+    from bisect import bisect_right
+
+    n = int(seq.size)
+    by_seq = np.argsort(seq, kind="stable")
+    sorted_seq = seq[by_seq]
+    starts: list[int] = []
+    begin = 0                                   # the current segment's first position
+    low = high = int(seq[0])                    # its lowest and highest seq so far
+    kept_pos: list[int] = []                    # its steps back kept, as suffix minima
+    kept_val: list[int] = []
+    for i in back.tolist():
+        v = int(seq[i])
+        high = max(high, int(seq[i - 1]))
+        a, b = np.searchsorted(sorted_seq, v, "left"), np.searchsorted(sorted_seq, v, "right")
+        k = int(np.searchsorted(by_seq[a:b], i)) - 1      # the last copy of v before i
+        j = int(by_seq[a + k]) if k >= 0 and by_seq[a + k] >= begin else None
+        nxt = int(seq[i + 1]) if i + 1 < n else None
+        if j is None:                           # below every seq of the segment, or a late message
+            restart = v < low
+        elif same(i, j):                        # a repeat, or the same samples from the start again
+            restart = v == low and nxt == v + 1
+        else:                                   # another sample: a restart if the runs are apart
+            after = bisect_right(kept_pos, j + 1)
+            between = min(int(seq[j + 1]), kept_val[after] if after < len(kept_val) else v + 1)
+            restart = between > v
+        if restart and nxt is not None and nxt > high:
+            restart = False                     # the first run goes on after it: side by side
+        if restart:
+            starts.append(i)
+            begin, low, high = i, v, v
+            kept_pos.clear()
+            kept_val.clear()
+        else:
+            low = min(low, v)
+            while kept_val and kept_val[-1] >= v:
+                kept_val.pop()
+                kept_pos.pop()
+            kept_pos.append(i)
+            kept_val.append(v)
+    return starts
 
 
 @dataclass(frozen=True)
