@@ -977,7 +977,8 @@ def test_recorder_batches_equal_message_by_message(tmp_path):
             continue                                           # a gap
         items.append(("noiselab/d/truth", truth[k]))
         items.append(("noiselab/d/measurement", meas[k] if k != 150 else b'{"seq":150,"t":1.5,"y":[1.0,true]}'))
-    items += [("noiselab/d/measurement", meas[5]), ("noiselab/d/truth", truth[5]),   # restarts
+    items += [("noiselab/d/measurement", meas[5]), ("noiselab/d/truth", truth[5]),   # restarts, confirmed
+              ("noiselab/d/measurement", meas[6]), ("noiselab/d/truth", truth[6]),   # by their successors
               ("noiselab/d/state", b"{}"), ("noiselab/d/health", b'{"seq":0}')]       # a foreign kind, a bad health
     books, files = [], []
     for mode in ("batch", "one by one"):
@@ -994,12 +995,12 @@ def test_recorder_batches_equal_message_by_message(tmp_path):
                       for topic, v in file_messages(path).items()})
     assert books[0] == books[1] and files[0] == files[1]
     topics, messages, malformed = books[0]
-    assert (messages, malformed) == (2 * 297 - 1 + 2, 3)
+    assert (messages, malformed) == (2 * 297 - 1 + 4, 3)
     tb = topics["noiselab/d/truth"]            # the batch path: decode_batch, runs split at the gap and the restart
-    assert tb["gaps"] == [[99, 3]] and tb["restarts"] == [[299, 5]] and tb["count"] == 298
+    assert tb["gaps"] == [[99, 3]] and tb["restarts"] == [[299, 5]] and tb["count"] == 299
     mb = topics["noiselab/d/measurement"]
-    assert mb["gaps"] == [[99, 3], [149, 1]] and mb["restarts"] == [[299, 5]] and mb["count"] == 297
-    assert [s for s, _, _, _ in files[0]["noiselab/d/measurement"]] == [k for k in range(300) if k not in (100, 101, 102, 150)] + [5]
+    assert mb["gaps"] == [[99, 3], [149, 1]] and mb["restarts"] == [[299, 5]] and mb["count"] == 298
+    assert [s for s, _, _, _ in files[0]["noiselab/d/measurement"]] == [k for k in range(300) if k not in (100, 101, 102, 150)] + [5, 6]
 
 
 # --------------------------------------------------------------------------- 5. errors

@@ -12,12 +12,14 @@ estimator sizes only and are cached per model revision (:mod:`service.diagnose.c
 the analyzer computes them once for the full window, so the first full-window update is not slow.
 
 Untrusted input: a measurement or command is analysed only if it holds to the wire contract
-(:mod:`wire`'s decoders, with their size and nesting bounds), its vector has the model's length,
-every element is within :data:`wire.MAGNITUDE_MAX` (beyond it the statistics overflow), and its
-seq lies within a ring's capacity of its stream's last one (a seq further off is taken only
-once the next message confirms the jump, :class:`wire.SeqGate`: a restarted source, or a long
-loss). Anything else is skipped and counted (``malformed``); the first of each reason is said
-on stderr.
+(:mod:`wire`'s decoders, with their size and nesting bounds), every element is within
+:data:`wire.MAGNITUDE_MAX` (beyond it the statistics overflow), and it continues its stream as
+the topic's :class:`wire.SeqGate` judges it (the recorder's rule): the model's vector length,
+a seq past the stream's last by at most a ring's capacity. The stream's start, a jump further
+ahead (a long loss) and any step back (a past seq, a duplicate, a restarted source) are taken
+only once the message's successor confirms them; a confirmed step back is a restart, which
+empties the ring (the new stream's samples are not mixed with the old one's). Anything else is
+skipped and counted (``malformed``); the first of each reason is said on stderr.
 
 Memory is bounded: ring buffers of ``window`` plus a warm-up, indexed by seq; a prediction cache
 bounded in bytes; the error history thinned (every other entry) when it reaches
@@ -44,7 +46,7 @@ import numpy as np
 
 from ..diagnose.compare import AnalysisError, compare, transient_samples
 from ..model import ModelError, load_model
-from . import transport, wire
+from . import mcapio, transport, wire
 
 
 READY_MARK = "noiselab analyze: live on"
@@ -55,18 +57,20 @@ WARM_MAX_SAMPLES = 400_000  # the start-up warm-up runs compare() on a synthetic
 class _Ring:
     """Samples by seq modulo capacity, for one vector topic; ``gate`` decides which seqs enter."""
 
-    def __init__(self, capacity: int, dim: int):
+    def __init__(self, capacity: int, dim: int, field: str):
         self.cap = capacity
         self.seq = np.full(capacity, -1, np.int64)
         self.t = np.zeros(capacity)
         self.v = np.zeros((capacity, dim))
         self.max_seq = -1
-        self.gate = wire.SeqGate(ahead=capacity, behind=capacity)
+        self.gate = wire.SeqGate(ahead=capacity, dim=dim, field=field)
+
+    def reset(self) -> None:
+        """The stream restarted: forget the old one's samples."""
+        self.seq[:] = -1
+        self.max_seq = -1
 
     def put(self, seq: int, t: float, v) -> None:
-        if seq < self.max_seq - self.cap:        # the stream went back a window or more: a new one
-            self.seq[:] = -1
-            self.max_seq = -1
         i = seq % self.cap
         self.seq[i], self.t[i], self.v[i] = seq, t, v
         if seq > self.max_seq:
@@ -89,8 +93,8 @@ class LiveAnalyzer:
         self.window = max(64, int(round(window_s / self.model.Ts)))
         self.warmup = 4 * transient_samples(self.model)
         cap = self.window + self.warmup
-        self.meas = _Ring(cap, self.model.p)
-        self.cmd = _Ring(cap, self.model.m)
+        self.meas = _Ring(cap, self.model.p, "y")
+        self.cmd = _Ring(cap, self.model.m, "u")
         self.q: queue.SimpleQueue = queue.SimpleQueue()
         self.log = log
         self.latest: dict[int, object] = {}       # revision -> latest Comparison
@@ -135,7 +139,7 @@ class LiveAnalyzer:
         self.bad += n
         if reason not in self.said:
             self.said.add(reason)
-            print(f"noiselab analyze: skipped a message (further ones counted in 'malformed'): {text}",
+            print(f"noiselab analyze: skipped a message (further ones counted in 'malformed'): {mcapio.shown(text)}",
                   file=self.log, flush=True)
 
     def drain(self) -> None:
@@ -152,28 +156,27 @@ class LiveAnalyzer:
                 self.skip("contract", str(exc))
                 continue
             vec = obj[wire.VECTOR_FIELD[kind]]
-            if len(vec) != ring.v.shape[1]:
-                self.skip("length", f"{key}: seq {obj['seq']} has {len(vec)} elements, the model {ring.v.shape[1]}")
-                continue
             if vec and max(map(abs, vec)) > wire.MAGNITUDE_MAX:
                 self.skip("magnitude", f"{key}: seq {obj['seq']} has an element beyond {wire.MAGNITUDE_MAX:g}")
                 continue
-            take, dropped = ring.gate.offer(obj["seq"], (obj["seq"], obj["t"], vec))
-            self._drop_jumps(key, ring, dropped)
+            take, dropped = ring.gate.offer(obj["seq"], len(vec), (obj["seq"], obj["t"], vec))
+            self._dropped(key, dropped)
+            if ring.gate.restarted:
+                ring.reset()
             for seq, t, v in take:
                 ring.put(seq, t, v)
                 self.received += 1
 
-    def _drop_jumps(self, key: str, ring: _Ring, dropped: list) -> None:
-        if dropped:
-            self.skip("seq", f"{key}: seq {dropped[0][0]} is more than a window ({ring.cap} samples) from the "
-                      f"stream's last seq {ring.gate.last}, and the next message did not follow it", len(dropped))
+    def _dropped(self, key: str, dropped: list) -> None:
+        """Count what a gate dropped; say the first of each reason (the model's length, or seq)."""
+        for d in dropped:
+            self.skip(d.reason, f"{key}: {d.text}" + (" (the model's)" if d.reason == "length" else ""))
 
     def finish(self) -> None:
         """The stream is over: what the seq gates still hold had no successor (skipped)."""
         self.drain()
         for kind, ring in (("measurement", self.meas), ("command", self.cmd)):
-            self._drop_jumps(f"noiselab/{self.device}/{kind}", ring, ring.gate.flush())
+            self._dropped(f"noiselab/{self.device}/{kind}", ring.gate.flush())
 
     def maybe_reload(self) -> None:
         if self.path is None:

@@ -12,12 +12,17 @@ publish_time = the sample time t in ns, log_time = receive time, wall clock ns).
   few messages, the same checks either way), written topic by topic, and its seqs are booked.
   A payload that breaks the contract is skipped and counted (never the rest of its batch).
 * Untrusted input: a message is recorded only if it holds to the contract (:mod:`wire`'s
-  decoders, with their size and nesting bounds), its vector has the length of its stream's
-  first message (a topic's length never changes within a recording), and its seq continues
-  its stream: a forward jump is recorded only once the next message of the topic confirms it
-  (:class:`wire.SeqGate`; a real gap costs nothing, one forged seq is not recorded) or the
-  source's end of stream says it published that seq. Anything else is skipped and counted per
-  topic (``malformed``, ``malformed_topics``); the first few are said on stderr.
+  decoders, with their size and nesting bounds) and continues its stream, as the topic's
+  :class:`wire.SeqGate` judges it: the very next seq with the stream's vector length (a topic's
+  length never changes within a recording). The stream's start and length, a jump ahead (a real
+  gap), a step back (a restarted source) are recorded only once the message's successor
+  confirms them, or the source's end of stream says that the message was its last; a repeat of
+  the last seq is not recorded. So no single forged message (a wrong length before the stream
+  starts, a seq far ahead, a past seq, a duplicate with other data) reaches the file. An end of
+  stream that cannot be its source's (it counts fewer messages than are recorded, or comes twice)
+  is not taken, and data going on past what an end counted undoes that end. Anything not
+  recorded is skipped and counted per topic (``malformed``, ``malformed_topics``); the first few
+  are said on stderr. Topics are printed with control characters escaped (one line each).
 * The chunk in progress is flushed every ``flush_s`` (default 0.25 s), so a SIGKILLed recorder
   loses at most the last ~0.25 s plus what waited in the channel: the file lacks its footer, and
   `noiselab recover` (or any reader, which says the file is unfinished) gets every message up to
@@ -65,6 +70,7 @@ LIVE_S = 0.5         # on stop: caught up for this long with sources still strea
 DRAIN_MAX_S = 10.0   # on stop: finish after this long whatever is still arriving
 SEQ_AHEAD = 1        # a seq more than this past its topic's last is held for confirmation (wire.SeqGate)
 VECTOR_KINDS = (*wire.KINDS, wire.CONTROL)
+_END_KEY = "/" + wire.END
 
 
 @dataclass
@@ -78,6 +84,7 @@ class TopicBook:
     restarts: list = field(default_factory=list)    # (from_seq, to_seq)
     expected: int | None = None                      # messages the source says it published
     missing_at_end: int = 0
+    end_gap: tuple | None = field(default=None, repr=False)   # the gap end() booked at the tail
 
     def see(self, seq: int) -> None:
         if self.first_seq is None:
@@ -103,9 +110,17 @@ class TopicBook:
         has all of them missing at start (a recorder started late cannot tell a loss from that)."""
         self.expected = expected
         self.missing_at_end = 0 if self.last_seq is None else max(0, expected - 1 - self.last_seq)
+        self.end_gap = None
         if self.missing_at_end:
-            self.gaps.append((self.last_seq, self.missing_at_end))
+            self.end_gap = (self.last_seq, self.missing_at_end)
+            self.gaps.append(self.end_gap)
         return self.missing_at_end
+
+    def unend(self) -> None:
+        """Undo :meth:`end`: the stream went on after its end of stream."""
+        if self.end_gap is not None:
+            self.gaps.remove(self.end_gap)
+        self.expected, self.missing_at_end, self.end_gap = None, 0, None
 
     @property
     def missing(self) -> int:
@@ -164,7 +179,7 @@ class RecorderSummary:
                        + ", ".join(f"{n} on {k}" for k, n in sorted(self.malformed_topics.items())) + ")")
         for prefix in sorted(self.unended):
             out.append(f"  {prefix}: {_unended_text(self.unended[prefix])}")
-        return out
+        return [mcapio.shown(line) for line in out]
 
 
 def _unended_text(last: dict) -> str:
@@ -203,10 +218,10 @@ class Ingest:
         self.out = out
         self.log = log
         self.books: dict[str, TopicBook] = {}
-        self.gates: dict[str, wire.SeqGate] = {}  # topic -> its seq gate (held: (seq, t, payload, rx_ns, dim))
-        self.dims: dict[str, int] = {}            # vector topic -> its vector's length (first message)
+        self.gates: dict[str, wire.SeqGate] = {}  # topic -> its gate (items: (seq, t, payload, rx_ns))
         self.malformed = 0
         self.malformed_topics: dict[str, int] = {}
+        self.said: set[str] = set()              # reasons said once on the log
         self.messages = 0
         self.ends: dict[str, dict] = {}          # prefix -> its last end payload (stream ended)
         self.live: set[str] = set()              # prefixes with data whose end has not come
@@ -214,11 +229,28 @@ class Ingest:
         self._held: dict[str, list] = {}         # topic -> [(seq, payload)] before its join point
         self.dropped_at_join: dict[str, tuple[int, int, int]] = {}   # topic -> (count, first, last seq)
 
-    def _skip(self, key: str, exc: Exception, n: int = 1) -> None:
+    def _say(self, text: str) -> None:
+        print(f"noiselab record: {mcapio.shown(text)}", file=self.log, flush=True)
+
+    def _skip(self, key: str, exc: Exception, n: int = 1, once: str | None = None) -> None:
+        """Count ``n`` messages of ``key`` skipped; say the first few, and the first of a reason
+        ``once`` whenever it comes."""
         self.malformed += n
         self.malformed_topics[key] = self.malformed_topics.get(key, 0) + n
-        if self.malformed - n < 5:
-            print(f"noiselab record: skipped a message: {exc}", file=self.log, flush=True)
+        if self.malformed - n < 5 or (once is not None and once not in self.said):
+            if once is not None:
+                self.said.add(once)
+            self._say(f"skipped a message: {exc}")
+
+    def _gate(self, key: str, kind: str) -> wire.SeqGate:
+        gate = self.gates.get(key)
+        if gate is None:
+            gate = self.gates[key] = wire.SeqGate(SEQ_AHEAD, field=wire.VECTOR_FIELD.get(kind, "vector"))
+        return gate
+
+    def _dropped(self, key: str, dropped: list) -> None:
+        for d in dropped:
+            self._skip(key, wire.WireError(f"{key}: {d.text}: not recorded"))
 
     def add(self, items: list[tuple[str, bytes]], rx_ns: int) -> None:
         """``items``: (key, payload) in arrival order, all taken from the channel at ``rx_ns``."""
@@ -231,12 +263,19 @@ class Ingest:
                 groups[key] = [payload]
             else:
                 g.append(payload)
+            if key.endswith(_END_KEY):        # an end of stream is taken after what came before it, only
+                self._add_groups(groups, rx_ns)
+                groups = {}
+        self._add_groups(groups, rx_ns)
+
+    def _add_groups(self, groups: dict[str, list[bytes]], rx_ns: int) -> None:
         for key, payloads in groups.items():       # keys in order of first arrival
             kind = _kind_of_key(key)
             if kind is None:
                 self._skip(key, wire.WireError(f"{key}: not a noiselab topic kind"), len(payloads))
                 continue
-            if kind in VECTOR_KINDS and len(payloads) >= BATCH_DECODE_MIN and self._add_run(key, kind, payloads, rx_ns):
+            if kind in VECTOR_KINDS and len(payloads) >= BATCH_DECODE_MIN:
+                self._add_run(key, kind, payloads, rx_ns)
                 continue
             for payload in payloads:
                 self._add_one(key, kind, payload, rx_ns)
@@ -248,12 +287,17 @@ class Ingest:
         source sent them before it knew this recorder's subscriber): the recording of the topic
         has no gap, and the seqs before it are missing at the start. A topic leaves :attr:`join`
         at its first sample at or after the point (or at its source's end of stream, or
-        :meth:`flush_join`)."""
+        :meth:`flush_join`).
+
+        A join point comes from any peer that answers the query, so the wait is bounded: a point
+        more than :data:`CAPACITY` past the topic's first seq received is not waited for (a real
+        one is a few samples past it: those the source sent while the subscriber was on its
+        way), and a topic that has :data:`CAPACITY` samples waiting is written from there on."""
         kept = []
         for key, payload in items:
             first = self.join.get(key)
             if first is None:
-                if key.endswith("/" + wire.END):    # a source ended: its topics' joins end (held samples kept)
+                if key.endswith(_END_KEY):          # a source ended: its topics' joins end (held samples kept)
                     prefix = key.rsplit("/", 1)[0]
                     for k in [k for k in self.join if k.rsplit("/", 1)[0] == prefix]:
                         kept += self._release(k, None)
@@ -266,9 +310,20 @@ class Ingest:
                 kept.append((key, payload))      # Ingest skips and counts it; the join goes on
                 continue
             if seq < first:
-                self._held.setdefault(key, []).append((seq, payload))
-                continue
-            kept += self._release(key, first)
+                held = self._held.get(key, [])
+                if not held and first - seq > CAPACITY:
+                    self.join.pop(key)
+                    self._say(f"{key}: join point {first} is more than {CAPACITY} samples past the first seq "
+                              f"received ({seq}): not waited for")
+                else:
+                    self._held[key] = held
+                    held.append((seq, payload))
+                    if len(held) >= CAPACITY:
+                        self._say(f"{key}: {CAPACITY} samples waited for join point {first}: not waited for longer")
+                        kept += self._release(key, None)
+                    continue
+            else:
+                kept += self._release(key, first)
             kept.append((key, payload))
         return kept
 
@@ -286,9 +341,9 @@ class Ingest:
         if drop:
             seqs = [q for q, _ in drop]
             self.dropped_at_join[key] = (len(drop), min(seqs), max(seqs))
-            print(f"noiselab record: {key}: joined the stream at seq {nxt} (join point {point}); {len(drop)} "
-                  f"sample(s) received before a hole left out (seqs {min(seqs)}..{max(seqs)}: the source sent them "
-                  "before it knew this recorder's subscriber)", file=self.log, flush=True)
+            self._say(f"{key}: joined the stream at seq {nxt} (join point {point}); {len(drop)} "
+                      f"sample(s) received before a hole left out (seqs {min(seqs)}..{max(seqs)}: the source sent them "
+                      "before it knew this recorder's subscriber)")
         return [(key, payload) for _, payload in out]
 
     def flush_join(self) -> None:
@@ -304,80 +359,61 @@ class Ingest:
         seq gate had no successor, so it is skipped."""
         self.flush_join()
         for key, gate in self.gates.items():
-            for seq, *_ in gate.flush():
-                self._skip(key, self._jump_error(key, seq))
+            self._dropped(key, gate.flush())
 
-    def _jump_error(self, key: str, seq: int) -> wire.WireError:
-        book = self.books.get(key)
-        last = None if book is None else book.last_seq
-        return wire.WireError(f"{key}: seq {seq} jumps from the stream's last seq {last} and no message "
-                              "followed it: not recorded")
-
-    def _add_run(self, key: str, kind: str, payloads: list[bytes], rx_ns: int) -> bool:
-        """Many payloads of one vector topic at once; False (nothing written) when any of them
-        breaks the contract, the stream's vector length, or jumps ahead (a seq to confirm), so
-        the caller goes message by message and decides on each."""
+    def _add_run(self, key: str, kind: str, payloads: list[bytes], rx_ns: int) -> None:
+        """Many payloads of one vector topic at once: decoded with ``wire.decode_batch``, and each
+        run of consecutive seqs the gate takes whole (:meth:`wire.SeqGate.take_run`: the usual
+        case) written with ``write_batch``; the others go message by message (:meth:`_add_one`),
+        as do all of them when any breaks the contract (the slow path names it)."""
         try:
             seq, t, vals = wire.decode_batch(payloads, kind, topic=key)
         except wire.WireError:
-            return False
-        gate = self.gates.get(key)
-        if self.dims.get(key, vals.shape[1]) != vals.shape[1] or (gate is not None and (
-                gate.held is not None or gate.far(int(seq[0])))) or (np.diff(seq) > SEQ_AHEAD).any():
-            return False
-        pub = np.rint(t * 1e9)
-        if ((pub < 0) | (pub >= 2.0**63)).any():   # not a u64 publish_time: write() names it
-            return False
+            seq = None
+        if seq is not None:
+            pub = np.rint(t * 1e9)
+            if ((pub < 0) | (pub >= 2.0**63)).any():   # not a u64 publish_time: write() names it
+                seq = None
+        if seq is None:
+            for payload in payloads:
+                self._add_one(key, kind, payload, rx_ns)
+            return
         pub = pub.astype(np.int64)
         log = np.full(len(payloads), rx_ns, dtype=np.int64)
-        # consecutive runs of seq (normally one): write_batch writes seq0..seq0+n-1
+        gate, dim = self._gate(key, kind), vals.shape[1]
         breaks = np.flatnonzero(np.diff(seq) != 1) + 1
-        book = self.books.get(key)
-        if book is None:
-            book = self.books[key] = TopicBook()
-        restarted = False
         for a, b in zip([0, *breaks.tolist()], [*breaks.tolist(), len(payloads)]):
             s0 = int(seq[a])
-            self.w.write_batch(key, kind, s0, pub[a:b], log[a:b], payloads[a:b])
-            n_restarts = len(book.restarts)
-            book.see_run(s0, b - a)
-            restarted |= len(book.restarts) > n_restarts
-        self.messages += len(payloads)
-        self.dims[key] = vals.shape[1]
-        if gate is None:
-            gate = self.gates[key] = wire.SeqGate(SEQ_AHEAD)
-        gate.last = int(seq[-1])
-        self._data_seen(key, kind, restarted)
-        return True
+            if gate.take_run(s0, b - a, dim):
+                self.w.write_batch(key, kind, s0, pub[a:b], log[a:b], payloads[a:b])
+                self._book(key, kind, s0, b - a)
+            else:
+                for payload in payloads[a:b]:
+                    self._add_one(key, kind, payload, rx_ns)
 
     def _add_one(self, key: str, kind: str, payload: bytes, rx_ns: int) -> None:
-        n = None
         try:
             obj = _decoded(payload, kind, key)
-            if kind in VECTOR_KINDS:
-                n, dim = len(obj[wire.VECTOR_FIELD[kind]]), self.dims.get(key)
-                if dim is not None and n != dim:
-                    raise wire.WireError(f"{key}: {wire.VECTOR_FIELD[kind]} has {n} elements at seq {obj['seq']}; "
-                                         f"the stream's have {dim}")
         except wire.WireError as exc:
             self._skip(key, exc)
             return
-        item = (obj["seq"], float(obj["t"]), payload, rx_ns, n)
+        item = (obj["seq"], float(obj["t"]), payload, rx_ns)
         if kind == wire.END:                     # one message per stream, each with seq 0
-            self._write(key, kind, *item, end=obj)
+            doubt = self._doubtful_end(key, obj)
+            if doubt:
+                self._skip(key, wire.WireError(f"{key}: {doubt}: not taken"), once="end")
+            else:
+                self._write(key, kind, *item, end=obj)
             return
-        gate = self.gates.get(key)
-        if gate is None:
-            gate = self.gates[key] = wire.SeqGate(SEQ_AHEAD)
-        take, dropped = gate.offer(obj["seq"], item)
-        for seq, *_ in dropped:
-            self._skip(key, self._jump_error(key, seq))
+        field = wire.VECTOR_FIELD.get(kind)
+        take, dropped = self._gate(key, kind).offer(obj["seq"], len(obj[field]) if field else 0, item)
+        self._dropped(key, dropped)
         for it in take:
             self._write(key, kind, *it)
 
-    def _write(self, key: str, kind: str, seq: int, t: float, payload: bytes, rx_ns: int, dim: int | None,
+    def _write(self, key: str, kind: str, seq: int, t: float, payload: bytes, rx_ns: int,
                end: dict | None = None) -> None:
-        """Write one message that has passed every check (``dim``: its vector's length), and book it."""
+        """Write one message that has passed every check, and book it."""
         try:
             self.w.write(key, kind, seq, int(round(t * 1e9)), rx_ns, payload)
         except mcapio.McapWriteError:
@@ -385,26 +421,62 @@ class Ingest:
         except mcapio.McapIoError as exc:        # this message cannot be written (its times)
             self._skip(key, exc)
             return
+        if end is not None:
+            self.books.setdefault(key, TopicBook()).see(seq)
+            self.messages += 1
+            self._end(key, end)
+        else:
+            self._book(key, kind, seq, 1)
+
+    def _book(self, key: str, kind: str, seq0: int, n: int) -> None:
+        """Book ``n`` written messages of ``key`` with consecutive seqs from ``seq0``."""
         book = self.books.get(key)
         if book is None:
             book = self.books[key] = TopicBook()
-        n_restarts = len(book.restarts)
-        book.see(seq)
-        self.messages += 1
-        if dim is not None:
-            self.dims.setdefault(key, dim)
-        if end is not None:
-            self._end(key, end)
-        else:
-            self._data_seen(key, kind, len(book.restarts) > n_restarts)
-
-    def _data_seen(self, key: str, kind: str, restarted: bool) -> None:
-        if kind not in wire.KINDS:
-            return                                  # health, control, analysis: not a stream of its own
         prefix = key.rsplit("/", 1)[0]
-        if restarted or prefix not in self.ends:
+        end = self.ends.get(prefix)
+        late = kind in wire.KINDS and end is not None and book.last_seq is not None and seq0 > book.last_seq
+        if late:                             # the stream goes on after its end of stream
+            count = end["counts"].get(kind, 0)
+            if seq0 >= count:
+                self._unend(prefix, key, seq0, count)
+            else:
+                book.unend()                     # a message the end counted came after it: booked again below
+        n_restarts = len(book.restarts)
+        book.see_run(seq0, n)
+        self.messages += n
+        if late and prefix in self.ends:
+            book.end(count)
+        if kind in wire.KINDS and (len(book.restarts) > n_restarts or prefix not in self.ends):
             self.ends.pop(prefix, None)
             self.live.add(prefix)
+
+    def _doubtful_end(self, key: str, end: dict) -> str | None:
+        """Why an end of stream cannot be its source's (None if it can): it counts fewer messages
+        of a topic than the seqs already recorded of its stream, or the stream has already ended
+        (an end comes once per stream). Such an end (forged or stale) is skipped: it would end a
+        source that is still streaming, or vouch for what the source never sent."""
+        prefix = key.rsplit("/", 1)[0]
+        if prefix in self.ends:
+            return "a second end of stream for a stream that has ended"
+        for kind, n in end["counts"].items():
+            book = self.books.get(f"{prefix}/{kind}")
+            if book is not None and book.last_seq is not None and n <= book.last_seq:
+                return f"an end of stream counting {n} {kind} messages, but seq {book.last_seq} is recorded"
+        return None
+
+    def _unend(self, prefix: str, key: str, seq: int, count: int) -> None:
+        """Data went on past what the prefix's end of stream counted: that end was not the
+        source's last word (forged, or stale): the source is streaming again, and the end's
+        bookkeeping (expected counts, the tail booked missing) is undone."""
+        self.ends.pop(prefix, None)
+        for k, book in self.books.items():
+            if k.rsplit("/", 1)[0] == prefix:
+                book.unend()
+        if "unend" not in self.said:
+            self.said.add("unend")
+            self._say(f"{key}: seq {seq} came after an end of stream that counted {count}: that end is not "
+                      "taken (the source streams on)")
 
     def _end(self, key: str, end: dict) -> None:
         """The end of a source's stream: everything it sent before has been written (same links,
@@ -413,8 +485,10 @@ class Ingest:
         prefix = key.rsplit("/", 1)[0]
         for kind, n in end["counts"].items():
             gate = self.gates.get(f"{prefix}/{kind}")
-            if gate is not None and gate.held is not None and gate.held[0] < n:
-                for item in gate.take_held():
+            if gate is not None:
+                take, dropped = gate.vouch(n)
+                self._dropped(f"{prefix}/{kind}", dropped)
+                for item in take:
                     self._write(f"{prefix}/{kind}", kind, *item)
         self.ends[prefix] = end
         self.live.discard(prefix)
@@ -432,9 +506,8 @@ class Ingest:
                                                            (book.missing - book.missing_at_end, "in gaps"),
                                                            (book.missing_at_end, "at the end")) if m))
                 short.append(f"{book.lacks} {kind} ({where})")
-        text = (f"noiselab record: {prefix} ended ({end['reason']}) after {end['samples']} samples: "
-                + ("every message recorded" if not short else "not recorded: " + ", ".join(short)))
-        print(text, file=self.log, flush=True)
+        self._say(f"{prefix} ended ({end['reason']}) after {end['samples']} samples: "
+                  + ("every message recorded" if not short else "not recorded: " + ", ".join(short)))
 
     def unended(self) -> dict:
         """{prefix: {kind: last seq}} of every source whose data arrived and whose end of stream
@@ -442,6 +515,13 @@ class Ingest:
         return {prefix: {key.rsplit("/", 1)[1]: b.last_seq for key, b in sorted(self.books.items())
                          if key.rsplit("/", 1)[0] == prefix and key.rsplit("/", 1)[1] in wire.KINDS}
                 for prefix in sorted(self.live)}
+
+    def say_unended(self) -> dict:
+        """:meth:`unended`, each source said on the log (one line each)."""
+        unended = self.unended()
+        for prefix in sorted(unended):
+            self._say(f"{prefix}: {_unended_text(unended[prefix])}")
+        return unended
 
     def ack(self, prefix: str) -> dict:
         """What the recorder holds of ``prefix``'s topics (the answer to an end-of-stream query)."""
@@ -528,9 +608,7 @@ def run_recorder(session: "zenoh.Session", key_expr: str, out: str, *, duration:
             for p in pending:
                 _answer(p[0], ing)
             queries.undeclare()
-            unended = ing.unended()
-            for prefix in sorted(unended):
-                print(f"noiselab record: {prefix}: {_unended_text(unended[prefix])}", file=log, flush=True)
+            unended = ing.say_unended()
             summary = RecorderSummary(out=str(out), topics=ing.books, messages=ing.messages,
                                       malformed=ing.malformed, wall_s=time.monotonic() - t_start,
                                       ended={k: v["counts"] for k, v in ing.ends.items()},
@@ -550,6 +628,6 @@ def _answer(query: "zenoh.Query", ing: Ingest) -> None:
         if key.endswith("/" + wire.END) and "*" not in key:
             query.reply(key, json.dumps(ing.ack(key.rsplit("/", 1)[0])).encode())
     except zenoh.ZError as exc:                 # the querier gave up (timeout) or went away
-        print(f"noiselab record: could not answer an end-of-stream query: {exc}", file=ing.log, flush=True)
+        ing._say(f"could not answer an end-of-stream query: {exc}")
     finally:
         query.drop()

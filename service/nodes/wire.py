@@ -48,8 +48,11 @@ import re
 import sys
 from collections.abc import Iterable, Sequence
 from numbers import Real
+from typing import NamedTuple
 
 import numpy as np
+
+from ..bounds import MAGNITUDE_MAX
 
 __all__ = [
     "ALL_KINDS",
@@ -65,6 +68,8 @@ __all__ = [
     "MAX_DEPTH",
     "MAX_PAYLOAD_BYTES",
     "SEQ_MAX",
+    "Dropped",
+    "HOLD",
     "SeqGate",
     "WireError",
     "check_name",
@@ -844,52 +849,145 @@ def decode_batch(payloads: Sequence[bytes], kind: str, *, topic: str | None = No
 # ------------------------------------------------------------------------- streams
 
 
+HOLD = 4
+"""Messages a :class:`SeqGate` holds for confirmation per topic, and how many later messages of
+the topic each one waits for its successor: a real jump survives a few hostile messages between
+it and its successor, and a flood of forged seqs costs bounded memory."""
+
+
+class Dropped(NamedTuple):
+    """A message a :class:`SeqGate` did not take: ``reason`` is ``"length"`` or ``"seq"``,
+    ``text`` says why in one line (without the topic)."""
+
+    seq: int
+    item: object
+    reason: str
+    text: str
+
+
 class SeqGate:
-    """Whether a message continues its stream, judged by its seq (one gate per topic).
+    """Which messages of a topic continue its stream, judged by their seq and vector length (one
+    gate per topic; the recorder and the live analyzer share it).
 
-    A stream's seq counts from 0 by one, so the next one is the last plus one. A seq more than
-    ``ahead`` past the last one taken (or, when ``behind`` is given, more than ``behind`` before
-    it) is not taken at once: it is held until the next message of the topic. If that one is
-    its successor (held seq + 1), the stream did jump (messages lost on the way, or a source
-    that restarted) and both are taken; if not, the held message was a forged or corrupt seq
-    and is dropped. So a single message with a wild seq is refused, and a real jump costs no
-    message. The first message of a stream is taken whatever its seq (a sink may join a stream
-    anywhere). :meth:`offer` and :meth:`flush` return what to take and what was dropped; the
-    caller keeps the items (payloads, decoded samples), the gate only their seqs."""
+    A stream's seq counts from 0 by one and its vectors have one length. A message is taken at
+    once when it continues the stream: its seq is past the last one taken by at most ``ahead``
+    (1: the very next; a node that keeps samples by seq may take a short jump) and it has the
+    stream's length. Any other message is held until a later one confirms it, which must be its
+    successor (seq + 1, the same length):
 
-    def __init__(self, ahead: int, behind: int | None = None):
-        self.ahead, self.behind = ahead, behind
+    * the stream's first message: a stream's start and its length are trusted only once
+      confirmed (unless the length is given, ``dim``: a model's);
+    * a seq more than ``ahead`` past the last one (messages lost on the way: the gap is real);
+    * a seq before the last one (a source that restarted: it sends 0, then 1, ...); a repeat of
+      the last seq is dropped at once (its successor would continue the stream anyway).
+
+    A held message and its confirming successor are both taken; a confirmed step back is a
+    restart (:attr:`restarted`). A held message is dropped when none of the next ``hold``
+    messages of the topic is its successor, when another message with its seq is held too (which
+    one the successor confirms cannot be told), or when the stream's length turns out to be
+    another. At most ``hold`` messages are held, whatever a peer sends. Once the stream's length
+    is known, a message of another length is dropped at once.
+
+    So a single message with a forged seq or length is not taken: it would need a successor.
+    What no rule on seqs can tell, without authenticating the source (Zenoh's access control,
+    TLS with client certificates), is a forged message whose seq fits the genuine stream where
+    it arrives: the very next seq, ahead of the genuine message, or the seq just before a
+    genuine start, jump or restart that waits for its successor; nor a forged pair of
+    consecutive messages from a restart.
+
+    :meth:`offer` (one message) and :meth:`take_run` (a run of consecutive ones) say what to
+    take; the caller keeps the items (payloads, decoded samples), the gate only seqs and
+    lengths."""
+
+    def __init__(self, ahead: int = 1, dim: int | None = None, *, field: str = "vector", hold: int = HOLD):
+        self.ahead, self.dim, self.field, self.hold = ahead, dim, field, hold
         self.last: int | None = None          # the last seq taken
-        self.held: tuple[int, object] | None = None
+        self.restarted = False                # the last offer/take_run began a new stream (a step back)
+        self.held: list[list] = []            # [seq, dim, item, why, messages waited]
 
-    def far(self, seq: int) -> bool:
-        """``seq`` would be held (it is too far from the last seq taken)."""
+    def _drop_length(self, seq: int, dim: int, item) -> Dropped:
+        return Dropped(seq, item, "length", f"{self.field} has {dim} elements at seq {seq}; the stream's have {self.dim}")
+
+    def _trust(self, dim: int) -> list[Dropped]:
+        """The stream's length is ``dim`` from now on: held messages of another length go."""
+        self.dim = dim
+        gone = [h for h in self.held if h[1] != dim]
+        self.held = [h for h in self.held if h[1] == dim]
+        return [self._drop_length(h[0], h[1], h[2]) for h in gone]
+
+    def offer(self, seq: int, dim: int, item) -> tuple[list, list[Dropped]]:
+        """The next message of the topic (``dim``: its vector's length): ``(items to take now, in
+        order; messages dropped)``."""
+        self.restarted = False
+        take, dropped = [], []
         last = self.last
-        return last is not None and (seq > last + self.ahead or (self.behind is not None and seq < last - self.behind))
-
-    def offer(self, seq: int, item) -> tuple[list, list]:
-        """The next message of the topic: ``(items to take now, in order; items dropped)``."""
-        held, self.held = self.held, None
-        if held is not None and seq == held[0] + 1:
+        if self.dim is not None and dim != self.dim:
+            dropped.append(self._drop_length(seq, dim, item))
+        elif last is not None and last < seq <= last + self.ahead:
             self.last = seq
-            return [held[1], item], []
-        dropped = [] if held is None else [held[1]]
-        if self.far(seq):
-            self.held = (seq, item)
-            return [], dropped
-        self.last = seq
-        return [item], dropped
+            take.append(item)
+        else:
+            match = [h for h in self.held if h[0] == seq - 1 and h[1] == dim]
+            if len(match) == 1:
+                h = match[0]
+                self.held.remove(h)
+                self.restarted = last is not None and h[0] <= last
+                self.last = seq
+                take += [h[2], item]
+                if self.dim is None:
+                    dropped += self._trust(dim)
+            else:
+                for h in match:
+                    self.held.remove(h)
+                    dropped.append(Dropped(h[0], h[2], "seq", f"seq {h[0]} came twice before its successor: "
+                                           "which one the stream sent cannot be told"))
+                if last is not None and seq == last:
+                    dropped.append(Dropped(seq, item, "seq", f"seq {seq} repeats the stream's last seq"))
+                else:
+                    why = (f"seq {seq} would start the stream" if last is None else
+                           f"seq {seq} {'jumps from' if seq > last else 'goes back from'} the stream's last seq {last}")
+                    self.held.append([seq, dim, item, why, -1])
+        for h in self.held:                   # each held message waits for at most `hold` more
+            h[4] += 1
+        old = [h for h in self.held if h[4] >= self.hold]
+        if old:
+            self.held = [h for h in self.held if h[4] < self.hold]
+            dropped += [Dropped(h[0], h[2], "seq", f"{h[3]} and no message followed it") for h in old]
+        return take, dropped
 
-    def take_held(self) -> list:
-        """The message still held is vouched for otherwise (its source says it published that
-        seq): take it."""
-        held, self.held = self.held, None
-        if held is None:
-            return []
-        self.last = held[0]
-        return [held[1]]
+    def take_run(self, seq0: int, n: int, dim: int) -> bool:
+        """A run of ``n`` messages with consecutive seqs from ``seq0`` and length ``dim``: True (the
+        gate has taken it, the caller writes it) when :meth:`offer` would take every one of them
+        with nothing held before; False (nothing changed) otherwise: offer them one by one."""
+        last = self.last
+        if self.held or n < 1 or (self.dim is not None and dim != self.dim):
+            return False
+        if last is not None and last < seq0 <= last + self.ahead:
+            self.restarted = False
+        elif n >= 2 and seq0 != last:         # the first is held and its successor, the second, confirms it
+            self.restarted = last is not None and seq0 <= last
+        else:
+            return False
+        self.last = seq0 + n - 1
+        self.dim = dim
+        return True
 
-    def flush(self) -> list:
-        """The stream is over: a message still held had no successor, so it is dropped."""
-        held, self.held = self.held, None
-        return [] if held is None else [held[1]]
+    def vouch(self, count: int) -> tuple[list, list[Dropped]]:
+        """The source says it published ``count`` messages (seq 0..count-1): take the one held
+        message that can be the stream's last (the start of a stream not yet confirmed, or a jump
+        ahead, below ``count``); nothing when there is none, or more than one. Returns ``(items
+        to take, messages dropped)`` as :meth:`offer` does."""
+        last = self.last
+        can = [h for h in self.held if h[0] < count and (last is None or h[0] > last)]
+        if len(can) != 1:
+            return [], []
+        h = can[0]
+        self.held.remove(h)
+        self.last = h[0]
+        self.restarted = False
+        return [h[2]], (self._trust(h[1]) if self.dim is None else [])
+
+    def flush(self) -> list[Dropped]:
+        """The stream is over: the messages still held had no successor, so they are dropped."""
+        held, self.held = self.held, []
+        return [Dropped(h[0], h[2], "seq", f"{h[3]} and no message followed it") for h in held]
