@@ -473,3 +473,94 @@ def test_a_steady_state_that_shares_its_mean_response_equals_one_computed_alone(
     fine_model = parse_model(dumps_toml(fine), "fine")
     assert fine_model.predictor().steady_state().var_y is not None
     assert not P._OWN_MEAN
+
+
+# -- the horizon's averages beyond the samples held at once ---------------------------------------------
+SLOW_SINE = """
+[command]
+kind = "sine"
+amplitude = 0.8
+frequency_hz = 0.03
+[sensor.white]
+std = 0.001
+[sensor.jitter]
+std_s = {jitter}
+"""
+NONLINEAR = """
+[actuator.ar1]
+std = 0.1
+tau_s = 0.3
+[actuator.saturation]
+limit = 0.7
+[sensor.quantization]
+step = 0.005
+"""
+
+
+@pytest.mark.parametrize("extra", ["", NONLINEAR], ids=["linear", "nonlinear"])
+def test_a_horizon_longer_than_the_samples_held_averages_over_all_of_it(extra, monkeypatch):
+    """At Ts = 20 us the 60 s horizon is 3e6 samples, beyond the HORIZON_MAX (2^20) the mean response
+    holds at once. The averages of the mean response over it (the jitter's E[ydot^2], the
+    quantizer's spread) are still the full horizon's: equal to those of a predictor holding all 3e6
+    samples, up to rounding, and so is every contribution of a linear model. Taken over the first
+    2^20 samples alone, the 0.03 Hz command's average covered 21 s of its 33 s period and the
+    jitter's variance came out 39 % high. (A nonlinear model's linearization, whose spectral fits
+    need the samples themselves, stays on the samples held.)
+
+    Tolerance: the two are the same recursion and the same sums, in blocks or in one go; only
+    rounding differs, which the plant's slow pole (|lambda| = 1 - 2.9e-6 per sample) carries over
+    ~1 / (1 - |lambda|) = 3.4e5 samples: ~3e5 * 1e-16 ~ 4e-11 per step's error, ~1e-9 accumulated.
+    rtol 1e-6 is far below any change of the averaging window (percent for a partial period)."""
+    from service.model import predict
+
+    Ts = 2e-5
+    text = SLOW_SINE.format(jitter=Ts / 4) + extra
+
+    def predictor(cap):
+        monkeypatch.setattr(predict, "HORIZON_MAX", cap)
+        for memo in (predict._OWN_MEAN, predict._COLORS, getattr(predict, "_OWN_AVERAGES", predict._COLORS)):
+            memo.clear()
+        pr = model(text, Ts=Ts, plant="m = 1.2\nc = 0.35\nk = 4.0").predictor()
+        assert pr.horizon == min(3_000_000, cap)
+        return pr
+
+    held, whole = predictor(1 << 20), predictor(1 << 30)
+    if not extra:
+        st_held, st_whole = held.steady_state(), whole.steady_state()
+        assert st_held.contributions.keys() == st_whole.contributions.keys()
+        for eid, v in st_whole.contributions.items():
+            np.testing.assert_allclose(st_held.contributions[eid], v, rtol=1e-6, atol=0, err_msg=eid)
+        assert st_held.notes == st_whole.notes
+    else:
+        a_held, a_whole = held._own_averages(held._own_mean()), whole._own_averages(whole._own_mean())
+        assert a_held.burn == a_whole.burn and a_held.span_s == a_whole.span_s
+        np.testing.assert_allclose(a_held.ydot2, a_whole.ydot2, rtol=1e-6, atol=0)
+        np.testing.assert_allclose(a_held.y_var, a_whole.y_var, rtol=1e-6, atol=0)
+
+
+def test_the_horizon_averages_take_the_memory_of_one_block(monkeypatch):
+    """The averages over a horizon beyond HORIZON_MAX go through it in blocks of HORIZON_MAX samples:
+    with HORIZON_MAX = 2^15 the 3e6-sample horizon at Ts = 20 us peaks at a few MB (a block's mean
+    response, ~100 bytes a sample), where holding the whole horizon takes ~300 MB; and its jitter
+    variance is still the whole horizon's."""
+    import tracemalloc
+
+    from service.model import predict
+
+    Ts = 2e-5
+    mdl = model(SLOW_SINE.format(jitter=Ts / 4), Ts=Ts, plant="m = 1.2\nc = 0.35\nk = 4.0")
+    monkeypatch.setattr(predict, "HORIZON_MAX", 1 << 15)
+    for memo in (predict._OWN_MEAN, predict._COLORS, getattr(predict, "_OWN_AVERAGES", predict._COLORS)):
+        memo.clear()
+    tracemalloc.start()
+    try:
+        small = mdl.predictor().steady_state()
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 32e6, peak
+    monkeypatch.setattr(predict, "HORIZON_MAX", 1 << 30)
+    predict._OWN_MEAN.clear()
+    whole = mdl.predictor().steady_state()
+    np.testing.assert_allclose(small.contributions["sensor.jitter"], whole.contributions["sensor.jitter"],
+                               rtol=1e-6, atol=0)

@@ -216,11 +216,28 @@ _OWN_MEAN_BYTES = 16 << 20
 # key as _OWN_MEAN (they depend on nothing else): (shadow, dcolor) of Predictor._colors. Not to be
 # changed by callers.
 _COLORS = Memo(65, flush=True)
+# The horizon averages of a model whose horizon is longer than HORIZON_MAX (:meth:`Predictor._own_averages`),
+# by the key of _OWN_MEAN and the horizon's length: small, but seconds to compute at Ts = 1 us.
+_OWN_AVERAGES = Memo(9, flush=True)
 
 
 HORIZON_MAX = 1 << 20
-"""The most samples of the model's own command a prediction averages over (the 60 s horizon holds
-for Ts >= 57 us; at Ts = 1 us it is 1 s): the mean response keeps several arrays of that length."""
+"""The most samples of the model's own mean response held at once (the 60 s horizon fits for
+Ts >= 57 us): it keeps several arrays of that length. A longer horizon's averages of the mean
+response (the jitter's slope, the quantizer's spread) are taken over all of it in blocks of this
+length (:meth:`Predictor._own_averages`); the nonlinearities' linearization (rms gain, distortion
+and their spectral fits, which must share one window) and the quantizer's motion take the first
+HORIZON_MAX samples."""
+
+
+@dataclass(frozen=True)
+class HorizonAverages:
+    """Averages of the model's own mean response over the horizon's samples k = burn..n-1, per
+    output, for the steady state's signal-dependent terms."""
+    burn: int                       # samples left out at the start (the plant's transient)
+    ydot2: np.ndarray               # mean of E[ydot_k]^2 (the jitter's slope)
+    y_var: np.ndarray               # variance of E[y_k] over the samples (the quantizer's spread)
+    span_s: float                   # time from the first sample averaged to the last, s
 
 
 class Predictor:
@@ -230,7 +247,8 @@ class Predictor:
 
     def __init__(self, model, horizon_s: float = 60.0):
         self.model = model
-        self.horizon = min(max(int(np.ceil(horizon_s / model.Ts)), 2), HORIZON_MAX)
+        self.span = max(int(np.ceil(horizon_s / model.Ts)), 2)     # the horizon, samples
+        self.horizon = min(self.span, HORIZON_MAX)                   # of it held at once
         m = model
         self._act_src = [e for e in m.effects.values() if hasattr(e, "drive_linear")]
         self._nonlin = [e for e in m.effects.values() if hasattr(e, "knots")]
@@ -355,6 +373,87 @@ class Predictor:
             if sum(v.nbytes for v in arrays) <= _OWN_MEAN_BYTES:
                 _OWN_MEAN.put(key, got)
         return got
+
+    def _own_averages(self, mean: MeanResponse) -> HorizonAverages:
+        """The averages (:class:`HorizonAverages`) of the model's own mean response over the whole
+        horizon, ``mean`` being its first :attr:`horizon` samples (:meth:`_own_mean`).
+
+        Each is (1 / (n - b)) sum_{k=b}^{n-1} f(m_k) of the mean response m_k (b: the burn). Within
+        HORIZON_MAX that is taken on ``mean`` itself. Beyond, the horizon is gone through in blocks of
+        HORIZON_MAX samples, each block's mean response started from the state the recursion
+        m_{k+1} = A_d m_k + B_d E[drive_k] reaches at its start, so every block holds the very
+        samples the whole horizon's recursion gives; the sums add over blocks (the variance by
+        Chan's pairwise update of count, mean and squared deviations). So the average is the one
+        over the full horizon, to rounding, in the memory of one block: taken over the first
+        HORIZON_MAX samples alone, a slow command's average covered part of its period (a 0.03 Hz
+        sine at Ts = 20 us: the first 21 s of its 33 s period, the jitter's variance 39 % high). The
+        time is that of the horizon's samples, at most 6e7 (60 s at the model files' least Ts, 1 us:
+        ~7 s for the seed's plant)."""
+        mdl = self.model
+        n, settle = self.span, _settle_samples(mdl)
+        burn = min(n // 2, settle)
+        if n == mean.t.size:
+            return HorizonAverages(burn, np.mean(mean.ydot[burn:] ** 2, axis=0), np.var(mean.y[burn:], axis=0),
+                                   float(mean.t[-1] - mean.t[burn]))
+
+        def compute():
+            ydot2 = np.zeros(mdl.p)
+            count, y_mean, y_m2 = 0, np.zeros(mdl.p), np.zeros(mdl.p)
+            block, k0 = mean, 0
+            while True:
+                a = max(burn - k0, 0)
+                if a < block.t.size:
+                    y = block.y[a:]
+                    ydot2 += np.sum(block.ydot[a:] ** 2, axis=0)
+                    nb, mb = y.shape[0], np.mean(y, axis=0)
+                    m2b = np.sum((y - mb) ** 2, axis=0)
+                    delta, total = mb - y_mean, count + nb
+                    y_m2 = y_m2 + m2b + delta**2 * count * nb / total
+                    y_mean = y_mean + delta * nb / total
+                    count = total
+                k_next = k0 + block.t.size
+                if k_next >= n:
+                    break
+                x_next = mdl.Ad @ block.x[-1] + mdl.Bd @ block.drive[-1] if mdl.n_x else np.zeros(0)
+                block = self._mean_block(k_next, min(HORIZON_MAX, n - k_next), x_next)
+                k0 = k_next
+            return HorizonAverages(burn, ydot2 / count, y_m2 / count, float((n - 1) * mdl.Ts - burn * mdl.Ts))
+        return _OWN_AVERAGES.get_or_compute((mean_key(mdl), n), compute)
+
+    def _mean_block(self, k0: int, n: int, x0: np.ndarray) -> MeanResponse:
+        """:meth:`mean_response` of the model's own command at samples k0..k0+n-1, the state
+        starting from ``x0`` (the recursion's state at k0), the drive noise's variance at those k
+        (:meth:`_drive_noise_var_from`)."""
+        mdl = self.model
+        u = mdl.command.values(k0, n, mdl.Ts)
+        var = self._drive_noise_var_from(k0, n)
+        drive, gain, dvar = self.drive_stats(u, var)
+        # the forced response from rest (as mean_response) plus the free one of x0: A_d^j x0
+        x = lsim(mdl.Ad, mdl.Bd, np.eye(mdl.n_x), np.zeros((mdl.n_x, 0)), drive) \
+            + _powers_apply(mdl.Ad, x0[:, None], n)[:, :, 0] if mdl.n_x else np.zeros((n, 0))
+        y = (x @ mdl.Cy.T + drive @ mdl.Dy.T) * mdl.out_gain
+        ydot = (x @ (mdl.Cy @ mdl.Ac).T + drive @ (mdl.Cy @ mdl.Bc).T) * mdl.out_gain
+        return MeanResponse(t=(k0 + np.arange(n)) * mdl.Ts, x=x, drive=drive, gain=gain, drive_var=var,
+                            distortion_var=dvar, ydot=ydot, y=y)
+
+    def _drive_noise_var_from(self, k0: int, n: int) -> np.ndarray:
+        """:meth:`drive_noise_var` at k = k0..k0+n-1 (n, m), for k0 past the first block: with
+        Pa_inf = sum_{i>=0} F^i G G^T F^i^T (the Lyapunov solution; the actuator sources are
+        stable, AR(1) with rho < 1), Pa_k = sum_{i<k} F^i G G^T F^i^T = Pa_inf - F^k Pa_inf F^k^T,
+        so diag(C_a Pa_k C_a^T) = diag(C_a Pa_inf C_a^T) - diag(W_k Pa_inf W_k^T), W_k = C_a F^k.
+        The difference's rounding, relative to Pa_k, is ~eps Pa_inf / Pa_k = eps / (1 - rho^(2k)),
+        ~eps tau / (2k) for a correlation time of tau samples: below 1e-7 for k >= HORIZON_MAX and
+        every tau a model file allows (at most 1e15 Ts)."""
+        m = self.model.m
+        DD = np.diag(sum((D @ D.T for D in self._Da), np.zeros((m, m))))
+        GG = block_diag(*[G @ G.T for G in self._Ga]) if self._Ga else np.zeros((0, 0))
+        F, Ca = self._Fa, self._Ca
+        if F.shape[0] == 0 or not np.any(GG):
+            return np.broadcast_to(DD, (n, m)).copy()
+        Pinf = solve_discrete_lyapunov(F, GG)
+        W = Ca @ np.linalg.matrix_power(F, k0)                    # (m, na)
+        Wk = _powers_apply(F.T, W.T, n)                           # (n, na, m): (W F^j)^T
+        return np.diag(Ca @ Pinf @ Ca.T) - np.einsum("kam,ab,kbm->km", Wk, Pinf, Wk) + DD
 
     # -- the augmented linear system -------------------------------------------------------------------
     def linear_system(self, g: np.ndarray | None = None, dstd: np.ndarray | None = None,
@@ -682,8 +781,10 @@ class Predictor:
         # horizon is 10^6 samples, seconds and 100s of MB for a model that needs none of it
         needs_mean = bool(self._nonlin) or "sensor.quantization" in mdl.effects or "sensor.jitter" in mdl.effects
         mean = self._own_mean() if needs_mean else None
+        avg = self._own_averages(mean) if needs_mean else None
         burn = min(mean.t.size // 2, _settle_samples(mdl)) if needs_mean else 0
-        # the gains after the transient (the drive noise's variance grows from zero at the start)
+        # the gains after the transient (the drive noise's variance grows from zero at the start),
+        # over the samples held, the window of their spectral fits (_colors) too
         g = np.sqrt(np.mean(mean.gain[burn:] ** 2, axis=0)) if self._nonlin else None
         dstd = np.sqrt(np.mean(mean.distortion_var[burn:], axis=0)) if self._nonlin else None
         shadow, dcolor = self._colors(mean, burn, dstd) if self._nonlin else ({}, {})
@@ -763,7 +864,7 @@ class Predictor:
                             np.zeros(mdl.p)) / mdl.Ts
         slope_ok = stable or (marginal and not walk_ydot.any())
         rate = np.zeros(mdl.p)
-        ydot2 = np.mean(mean.ydot[burn:] ** 2, axis=0) if needs_mean else np.zeros(mdl.p)
+        ydot2 = avg.ydot2 if needs_mean else np.zeros(mdl.p)
         for eid, kind, *prm in self._primitives():
             if kind == "white":
                 contributions[eid] = np.broadcast_to(prm[0], (mdl.p,)).copy()
@@ -776,7 +877,7 @@ class Predictor:
         q = mdl.effects.get("sensor.quantization")
         if q is not None:
             from .effects.sensor_quantization import uniform_model_error
-            spread = np.sqrt(np.var(mean.y[burn:], axis=0) + sum(
+            spread = np.sqrt(avg.y_var + sum(
                 v for k, v in contributions.items() if v is not None and k != q.id))
             err = uniform_model_error(spread, q.params["step"])
             if np.any(err > 0.01):
@@ -786,7 +887,7 @@ class Predictor:
                              + "): the uniform Delta^2/12 model may not hold")
         if "sensor.jitter" in mdl.effects:
             notes.append("sensor.jitter: first-order Taylor, variance std_s^2 E[ydot^2] averaged over "
-                         f"{mean.t[-1] - mean.t[burn]:.3g} s of the model's command")
+                         f"{avg.span_s:.3g} s of the model's command")
         var_y = None if any(v is None for v in contributions.values()) else \
             sum(contributions.values(), np.zeros(mdl.p))
         Pp = Ptot[ls.plant_block, ls.plant_block] if stable else None
