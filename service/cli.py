@@ -9,7 +9,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
-import math
 import os
 import sys
 import time
@@ -21,6 +20,7 @@ one_blas_thread()
 
 import numpy as np  # noqa: E402  (after the thread count: BLAS reads it when numpy loads)
 
+from .args import SECONDS_MAX, bounded, count_arg, seconds_arg, speed_arg  # noqa: E402
 from .model import ModelError  # noqa: E402
 
 
@@ -61,54 +61,9 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"noiselab: {message}\n")
 
 
-# -- numeric flags: every number on the command line is read by one of these (argparse ``type=``),
-# so nan, inf, a negative count or a duration no timer can wait is a one-line usage error (exit 2)
-SECONDS_MAX = 1e9
-"""The longest duration, timeout or period a flag takes, s (about 32 years): beyond any run, and
-inside the range of the OS's timers (``threading.TIMEOUT_MAX`` is 9.2e9 s on Linux), so that a wait
-or a sample count (duration / Ts) computed from it never overflows."""
-SPEED_MIN, SPEED_MAX = 1e-3, 1e6
-"""The pace of an emulation or a replay, times real time: the wall-clock period Ts / speed (Ts up to
-a day) stays under :data:`SECONDS_MAX`; a million times real time is no pace at all (``simulate``
-and ``replay --fast`` run as fast as they can)."""
-COUNT_MAX = 1000
-"""The largest count a flag takes (``--max-effects``: the catalogue has 13 effects; ``--wait-peers``)."""
-
-
-def _bounded(lo, hi, *, lo_open: bool = False, integer: bool = False, what: str = "a number"):
-    """An argparse ``type``: a finite number (an integer when ``integer``) from ``lo`` (excluded when
-    ``lo_open``) to ``hi`` (None: no upper bound). argparse names the flag in its message."""
-    want = f"{what} {'>' if lo_open else '>='} {lo:g}" + ("" if hi is None else f" and <= {hi:g}")
-
-    def conv(text):
-        try:
-            v = int(text) if integer else float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {want}, got {text!r}") from None
-        ok = (integer or math.isfinite(v)) and (v > lo if lo_open else v >= lo) and (hi is None or v <= hi)
-        if not ok:
-            raise argparse.ArgumentTypeError(f"expected {want}, got {text!r}")
-        return v
-    return conv
-
-
-def seconds_arg(zero: bool = False):
-    """Seconds, > 0 (>= 0 with ``zero``) and at most :data:`SECONDS_MAX`."""
-    return _bounded(0.0, SECONDS_MAX, lo_open=not zero, what="seconds")
-
-
-def speed_arg():
-    """A pace, times real time, from :data:`SPEED_MIN` to :data:`SPEED_MAX`."""
-    return _bounded(SPEED_MIN, SPEED_MAX, what="a factor (times real time)")
-
-
-def count_arg(lo: int = 1):
-    """An integer from ``lo`` to :data:`COUNT_MAX`."""
-    return _bounded(lo, COUNT_MAX, integer=True, what="an integer")
-
-
-_seed = _bounded(0, None, integer=True, what="an integer seed")
-_segment = _bounded(1, None, integer=True, what="a segment number")
+# -- numeric flags: every number on the command line is read by one of service.args' bounded types
+_seed = bounded(0, None, integer=True, what="an integer seed")
+_segment = bounded(1, None, integer=True, what="a segment number")
 """``--segment N``: a stream segment of a recording whose source restarted, 1 = the first; one
 beyond the recording's segments is refused where they are known (the loader names their count)."""
 

@@ -483,7 +483,21 @@ def test_the_walk_finds_every_numeric_flag_and_each_uses_the_shared_checks():
             ("simulate", "--seed"), ("record", "--duration"), ("router", "--connect-timeout")} <= found
     assert len(FLAGS) >= 31
     for command, flag, _, kind in FLAGS:
-        assert kind.__qualname__ in ("_bounded.<locals>.conv", "_burn"), (command, flag)
+        assert kind.__qualname__ in ("bounded.<locals>.conv", "_burn"), (command, flag)
+
+
+def test_a_node_takes_the_bounded_flags_without_the_command_line():
+    """The bounded numeric types live in service.args, which the command line and the nodes both
+    import: a node adding its flags (transport's --connect-timeout) does not import service.cli,
+    which imports the nodes (a cycle). In a fresh interpreter, so no other test's imports count."""
+    code = ("import argparse, sys\n"
+            "import service.nodes.transport as t\n"
+            "p = argparse.ArgumentParser()\n"
+            "t.add_transport_args(p)\n"
+            "assert p.parse_args(['--connect-timeout', '0']).connect_timeout == 0.0\n"
+            "print(sorted(m for m in sys.modules if m == 'service.cli' or m.startswith('service.cli.')))\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert r.returncode == 0 and r.stdout.strip() == "[]", (r.stdout, r.stderr[-2000:])
 
 
 @pytest.mark.parametrize("command, flag, argv, kind", FLAGS, ids=[f"{c} {f}" for c, f, _, _ in FLAGS])

@@ -35,7 +35,7 @@ class TransportError(ValueError):
 
 
 def add_transport_args(parser: argparse.ArgumentParser) -> None:
-    from ..cli import seconds_arg            # the command line's numeric flags, checked in one place
+    from ..args import seconds_arg           # the command line's numeric flags, checked in one place
 
     g = parser.add_argument_group("transport (Zenoh)")
     g.add_argument("--connect", action="append", metavar="ENDPOINT",
