@@ -25,8 +25,11 @@ from livechild import Child  # noqa: E402
 
 # Hypothesis measures time in two checks, which would make a property test depend on the machine's
 # speed: the deadline per example and the "too slow" health check on data generation. Both are off
-# for every property test of the suite (a test's own @settings inherit this profile).
-settings.register_profile("noiselab", deadline=None, suppress_health_check=[HealthCheck.too_slow])
+# for every property test of the suite (a test's own @settings inherit this profile). Examples are
+# drawn from a fixed seed (derandomize) and no example database is kept, so every run, here and in
+# CI, tries the same inputs: a failure is reproducible and a pass is not luck of the draw.
+settings.register_profile("noiselab", deadline=None, suppress_health_check=[HealthCheck.too_slow],
+                          derandomize=True, database=None)
 settings.load_profile("noiselab")
 
 

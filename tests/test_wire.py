@@ -87,7 +87,7 @@ def test_schema_names_are_the_contract():
 # ------------------------------------------------------------------------ encoding
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=200)
 @given(seq=st.integers(0, wire.SEQ_MAX), t=finite, vec=st.lists(finite, max_size=6),
        kind=st.sampled_from(wire.KINDS))
 def test_encode_equals_json_dumps_and_decodes_bit_exact(seq, t, vec, kind):
@@ -381,7 +381,7 @@ def depth_of(v) -> int:
     return 0
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=300)
 @given(v=json_values)
 def test_nesting_depth_of_json_is_exact(v):
     """The byte scan's depth equals the parsed value's, whatever the strings hold (brackets,
@@ -485,7 +485,7 @@ def result_or_wire_error(fn, *args):
         return None
 
 
-@settings(max_examples=400, deadline=None)
+@settings(max_examples=400)
 @given(data=st.binary(max_size=200))
 def test_any_bytes_give_a_result_or_a_wire_error(data):
     for decoder in ANY_DECODER:
@@ -514,7 +514,7 @@ analysis_like = st.fixed_dictionaries({"seq": seqish, "t": numberish | json_valu
 sample_like = vector_like | health_like | end_like | analysis_like
 
 
-@settings(max_examples=500, deadline=None)
+@settings(max_examples=500)
 @given(v=json_values | sample_like, spaced=st.booleans())
 def test_any_json_value_gives_a_result_or_a_wire_error(v, spaced):
     data = json.dumps(v, separators=(", ", ": ") if spaced else (",", ":")).encode()
@@ -540,7 +540,7 @@ payloads = st.lists(st.one_of(
     st.binary(max_size=40)), min_size=1, max_size=8)
 
 
-@settings(max_examples=500, deadline=None)
+@settings(max_examples=500)
 @given(batch=payloads)
 def test_decode_batch_and_packed_equal_decode_message_by_message(batch):
     """decode_batch (and decode_packed on the same payloads) either raises a WireError exactly
@@ -557,7 +557,7 @@ def test_decode_batch_and_packed_equal_decode_message_by_message(batch):
             assert same_bits(vals, np.array([d["y"] for d in single], dtype=np.float64).reshape(len(batch), -1))
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=200)
 @given(seq0=st.integers(0, 2**62), n=st.integers(1, 30), dim=st.integers(1, 4), data=st.data(),
        kind=st.sampled_from([*wire.KINDS, wire.CONTROL]))
 def test_batches_round_trip_exactly(seq0, n, dim, data, kind):
@@ -570,7 +570,7 @@ def test_batches_round_trip_exactly(seq0, n, dim, data, kind):
         assert same_bits(tt, t) and same_bits(vals, mat)
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=200)
 @given(seq=st.integers(0, wire.SEQ_MAX), t=finite, samples=st.integers(0, wire.SEQ_MAX),
        counts=st.dictionaries(st.sampled_from(wire.ALL_KINDS), st.integers(0, wire.SEQ_MAX)),
        reason=st.sampled_from(wire.END_REASONS), stats=st.fixed_dictionaries(
@@ -727,7 +727,7 @@ def test_seq_gate_vouch():
 history = st.lists(st.tuples(st.integers(0, 40), st.integers(1, 2)), max_size=12)
 
 
-@settings(max_examples=400, deadline=None)
+@settings(max_examples=400)
 @given(before=history, seq0=st.integers(0, 40), n=st.integers(1, 6), dim=st.integers(1, 2),
        ahead=st.sampled_from([1, 5]))
 def test_seq_gate_take_run_equals_offers_one_by_one(before, seq0, n, dim, ahead):
@@ -745,7 +745,7 @@ def test_seq_gate_take_run_equals_offers_one_by_one(before, seq0, n, dim, ahead)
         assert state(a) == was
 
 
-@settings(max_examples=400, deadline=None)
+@settings(max_examples=400)
 @given(runs=st.lists(st.tuples(st.integers(0, 60), st.integers(2, 8)), min_size=1, max_size=6),
        where=st.integers(0, 100), fseq=st.integers(0, 70), fdim=st.integers(1, 2))
 def test_seq_gate_never_takes_one_forged_message(runs, where, fseq, fdim):
