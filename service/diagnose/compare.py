@@ -107,6 +107,12 @@ def transient_samples(model) -> int:
 # per model (its source and text) so that a live analyzer, which recomputes its views at 2 Hz on a
 # window that fills up and then keeps its size, pays for them once per model revision. The cache is
 # least-recently-used and bounded in bytes (entries larger than the bound are not kept).
+# It is not a service.memo.Memo, whose semantics differ in what matters here: a Memo evicts in the
+# order of puts (a get does not reorder), where a live analyzer's cache must keep the views it reads
+# at every update however early they were put (least-recently-used); a Memo counts the bytes of
+# array values only, where these values are dicts, lists and tuples of arrays (counted through);
+# and an entry keyed by a model's id keeps that model alive, so that a new model cannot reuse the
+# id and take its predictions.
 CACHE_MAX_BYTES = 64 * 2**20
 CACHE_MAX_ENTRIES = 2048                   # a filling window adds ~2 small entries per update
 _CACHE: OrderedDict = OrderedDict()        # key -> (value, bytes, model kept alive for id keys)
