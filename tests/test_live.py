@@ -349,8 +349,10 @@ def test_replay_paced_and_prefixed(spawn, tmp_path):
     """replay --speed 10 of a recording spanning 39.96 s (1000 samples at Ts = 40 ms): its own wall_s
     is at least the 3.996 s the pace asks (a paced message is never published before it is due,
     whatever the machine's speed) and under the 39.96 s of real time (a bound only a 36 s stall could
-    break: --speed is honoured), and the arrival times here spread over at least half the pace
-    and less than real time; --prefix P publishes under P/noiselab/..., nothing under noiselab/... ."""
+    break: --speed is honoured); the last message cannot arrive before the pace allows, counted from
+    before the replay was started (CLOCK_MONOTONIC is the machine's, shared by both processes), and
+    the arrivals spread over less than real time; --prefix P publishes under P/noiselab/...,
+    nothing under noiselab/... ."""
     from service.cli import write_simulation
 
     f = tmp_path / "paced.toml"
@@ -360,6 +362,7 @@ def test_replay_paced_and_prefixed(spawn, tmp_path):
     span, speed = 999 * 0.04, 10
     in_file = {topic: [m.data for _, _, m in items] for topic, items in file_messages(path).items()}
     port = free_port()
+    started = time.monotonic()
     rp = spawn("replay", "replay", path, "--listen", ep(port), "--speed", str(speed), "--prefix", "lab/replayed",
                "--wait-subscribers", "20", "--json")
     prefixed, bare = Collector(), Collector()
@@ -377,8 +380,10 @@ def test_replay_paced_and_prefixed(spawn, tmp_path):
     for topic, payloads in in_file.items():
         assert [p for p, _ in prefixed.by_key[f"lab/replayed/{topic}"]] == payloads
     arrivals = [a for v in prefixed.by_key.values() for _, a in v]
+    last = max(arrivals) - started
+    assert last >= span / speed - 1e-3, f"the last message came {last:.3f} s after the start (paced: {span / speed:.3f} s)"
     spread = max(arrivals) - min(arrivals)
-    assert span / speed / 2 <= spread < span, f"arrivals spread over {spread:.3f} s (paced: {span / speed:.3f} s)"
+    assert spread < span, f"arrivals spread over {spread:.3f} s (real time: {span:.3f} s)"
     assert not bare.by_key, f"published without the prefix: {sorted(bare.by_key)}"
 
 
@@ -1095,9 +1100,8 @@ def test_health_at_1_hz(fast_model_file, spawn):
     consistent with the emulator's final summary (the two reports cover every sample of the run:
     the overall max is their max, the overall median lies between theirs, the overrun count is the
     last one's); late_control 0. No real-time bound is asserted on the lateness itself, nor on
-    when the reports arrive here: on a shared 2-core machine a competing process can hold the loop
-    behind (observed: median 5.4 ms over a whole second; reports 0.63 s apart), and the health is
-    there to say so."""
+    when the reports arrive here: on a shared machine a competing process can hold the loop behind
+    for a whole report period, and the health is there to say so."""
     port = free_port()
     emu = spawn("emulate", "emulate", fast_model_file, "--listen", ep(port), "--duration", "2",
                 "--wait-subscribers", "20", "--json")
