@@ -922,7 +922,10 @@ def _merge_chunks(path: str, f, summary, report: ScanReport):
 class _Segments:
     """Numbers one channel's stream segments as its messages come, in file order: a publish_time
     (the sample time) that steps back to or below every earlier one starts a new segment (the
-    source restarted; the rule :func:`_streams` applies to seq). The time-ordered merge keys on
+    source restarted from 0). Unlike :func:`_streams` on seq, a restart whose first samples were
+    lost is not told here from a late message: that needs the segment's sample times and payloads,
+    memory the streaming merge does not hold, so such a recording's runs meet at their boundary
+    in replay. The time-ordered merge keys on
     (segment, publish_time), so a restarted recording replays as it was recorded, one stream after
     the other, not the two streams' samples interleaved by their equal sample times."""
 
