@@ -792,7 +792,10 @@ class Predictor:
             notes.append("actuator nonlinearities linearized around the mean drive (seed section 7): "
                          "rms gain " + ", ".join(f"{v:.4g}" for v in g) + ", distortion std "
                          + ", ".join(f"{v:.3g}" for v in dstd)
-                         + (" treated as white" if not dcolor else ""))
+                         + (" treated as white" if not dcolor else "")
+                         + (f", over the first {mean.t.size * mdl.Ts:.4g} s of the command (the samples held at "
+                            f"once, HORIZON_MAX) of the {self.span * mdl.Ts:.4g} s horizon"
+                            if self.span > mean.t.size else ""))
         for ch, (wvar, comps) in dcolor.items():
             notes.append(f"the distortion of input {ch}'s colored noise is colored too (Hermite terms of the "
                          f"noise's correlation): white std {np.sqrt(wvar):.3g} and {len(comps)} damped cosines")
