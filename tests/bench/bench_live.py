@@ -1056,12 +1056,12 @@ def table(res: dict) -> str:
         cruns = rc.get("close_runs") or [close]
         clost = ", ".join(f"{c['messages'] - c['recorded']:,}" for c in cruns)
         rows.append(f"| 3e | diagnostic: the same blast, publisher closes right after its last put (no end of stream: "
-                    f"`emulate` before this fix), {len(cruns)} runs | lost per run: {clost} (of "
+                    f"what an emitter without an end of stream does), {len(cruns)} runs | lost per run: {clost} (of "
                     f"{close['messages']:,}) | | info |")
     la = res.get("latency")
     if la:
         for v, label in (("noiselab", "noiselab path (BLOCK, no express)"), ("bare", "peer: bare zenoh, defaults"),
-                         ("express", "diagnostic: BLOCK + express (the emulator before this fix)")):
+                         ("express", "diagnostic: BLOCK + express")):
             d = la[v]
             rows.append(f"| 4 | put→receive, {label}: p50 / p99 / max ({d['n']:,} msgs) | "
                         f"{d['lat_us'][0]:.1f} / {d['lat_us'][1]:.1f} / {d['lat_us'][2]:.0f} µs; the 3 puts take "

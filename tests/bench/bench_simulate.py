@@ -2,11 +2,11 @@
 
 Run on demand, not by pytest (``pyproject.toml`` ignores ``tests/bench``)::
 
-    /work/venv/bin/python tests/bench/bench_simulate.py            # full run, ~2-3 min
-    /work/venv/bin/python tests/bench/bench_simulate.py --write    # ... and update RESULTS.md
-    /work/venv/bin/python tests/bench/bench_simulate.py --quick    # smoke test, a few seconds
-    /work/venv/bin/python tests/bench/bench_simulate.py --profile  # + cProfile of batch and step
-    /work/venv/bin/python tests/bench/bench_simulate.py --blas-threads 1 --only batch trials --write
+    .venv/bin/python tests/bench/bench_simulate.py            # full run, ~2-3 min
+    .venv/bin/python tests/bench/bench_simulate.py --write    # ... and update RESULTS.md
+    .venv/bin/python tests/bench/bench_simulate.py --quick    # smoke test, a few seconds
+    .venv/bin/python tests/bench/bench_simulate.py --profile  # + cProfile of batch and step
+    .venv/bin/python tests/bench/bench_simulate.py --blas-threads 1 --only batch trials --write
 
 What is measured (every ratio is taken against its peer *in the same run*):
 
@@ -408,7 +408,7 @@ def markdown(res: dict, argv: list[str]) -> str:
             skip = True
         elif not a.startswith("--json="):
             shown.append(a)
-    cmd = "/work/venv/bin/python tests/bench/bench_simulate.py " + " ".join(shown)
+    cmd = ".venv/bin/python tests/bench/bench_simulate.py " + " ".join(shown)
     begin, end = markers(res["tag"])
     lines = [
         begin,
