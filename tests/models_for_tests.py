@@ -2,6 +2,29 @@
 
 from service.model import parse_model
 
+# Closed loop: the seed plant (m = 1.2 kg, c = 0.35 N s/m, k = 4 N/m), zoh, commands from Zenoh,
+# modest noise: force noise of continuous two-sided intensity 1e-4 N^2/Hz, 2 mm white sensor
+# noise, 1 mm quantization.
+LOOP_TOML = """
+name = "loop"
+[sampling]
+Ts = 0.01
+discretization = "zoh"
+[plant]
+m = 1.2
+c = 0.35
+k = 4.0
+[command]
+kind = "external"
+[process.white]
+psd = 1e-4
+[sensor.white]
+std = 0.002
+[sensor.quantization]
+step = 0.001
+"""
+
+
 # A general two-output plant in zoh mode with every linear effect, plus tone and jitter.
 ALL_LINEAR = """
 name = "all"

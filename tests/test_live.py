@@ -33,6 +33,7 @@ import pytest
 import zenoh
 
 from livechild import Child
+from models_for_tests import LOOP_TOML
 from service.model import load_model
 from service.nodes import mcapio, transport, wire
 from service.nodes.recorder import Ingest, TopicBook
@@ -59,29 +60,6 @@ def model_text(name: str, Ts: float) -> str:
     text = text.replace("Ts = 0.01 ", f"Ts = {Ts!r} ", 1)
     assert f'name = "{name}"' in text and f"Ts = {Ts!r} " in text
     return text
-
-
-# Closed loop: the seed plant (m = 1.2 kg, c = 0.35 N s/m, k = 4 N/m), zoh, commands from Zenoh,
-# modest noise: force noise of continuous two-sided intensity 1e-4 N^2/Hz, 2 mm white sensor
-# noise, 1 mm quantization.
-LOOP_TOML = """
-name = "loop"
-[sampling]
-Ts = 0.01
-discretization = "zoh"
-[plant]
-m = 1.2
-c = 0.35
-k = 4.0
-[command]
-kind = "external"
-[process.white]
-psd = 1e-4
-[sensor.white]
-std = 0.002
-[sensor.quantization]
-step = 0.001
-"""
 
 
 def waited_for_subscribers(child: Child) -> bool:

@@ -14,7 +14,7 @@ the analyzer computes them once for the full window, so the first full-window up
 Untrusted input: a measurement or command is analysed only if it holds to the wire contract
 (:mod:`wire`'s decoders, with their size and nesting bounds), every element is within
 :data:`wire.MAGNITUDE_MAX` (beyond it the statistics overflow), and it continues its stream as
-the topic's :class:`wire.SeqGate` judges it (the recorder's rule): the model's vector length,
+the topic's :class:`seqgate.SeqGate` judges it (the recorder's rule): the model's vector length,
 a seq past the stream's last by at most a ring's capacity. The stream's start, a jump further
 ahead (a long loss) and any step back (a past seq, a duplicate, a restarted source) are taken
 only once the message's successor confirms them; a confirmed step back is a restart, which
@@ -46,7 +46,7 @@ import numpy as np
 
 from ..diagnose.compare import AnalysisError, compare, transient_samples
 from ..model import ModelError, load_model
-from . import mcapio, transport, wire
+from . import mcapio, seqgate, transport, wire
 
 
 READY_MARK = "noiselab analyze: live on"
@@ -63,7 +63,7 @@ class _Ring:
         self.t = np.zeros(capacity)
         self.v = np.zeros((capacity, dim))
         self.max_seq = -1
-        self.gate = wire.SeqGate(ahead=capacity, dim=dim, field=field)
+        self.gate = seqgate.SeqGate(ahead=capacity, dim=dim, field=field)
 
     def reset(self) -> None:
         """The stream restarted: forget the old one's samples."""

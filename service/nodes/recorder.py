@@ -13,7 +13,7 @@ publish_time = the sample time t in ns, log_time = receive time, wall clock ns).
   A payload that breaks the contract is skipped and counted (never the rest of its batch).
 * Untrusted input: a message is recorded only if it holds to the contract (:mod:`wire`'s
   decoders, with their size and nesting bounds) and continues its stream, as the topic's
-  :class:`wire.SeqGate` judges it: the very next seq with the stream's vector length (a topic's
+  :class:`seqgate.SeqGate` judges it: the very next seq with the stream's vector length (a topic's
   length never changes within a recording). The stream's start and length, a jump ahead (a real
   gap), a step back (a restarted source) are recorded only once the message's successor
   confirms them, or the source's end of stream says that the message was its last; a repeat of
@@ -59,7 +59,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import zenoh
 
-from . import mcapio, transport, wire
+from . import mcapio, seqgate, transport, wire
 
 CAPACITY = 16384     # samples the zenoh channel holds before zenoh stops reading the link
 BATCH = 4096         # samples taken from the channel per batch, at most
@@ -68,7 +68,7 @@ BATCH_DECODE_MIN = 16  # a topic's run in a batch at least this long is decoded 
 QUIET_S = 0.25       # on stop: nothing arrived for this long and a source has not ended: finish
 LIVE_S = 0.5         # on stop: caught up for this long with sources still streaming: finish
 DRAIN_MAX_S = 10.0   # on stop: finish after this long whatever is still arriving
-SEQ_AHEAD = 1        # a seq more than this past its topic's last is held for confirmation (wire.SeqGate)
+SEQ_AHEAD = 1        # a seq more than this past its topic's last is held for confirmation (seqgate.SeqGate)
 VECTOR_KINDS = (*wire.KINDS, wire.CONTROL)
 _END_KEY = "/" + wire.END
 
@@ -218,7 +218,7 @@ class Ingest:
         self.out = out
         self.log = log
         self.books: dict[str, TopicBook] = {}
-        self.gates: dict[str, wire.SeqGate] = {}  # topic -> its gate (items: (seq, t, payload, rx_ns))
+        self.gates: dict[str, seqgate.SeqGate] = {}  # topic -> its gate (items: (seq, t, payload, rx_ns))
         self.malformed = 0
         self.malformed_topics: dict[str, int] = {}
         self.said: set[str] = set()              # reasons said once on the log
@@ -242,10 +242,10 @@ class Ingest:
                 self.said.add(once)
             self._say(f"skipped a message: {exc}")
 
-    def _gate(self, key: str, kind: str) -> wire.SeqGate:
+    def _gate(self, key: str, kind: str) -> seqgate.SeqGate:
         gate = self.gates.get(key)
         if gate is None:
-            gate = self.gates[key] = wire.SeqGate(SEQ_AHEAD, field=wire.VECTOR_FIELD.get(kind, "vector"))
+            gate = self.gates[key] = seqgate.SeqGate(SEQ_AHEAD, field=wire.VECTOR_FIELD.get(kind, "vector"))
         return gate
 
     def _dropped(self, key: str, dropped: list) -> None:
@@ -363,7 +363,7 @@ class Ingest:
 
     def _add_run(self, key: str, kind: str, payloads: list[bytes], rx_ns: int) -> None:
         """Many payloads of one vector topic at once: decoded with ``wire.decode_batch``, and each
-        run of consecutive seqs the gate takes whole (:meth:`wire.SeqGate.take_run`: the usual
+        run of consecutive seqs the gate takes whole (:meth:`seqgate.SeqGate.take_run`: the usual
         case) written with ``write_batch``; the others go message by message (:meth:`_add_one`),
         as do all of them when any breaks the contract (the slow path names it)."""
         try:
