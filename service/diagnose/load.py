@@ -25,11 +25,11 @@ Integer-ns times (publish_time, ``*_ns`` fields) stay integers until the first s
 subtracted (STYLE 13: epoch ns through float64 would keep only ~0.24 us).
 
 Every value the analysis uses (measurement, command, truth) is at most
-:data:`~service.model.schema.MAGNITUDE_MAX` (1e50) in magnitude, the bound of a model file's
-numbers: the estimators square the data, sum the squares over the record and square again (the
-spread of a variance estimate, the likelihood of a fit), which must stay finite in float64. A
-larger value is refused here, naming the topic, the field and the seq, instead of an overflow deep
-in an estimator.
+:data:`~service.bounds.MAGNITUDE_MAX` (1e50) in magnitude, the one bound of every number
+noiselab computes with (a model file's too): the estimators square the data, sum the squares
+over the record and square again (the spread of a variance estimate, the likelihood of a fit),
+which must stay finite in float64. A larger value is refused here, naming the topic, the field
+and the seq, instead of an overflow deep in an estimator.
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..model.schema import MAGNITUDE_MAX
+from ..bounds import MAGNITUDE_MAX
 from ..nodes import mcapio, wire
 from .results import AnalysisError
 
