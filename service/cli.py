@@ -21,6 +21,7 @@ one_blas_thread()
 import numpy as np  # noqa: E402  (after the thread count: BLAS reads it when numpy loads)
 
 from .args import SECONDS_MAX, bounded, count_arg, seconds_arg, speed_arg  # noqa: E402
+from .errors import BadInput  # noqa: E402
 from .model import ModelError  # noqa: E402
 
 
@@ -31,7 +32,7 @@ def load_model(spec):
 __version__ = "0.1.0"
 
 
-class UsageError(ValueError):
+class UsageError(BadInput):
     """Bad command-line input; the message is one line."""
 
 
@@ -51,7 +52,7 @@ def _bad_input_types():
     AnalysisError = _loaded("service.diagnose.results", "AnalysisError")
     DemoError = _loaded("service.demo", "DemoError")
     StatsError = _loaded("service.stats.errors", "StatsError")
-    return (ModelError, UsageError, WireError, McapIoError, RecordingExistsError, TransportError,
+    return (ModelError, BadInput, WireError, McapIoError, RecordingExistsError, TransportError,
             AnalysisError, StatsError, DemoError,
             FileNotFoundError, IsADirectoryError, PermissionError)
 
@@ -761,6 +762,9 @@ def build_parser() -> argparse.ArgumentParser:
     sn.add_argument("--no-analyze", action="store_true", help="do not start the live analysis node")
     sn.add_argument("--json", action="store_true", help="machine-readable summary")
     sn.set_defaults(func=cmd_run)
+
+    from .commands import register_all
+    register_all(sub)
     return p
 
 

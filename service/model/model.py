@@ -33,6 +33,7 @@ from . import discretize
 from .command import Command, parse_command
 from .effects import CATALOGUE, Dims, Effect
 from .errors import ModelError
+from .outputs import Outputs, parse_outputs
 from .plant import Plant, parse_plant
 from .schema import Table
 
@@ -130,6 +131,9 @@ def _from_data(data: dict, source: str, text: str) -> "Model":
     if "plant" not in data:
         raise top.error("plant", "missing required table [plant] (m, c, k or A, B, C)")
     plant = parse_plant(Table(data["plant"], "plant", source))
+    top._absent("outputs", None)
+    outputs = parse_outputs(Table(data["outputs"], "outputs", source) if "outputs" in data else None,
+                            plant.p, shorthand="A" not in data["plant"])
     top._absent("command", None)
     command = parse_command(Table(data["command"], "command", source) if "command" in data else None, plant.m, Ts)
     dims = Dims(m=plant.m, p=plant.p, nw=plant.nw, Ts=Ts, discretization=disc)
@@ -149,7 +153,7 @@ def _from_data(data: dict, source: str, text: str) -> "Model":
     top.done()
     ordered = {k: effects[k] for k in CATALOGUE if k in effects}
     return Model(name=name, description=description, Ts=Ts, discretization=disc, plant=plant,
-                 command=command, effects=ordered, source=source, text=text)
+                 command=command, effects=ordered, source=source, text=text, outputs=outputs)
 
 
 @dataclass
@@ -165,9 +169,12 @@ class Model:
     source: str = "<model>"
     text: str = ""
     description: str = ""
+    outputs: Outputs | None = None     # names and units of y (the [outputs] table or its defaults)
     _asm: dict = field(default_factory=dict, repr=False)
 
     def __post_init__(self):
+        if self.outputs is None:
+            self.outputs = parse_outputs(None, self.plant.p, shorthand=self.plant.state_names == ("position", "velocity"))
         self._assemble()
 
     # -- assembly -----------------------------------------------------------------------------
@@ -224,6 +231,14 @@ class Model:
     def p(self) -> int:
         return self.plant.p
 
+    @property
+    def output_names(self) -> tuple[str, ...]:
+        return self.outputs.names
+
+    @property
+    def output_units(self) -> tuple[str, ...]:
+        return self.outputs.units
+
     def normal_layout_slot(self, eff: Effect) -> slice | None:
         """Columns of the per-sample normals block that belong to ``eff`` (None: it draws none)."""
         for e, sl in self.normal_layout:
@@ -243,6 +258,8 @@ class Model:
         if "plant" not in self._asm:                     # the text is parsed once per model
             self._asm["plant"] = _plant_dict(self.plant, self.text, self.source)
         d["plant"] = dict(self._asm["plant"])
+        if self.outputs.given:
+            d["outputs"] = self.outputs.to_dict()
         d["command"] = _command_dict(self.command)
         for eid, eff in self.effects.items():
             g, s = eid.split(".")
