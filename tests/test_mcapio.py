@@ -936,7 +936,7 @@ def test_damaged_chunk_in_finished_file(tmp_path):
     with pytest.raises(mcapio.CorruptRecordingError, match=f"^{bad}: finished file") as err:
         read_recording(bad)
     # the message names the command that salvages it, as the user types it
-    assert f"`noiselab recover {bad} -o FIXED.mcap`" in str(err.value)
+    assert f"`noiselab recover {bad} --out FIXED.mcap`" in str(err.value)
     stats = recover(bad, tmp_path / "salvaged.mcap")
     expected = [m for _, _, ms, _, _ in chunks[:3] for m in ms]
     assert not stats.already_complete and stats.total == len(expected)
@@ -1249,3 +1249,82 @@ def test_write_interleaved_puts_the_topics_of_a_sample_together(tmp_path):
     assert [(t.rsplit("/", 1)[1], s) for t, s, *_ in messages(path)] == \
         [(kind, k) for k in range(40) for kind in wire.KINDS]
     assert_reads_like_the_peer(path)
+
+
+def test_recover_keeps_the_sources_header_schemas_channels_and_metadata(tmp_path):
+    """A foreign file (its own profile and library, a ROS-like schema, channel metadata, a topic
+    that has no message in the part that survives, metadata records) cut inside its second chunk:
+    the repaired file is the same kind of file, not a noiselab one."""
+    src = tmp_path / "foreign.mcap"
+    with open(src, "wb") as f:
+        w = Writer(f, chunk_size=2048)
+        w.start(profile="x-test", library="some-writer 4.2")
+        sid = w.register_schema("pkg/msg/Thing", "ros2msg", b"float64 x\n")
+        busy = w.register_channel("/busy", "cdr", sid, {"offered_qos_profiles": "- depth: 10\n"})
+        w.register_channel("/quiet", "json", 0, {"why": "schemaless, never written"})
+        w.add_metadata("about", {"site": "lab 3"})
+        for k in range(400):
+            w.add_message(busy, log_time=1_700_000_000_000_000_000 + k, data=k.to_bytes(8, "little"),
+                          publish_time=1_700_000_000_000_000_000 + k, sequence=k)
+        w.finish()
+    (start, end, *_), = top_level_chunks(src)[1:2]
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(src.read_bytes()[:(start + end) // 2])
+    stats = recover(cut, tmp_path / "fixed.mcap")
+    assert 0 < stats.total < 400 and not stats.already_complete
+    with open(tmp_path / "fixed.mcap", "rb") as f:
+        reader = make_reader(f)
+        header, summary = reader.get_header(), reader.get_summary()
+        meta = {m.name: m.metadata for m in reader.iter_metadata()}
+    assert (header.profile, header.library) == ("x-test", "some-writer 4.2")
+    chans = {c.topic: c for c in summary.channels.values()}
+    assert set(chans) == {"/busy", "/quiet"}
+    assert chans["/busy"].message_encoding == "cdr"
+    assert chans["/busy"].metadata == {"offered_qos_profiles": "- depth: 10\n"}
+    assert chans["/quiet"].schema_id == 0 and chans["/quiet"].metadata == {"why": "schemaless, never written"}
+    schema = summary.schemas[chans["/busy"].schema_id]
+    assert (schema.name, schema.encoding, schema.data) == ("pkg/msg/Thing", "ros2msg", b"float64 x\n")
+    assert meta == {"about": {"site": "lab 3"}}
+    got = messages(tmp_path / "fixed.mcap")
+    assert len(got) == stats.total and got == messages(src)[:stats.total]
+
+
+def test_a_recovered_truncated_ros2_bag_is_still_a_ros2_bag(tmp_path):
+    """A rosbag2 MCAP bag (rosbags' own writer, sensor_msgs/msg/Imu) cut as a killed `ros2 bag
+    record` leaves it, recovered: rosbags opens the repaired .mcap as a ROS 2 bag by itself and
+    decodes every recovered message as the source's. (The bag directory's metadata.yaml counts the
+    whole bag, so it is not the repaired file's; a single .mcap of profile ros2 needs none.)"""
+    from rosbags.highlevel import AnyReader
+    from rosbags.rosbag2 import StoragePlugin
+    from rosbags.rosbag2 import Writer as BagWriter
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    T = store.types
+    Imu = T["sensor_msgs/msg/Imu"]
+    bag = tmp_path / "bag"
+    t0 = 1_700_000_000_000_000_000
+    with BagWriter(bag, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        conn = w.add_connection("/imu", Imu.__msgtype__, typestore=store)
+        for k in range(2000):
+            stamp = T["builtin_interfaces/msg/Time"](k // 100, (k % 100) * 10_000_000)
+            msg = Imu(T["std_msgs/msg/Header"](stamp, "imu"), T["geometry_msgs/msg/Quaternion"](0.0, 0.0, 0.0, 1.0),
+                      np.zeros(9), T["geometry_msgs/msg/Vector3"](0.001 * k, -0.5, 0.25), np.zeros(9),
+                      T["geometry_msgs/msg/Vector3"](0.0, 0.0, 9.81), np.zeros(9))
+            w.write(conn, t0 + k * 10_000_000, store.serialize_cdr(msg, Imu.__msgtype__))
+    whole = next(bag.glob("*.mcap")).read_bytes()
+    cut = tmp_path / "killed.mcap"
+    cut.write_bytes(whole[: len(whole) * 2 // 3])
+    fixed = tmp_path / "fixed.mcap"
+    stats = recover(cut, fixed)
+    assert 0 < stats.total < 2000
+
+    def read(path):
+        with AnyReader([path]) as r:
+            return [(c.topic, c.msgtype, t, r.deserialize(raw, c.msgtype).angular_velocity.x)
+                    for c, t, raw in r.messages()]
+
+    got = read(fixed)
+    assert len(got) == stats.total
+    assert got == read(bag)[:stats.total]
+    assert got[-1][2] == t0 + (stats.total - 1) * 10_000_000

@@ -28,6 +28,7 @@ file, and what it wrote stays where a ``noiselab recover`` finds it.
 
 from __future__ import annotations
 
+import itertools
 import operator
 import os
 import stat
@@ -41,7 +42,7 @@ from importlib.metadata import PackageNotFoundError, version
 import numpy as np
 from mcap.exceptions import McapError
 from mcap.reader import SeekingReader
-from mcap.records import Channel, Message, Metadata, Schema
+from mcap.records import Channel, Header, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 
@@ -140,7 +141,7 @@ class CorruptRecordingError(McapIoError):
 
 def _salvage(path) -> str:
     """The way out a user types, named in every corruption message."""
-    return f"`noiselab recover {path} -o FIXED.mcap` salvages what comes before it"
+    return f"`noiselab recover {path} --out FIXED.mcap` salvages what comes before it"
 
 
 class RecordingExistsError(FileExistsError):
@@ -227,7 +228,7 @@ class _Output:
             if self.writing == path:
                 raise RecordingExistsError(17, "File exists", path) from None
             raise McapIoError(f"{self.writing}: exists (an unfinished recording of an earlier run?); "
-                              f"salvage it with `noiselab recover {self.writing} -o FIXED.mcap` or "
+                              f"salvage it with `noiselab recover {self.writing} --out FIXED.mcap` or "
                               f"delete it, then write {path} again") from None
         except OSError as e:
             raise _os_error(self.writing, e, "cannot write it") from None
@@ -345,7 +346,7 @@ class RecordingWriter:
             self._out.abandon(keep=held > 0)
             where = f"; {self.path} is as it was" if self._out.replaces else ""
             kept = (f"; what reached the disk of its {held} messages is salvaged by "
-                    f"`noiselab recover {self.writing_path} -o FIXED.mcap`") if held and self._out.created else ""
+                    f"`noiselab recover {self.writing_path} --out FIXED.mcap`") if held and self._out.created else ""
             self._failure = (f"{self.writing_path}: cannot write it "
                              f"({e.strerror or type(e).__name__}){where}{kept}")
             raise McapWriteError(self._failure) from None
@@ -555,7 +556,10 @@ class ScanReport:
     ``complete``: the file has a valid footer and summary (None until known). ``note``: empty
     for a complete file, else what was found and where reading stopped. ``messages``: count
     of messages yielded. ``intact``: a sequential read went through to the footer without a
-    damaged record (None when the file was read through its index instead).
+    damaged record (None when the file was read through its index instead). ``profile`` and
+    ``library``: the file's header (``"ros2"`` for a rosbag2 file). ``channels``: every channel
+    read, with its schema (None when schemaless), by channel id, whether or not a message of it
+    was yielded (a topic may have none in the part of a damaged file that could be read).
     """
 
     complete: bool | None = None
@@ -563,6 +567,9 @@ class ScanReport:
     messages: int = 0
     intact: bool | None = None
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+    profile: str = ""
+    library: str = ""
+    channels: dict[int, tuple[Schema | None, Channel]] = field(default_factory=dict)
 
 
 def _check_magic(path: str) -> int:
@@ -621,7 +628,12 @@ def _scan_seeking(path, f, wanted, report):
     f.seek(0)
     reader = SeekingReader(f, validate_crcs=True)
     try:
+        header = reader.get_header()
+        report.profile, report.library = header.profile, header.library
         summary = reader.get_summary()
+        if summary is not None:
+            report.channels = {cid: (summary.schemas.get(c.schema_id), c)
+                               for cid, c in summary.channels.items()}
         mcap_topics = None
         if wanted is not None and summary is not None:
             mcap_topics = [c.topic for c in summary.channels.values() if _norm(c.topic) in wanted]
@@ -679,8 +691,11 @@ def _scan_stream(path, f, size, wanted, report, finished, why):
             schemas[record.id] = record
         elif isinstance(record, Channel):
             channels[record.id] = record
+            report.channels[record.id] = (schemas.get(record.schema_id), record)
         elif isinstance(record, Metadata):
             report.metadata[record.name] = dict(record.metadata)
+        elif isinstance(record, Header):
+            report.profile, report.library = record.profile, record.library
     if cut_chunk is not None:
         # the chunk in progress when the writer died: its records up to the cut are intact (a
         # truncation, not a corruption), though its CRC, over the whole chunk, cannot be checked
@@ -690,6 +705,7 @@ def _scan_stream(path, f, size, wanted, report, finished, why):
                 schemas[record.id] = record
             elif isinstance(record, Channel):
                 channels[record.id] = record
+                report.channels[record.id] = (schemas.get(record.schema_id), record)
             elif record.channel_id not in channels:
                 break
             elif wanted is None or _norm(channels[record.channel_id].topic) in wanted:
@@ -1596,11 +1612,21 @@ def recover(broken_path: str | os.PathLike, out_path: str | os.PathLike, force: 
     """Rewrite every intact message of ``broken_path`` into a new, finished MCAP file.
 
     The input is read sequentially (non-seeking stream reader) up to its end or its first
-    truncated or damaged record, whether or not it has a footer. Schemas, channels (topic,
-    encodings, metadata), metadata records, sequence, log_time and publish_time (ns) are
-    copied unchanged, in file order. ``out_path`` must differ from the input and must not
-    exist unless ``force`` (an existing one is replaced only once the new file is finished, as
-    :class:`RecordingWriter` does). On failure the partial output is removed.
+    truncated or damaged record, whether or not it has a footer. The repaired file is the same
+    kind of file as the source: its header (profile, library: a rosbag2 file stays ``ros2``,
+    which ROS tools check before anything else), schemas (name, encoding, data), channels
+    (topic, message encoding, metadata such as rosbag2's QoS profiles; a channel read without
+    any message too), metadata records, and per message sequence, log_time and publish_time
+    (ns) and data, unchanged, in file order. ``out_path`` must differ from the input and must
+    not exist unless ``force`` (an existing one is replaced only once the new file is finished,
+    as :class:`RecordingWriter` does). On failure the partial output is removed.
+
+    What is not copied: what the file's end cut off (a rosbag2 writer puts its ``rosbag2``
+    metadata record, with the message counts, at the very end), and attachments. A rosbag2
+    bag directory's ``metadata.yaml`` describes the whole bag (its file names and message
+    counts), not the repaired file, so it is not the repaired file's: ROS 2 readers open a
+    single ``.mcap`` file of profile ``ros2`` by itself (``rosbags``' ``Reader`` and
+    ``AnyReader``, ``ros2 bag info FILE.mcap``).
     """
     src = os.fspath(broken_path)
     dst = os.fspath(out_path)
@@ -1615,10 +1641,13 @@ def recover(broken_path: str | os.PathLike, out_path: str | os.PathLike, force: 
     target = _Output(dst, force, ".recovering")    # not .partial: that may be the input
     try:
         writer = Writer(target.file, chunk_size=chunk_size, compression=_COMPRESSION_TYPES[compression])
-        writer.start(profile="", library=_library())
+        messages = _scan(src, None, report, stream=True)
+        first = next(messages, None)                # the header is read before the first message
+        writer.start(profile=report.profile, library=report.library)
         schema_ids: dict[int, int] = {}
         channel_ids: dict[int, int] = {}
-        for schema, channel, msg in _scan(src, None, report, stream=True):
+
+        def channel_id(schema: Schema | None, channel: Channel) -> int:
             cid = channel_ids.get(channel.id)
             if cid is None:
                 sid = 0
@@ -1629,9 +1658,15 @@ def recover(broken_path: str | os.PathLike, out_path: str | os.PathLike, force: 
                             schema.name, schema.encoding, schema.data)
                 cid = channel_ids[channel.id] = writer.register_channel(
                     channel.topic, channel.message_encoding, sid, dict(channel.metadata))
-            writer.add_message(channel_id=cid, log_time=msg.log_time, data=msg.data,
-                               publish_time=msg.publish_time, sequence=msg.sequence)
-            counts[channel.topic] += 1
+            return cid
+
+        if first is not None:
+            for schema, channel, msg in itertools.chain([first], messages):
+                writer.add_message(channel_id=channel_id(schema, channel), log_time=msg.log_time,
+                                   data=msg.data, publish_time=msg.publish_time, sequence=msg.sequence)
+                counts[channel.topic] += 1
+        for schema, channel in report.channels.values():      # topics without an intact message
+            channel_id(schema, channel)
         for name, data in report.metadata.items():
             writer.add_metadata(name, data)
         writer.finish()
