@@ -1025,7 +1025,8 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
     ``u`` (N, m): the recorded command (None: the model's own command generator). ``burn``:
     samples to skip at the start (None: the model's transient from rest, capped at half the
     record). ``settings`` override :func:`default_settings`. ``level``: the record starts at rest
-    (sample 0 of a noiselab stream), so its absolute level is predicted: add the level view.
+    (sample 0 of a noiselab stream), so its absolute level is predicted where the model predicts
+    one (:attr:`Model.predicts_level`: not a sensor-only model's): add the level view.
     ``free_start``: the record does not start at rest (cut mid-stream, or the longest run after a
     gap); under a command, the mean state after the burn is fitted
     (:func:`service.model.predict.free_response_fit`).
@@ -1085,7 +1086,7 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
         # the quantizer's part over this record (its steady state has the uniform step^2 / 12)
         var_stat = var_stat - st.contributions["sensor.quantization"] + q0
     # per output: one the plant's walk reaches has no stationary variance to hold its levels to
-    level_at = np.isfinite(var_stat) if level else np.zeros(model.p, bool)
+    level_at = np.isfinite(var_stat) if level and model.predicts_level else np.zeros(model.p, bool)
     gam_short = {eid: g[:L_need] for eid, g in gam.items()}
     lines = pr.tone_ids()
     jobs = []

@@ -6,6 +6,10 @@ repeated), ``prbs`` (amplitude, bit_s, optional order = 7..15: a maximal-length 
 +-amplitude, deterministic), ``none`` (zero), ``external`` (commands arrive over Zenoh; zero offline
 unless a command sequence is given). Amplitudes may be a list with one value per input.
 Sample k is at t_k = k Ts.
+
+In a sensor-only model (no [plant]) the command is the reference each output measures, one input
+per output, in the outputs' units: a rate table's sine for a gyro, ``offset`` for gravity on an
+accelerometer axis; ``none`` is a sensor at rest.
 """
 
 from __future__ import annotations

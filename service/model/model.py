@@ -1,6 +1,7 @@
 """Model files: load, validate (in one place, via :mod:`.schema`), assemble, write back.
 
-A model is a plant plus a set of effects (DESIGN.md). :func:`load_model` accepts a path to a TOML
+A model is a plant plus a set of effects (DESIGN.md); without [plant] a sensor-only model, whose
+plant has no states and passes the reference through (:func:`.plant.no_plant`). :func:`load_model` accepts a path to a TOML
 file or the name of a built-in scenario (``service/scenarios/<name>.toml``). Every problem is a
 one-line :class:`ModelError`.
 
@@ -34,7 +35,7 @@ from .command import Command, parse_command
 from .effects import CATALOGUE, Dims, Effect
 from .errors import ModelError
 from .outputs import Outputs, parse_outputs
-from .plant import Plant, parse_plant
+from .plant import Plant, no_plant, parse_plant
 from .schema import Table
 
 NAME_RE = re.compile(r"^[A-Za-z0-9_-]+$")
@@ -128,12 +129,17 @@ def _from_data(data: dict, source: str, text: str) -> "Model":
     disc = samp.string("discretization", "zoh", choices=("zoh", "euler"))
     samp.done()
     top._absent("plant", None)
-    if "plant" not in data:
-        raise top.error("plant", "missing required table [plant] (m, c, k or A, B, C)")
-    plant = parse_plant(Table(data["plant"], "plant", source))
     top._absent("outputs", None)
-    outputs = parse_outputs(Table(data["outputs"], "outputs", source) if "outputs" in data else None,
-                            plant.p, shorthand="A" not in data["plant"])
+    out_table = Table(data["outputs"], "outputs", source) if "outputs" in data else None
+    if "plant" in data:
+        plant = parse_plant(Table(data["plant"], "plant", source))
+        outputs = parse_outputs(out_table, plant.p, shorthand="A" not in data["plant"])
+    elif out_table is None:
+        raise top.error("plant", "missing required table [plant] (m, c, k or A, B, C), or [outputs] with "
+                                 "names for a sensor-only model (y = reference + sensor effects)")
+    else:
+        outputs = parse_outputs(out_table, None, shorthand=False)
+        plant = no_plant(len(outputs.names))
     top._absent("command", None)
     command = parse_command(Table(data["command"], "command", source) if "command" in data else None, plant.m, Ts)
     dims = Dims(m=plant.m, p=plant.p, nw=plant.nw, Ts=Ts, discretization=disc)
@@ -149,11 +155,32 @@ def _from_data(data: dict, source: str, text: str) -> "Model":
             if eid not in CATALOGUE:
                 known = ", ".join(k for k in CATALOGUE if k.startswith(group + "."))
                 raise ModelError(f"{source}: [{eid}]: unknown effect (known {group} effects: {known})")
+            why = why_not_possible(eid, plant)
+            if why:
+                raise ModelError(f"{source}: [{eid}]: not possible in a model without [plant]: {why}")
             effects[eid] = CATALOGUE[eid](Table(body, eid, source), dims)
     top.done()
     ordered = {k: effects[k] for k in CATALOGUE if k in effects}
     return Model(name=name, description=description, Ts=Ts, discretization=disc, plant=plant,
                  command=command, effects=ordered, source=source, text=text, outputs=outputs)
+
+
+def why_not_possible(eid: str, plant: Plant) -> str | None:
+    """Why effect ``eid`` cannot exist with ``plant`` (None: it can). Only a sensor-only model
+    (:func:`.plant.no_plant`, y = reference + sensor effects) excludes effects: the ones that act
+    on a plant's states or input, and the jitter, whose error dy/dt * dt needs a plant output's
+    slope. The model file's parser refuses them and the diagnosis does not propose them."""
+    if plant.has_states:
+        return None
+    group = eid.split(".", 1)[0]
+    if group == "process":
+        return "process noise drives the plant's states, and there are none"
+    if group == "actuator":
+        return "an actuator acts on the plant's input, and there is none (the command is the reference the sensor measures)"
+    if eid == "sensor.jitter":
+        return ("a sampling-time error dt shows as dy/dt * dt, and the reference is held over each sample "
+                "(dy/dt = 0 between samples), so it adds nothing")
+    return None
 
 
 @dataclass
@@ -239,6 +266,24 @@ class Model:
     def output_units(self) -> tuple[str, ...]:
         return self.outputs.units
 
+    @property
+    def has_plant(self) -> bool:
+        """False for a sensor-only model (no [plant]: y = reference + sensor effects)."""
+        return self.plant.has_states
+
+    @property
+    def predicts_level(self) -> bool:
+        """Whether the model predicts the absolute level of a record from rest (its mean response
+        from a zero state), to which the analysis then holds the record's mean (the level view, the
+        diagnosis' level term). With a plant it does. A sensor alone measures its reference plus a
+        constant offset that no effect of the model holds (a gyro's turn-on bias, gravity on an
+        accelerometer axis): its record's level is free and only what varies is compared."""
+        return self.has_plant
+
+    def can_have(self, eid: str) -> bool:
+        """Whether effect ``eid`` may be in this model (:func:`why_not_possible`)."""
+        return why_not_possible(eid, self.plant) is None
+
     def normal_layout_slot(self, eff: Effect) -> slice | None:
         """Columns of the per-sample normals block that belong to ``eff`` (None: it draws none)."""
         for e, sl in self.normal_layout:
@@ -255,10 +300,11 @@ class Model:
         if self.description:
             d["description"] = self.description
         d["sampling"] = {"Ts": self.Ts, "discretization": self.discretization}
-        if "plant" not in self._asm:                     # the text is parsed once per model
-            self._asm["plant"] = _plant_dict(self.plant, self.text, self.source)
-        d["plant"] = dict(self._asm["plant"])
-        if self.outputs.given:
+        if self.has_plant:                               # a sensor-only model has no [plant]
+            if "plant" not in self._asm:                 # the text is parsed once per model
+                self._asm["plant"] = _plant_dict(self.plant, self.text, self.source)
+            d["plant"] = dict(self._asm["plant"])
+        if self.outputs.given or not self.has_plant:      # without a plant, [outputs] says what y is
             d["outputs"] = self.outputs.to_dict()
         d["command"] = _command_dict(self.command)
         for eid, eff in self.effects.items():
@@ -285,7 +331,8 @@ class Model:
         d.setdefault(g, {})[s] = _plain(params)
         # validated from the dict itself (the same checks as its text; no TOML parse per trial)
         model = _from_data(d, self.source if "[" in self.source else f"{self.source} + fit", dumps_toml(d))
-        model._asm["plant"] = d["plant"]
+        if "plant" in d:
+            model._asm["plant"] = d["plant"]
         return model
 
     def without_effect(self, eid: str) -> "Model":

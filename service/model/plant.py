@@ -4,6 +4,12 @@ The ``[plant]`` table is either the mass-spring-damper shorthand (``m``, ``c``, 
 velocity], y = position, force input, process noise enters as a force, L = B) or a general
 continuous plant given by ``A``, ``B``, ``C`` (and optional ``D``, and ``L`` = process-noise input,
 default ``B``). Several rows of C give a vector measurement.
+
+A model without ``[plant]`` (a sensor alone: a gyro at rest, an accelerometer axis) has the plant
+of :func:`no_plant`: no states (n = 0) and a unit feedthrough, y = D u with D = I (m = p), so the
+command is the reference each output measures and every path (discretization, simulation,
+predictions, diagnosis) runs on it unchanged. Nothing drives a state there: it has no process
+noise input (nw = 0), and :attr:`Plant.has_states` is how the rest of the code tells it apart.
 """
 
 from __future__ import annotations
@@ -29,6 +35,11 @@ class Plant:
         return self.A.shape[0]
 
     @property
+    def has_states(self) -> bool:
+        """False for the plant of a sensor-only model (:func:`no_plant`): no [plant] table."""
+        return self.n > 0
+
+    @property
     def m(self) -> int:
         return self.B.shape[1]
 
@@ -39,6 +50,14 @@ class Plant:
     @property
     def nw(self) -> int:
         return self.L.shape[1]
+
+
+def no_plant(p: int) -> Plant:
+    """The plant of a sensor-only model of ``p`` outputs: y_k = u_k, the reference (the command,
+    in the outputs' units) passed through unchanged; A (0, 0), B (0, p), C (p, 0), D = I_p, L (0, 0).
+    A model file cannot write it (a matrix there has at least one entry): it is the absence of
+    [plant]."""
+    return Plant(np.zeros((0, 0)), np.zeros((0, p)), np.zeros((p, 0)), np.eye(p), np.zeros((0, 0)), ())
 
 
 def parse_plant(t: Table) -> Plant:

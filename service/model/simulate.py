@@ -52,7 +52,10 @@ def _rngs(seed):
 
 def _mul(X: np.ndarray, M: np.ndarray) -> np.ndarray:
     """X @ M for a small M (k, n) as explicit sums over k: no BLAS call, so no thread pool on
-    these skinny products (measured: multithreaded BLAS made them 3-10x slower on 2 busy cores)."""
+    these skinny products (measured: multithreaded BLAS made them 3-10x slower on 2 busy cores).
+    k = 0 (a sensor-only model's empty state) gives zeros."""
+    if M.shape[0] == 0:
+        return np.zeros(X.shape[:-1] + M.shape[1:], np.result_type(X, M))
     out = X[..., 0, None] * M[0]
     for i in range(1, M.shape[0]):
         out = out + X[..., i, None] * M[i]
