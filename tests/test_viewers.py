@@ -317,13 +317,13 @@ def test_rrd_revision_on_other_data_gets_its_own_data(tmp_path, two_revisions):
     ch = read_chunks(path)
     assert np.array_equal(np.concatenate(column(ch["/data/out0/measurement"], "Scalars:scalars")),
                           two_revisions[0].y[:, 0])
-    assert np.array_equal(np.concatenate(column(ch["/rev1/data/out0/measurement"], "Scalars:scalars")), other.y[:, 0])
+    assert np.array_equal(np.concatenate(column(ch["/rev1/out0/data/measurement"], "Scalars:scalars")), other.y[:, 0])
     from rerun.chunk import RrdReader
 
     bp = read_chunks(path, store=RrdReader(path).blueprints()[0])
     queries = [q for k, b in bp.items() if k.endswith("/ViewContents") for row in column(b, "ViewContents:query")
                for q in row]
-    assert "+ /rev1/data/out0/**" in queries and "+ /data/out0/**" in queries
+    assert "+ /rev1/out0/data/**" in queries and "+ /data/out0/**" in queries
 
 
 def test_bad_input_is_named(tmp_path, two_revisions):
@@ -370,10 +370,10 @@ def test_summary_png_has_a_level_panel_per_output_when_the_record_is_from_rest(w
     assert sum(t.startswith("level") for t in titles) == 2
     for j in range(2):      # measurement | level | variance, left to right, in one row
         x0 = {name: ax.get_position().x0 for ax in axes for name in ("level", "variance")
-              if ax.get_title().startswith(f"{name}") and f"y[{j}]" in ax.get_title()}
-        meas = [ax for ax in axes if ax.get_title(loc="left") == f"y[{j}]"]
+              if ax.get_title().startswith(f"{name}") and f"out{j}:" in ax.get_title()}
+        meas = [ax for ax in axes if ax.get_title(loc="left") == f"out{j} [units]"]
         assert len(meas) == 1 and meas[0].get_position().x1 < x0["level"] < x0["variance"]
-        level = next(ax for ax in axes if ax.get_title().startswith(f"level (window mean of y - E[y]) y[{j}]"))
+        level = next(ax for ax in axes if ax.get_title().startswith(f"level (window mean of y - E[y]) out{j}"))
         assert len(level.get_lines()) >= 3      # data, model, previous revision's model
     titles = [ax.get_title() for ax in summary_figure(two_outputs).axes]
     assert not any(t.startswith("level") for t in titles)

@@ -20,30 +20,41 @@ RuntimeError without the OS's reason from ``flush``, logs its errors on stderr a
 of the data it dropped; an OSError from Python names the reason and leaves nothing behind.
 ``rerun.chunk.RrdReader(path).store()`` opens the file (it needs the footer, the manifest).
 
-Entity layout (r = ``Comparison.revision``, i = output index, v = view name, e = effect id)
+Entity layout (r = ``Comparison.revision``, o = output name, v = view name, e = effect id)
 -----------------------------------------------------------------------------------------
-``/report``                         TextDocument (markdown): model error per revision, the regions'
+Output names are the model's ``[outputs]`` names (identifiers, so valid path parts as they
+stand; :func:`output_names`), units its units: axis labels read ``name [unit]`` and the views'
+``units`` placeholder becomes the output's unit (:func:`with_unit`).
+
+recording property ``source``       AnyValues ``recording`` (path, topic and field the data came
+                                    from), ``model``, ``output_names``, ``output_units``
+                                    (``/__properties/source`` when read back); the recording's name
+                                    says "<recording> against <model>".
+``/report``                         TextDocument (markdown): the recording, the outputs, model error
+                                    per revision, what each revision changed (effects added with
+                                    their fitted values, removed, refitted), the regions'
                                     ``describe()`` lines, notes. Static.
 ``/error/overall``, ``/error/<v>``  Scalars on the sequence timeline ``revision``: one row per
                                     revision (the model error and the per-view errors).
 ``/error/chart/...``                the same numbers as a 2D chart (log10 error vs revision, see below).
-``/data/out<i>/{measurement,truth}``
-                                    the data, once (the revisions compare models with the same
+``/data/<o>/{measurement,truth}``   the data, once (the revisions compare models with the same
                                     recording; a comparison whose t, y or truth differ from the
-                                    first one's gets its own ``/rev<r>/data``): Scalars on the
+                                    first one's gets its own ``/rev<r>/<o>/data``): Scalars on the
                                     duration timeline ``t`` (sample time, integer ns), sent with
-                                    ``send_columns`` (one chunk per series, N rows). ``truth`` is state
-                                    x[i] (the shorthand plant measures y = x[0]), logged when truth
-                                    is present and i < n.
-``/rev<r>/out<i>/series/{mean,band}``
+                                    ``send_columns`` (one chunk per series, N rows). ``truth`` beside
+                                    output i is state x[i] (the shorthand plant measures y = x[0]),
+                                    logged when truth is present and i < n.
+``/rev<r>``                         AnyValues: model name and source, error, the recording, the
+                                    output names and units, ``changes`` from the previous revision.
+``/rev<r>/<o>/series/{mean,band}``
                                     the model's predicted mean and the band mean -+ 2 sd (two
                                     scalars per row), on ``t`` likewise.
-``/rev<r>/out<i>/variance/{empirical,predicted,band,flagged,contrib/<e>}``
+``/rev<r>/<o>/variance/{empirical,predicted,band,flagged,contrib/<e>}``
                                     Scalars on ``t`` (x = window centre time), ``flagged`` only at
                                     the flagged windows (red markers). Parent: raw View (AnyValues).
-``/rev<r>/out<i>/{acf,psd,allan}``  AnyValues: the View's raw arrays (x, z, flagged, error, ...) and
+``/rev<r>/<o>/{acf,psd,allan}``  AnyValues: the View's raw arrays (x, z, flagged, error, ...) and
                                     the plot's axis mapping.
-``/rev<r>/out<i>/{acf,psd,allan}/plot/...``
+``/rev<r>/<o>/{acf,psd,allan}/plot/...``
                                     the 2D plot: ``empirical`` (+ ``empirical_points``),
                                     ``predicted``, ``band``, ``contrib/<e>``, ``previous`` (the
                                     previous revision's prediction, grey), ``flagged`` (red points),
@@ -146,6 +157,90 @@ def effect_ids(comparisons: list) -> list:
     return seen
 
 
+# -- what a Comparison says of its outputs, its recording and its model ----------------------------------
+# ``output_names``, ``output_units`` (the model's ``[outputs]`` table), ``recording`` (where the data
+# came from: "path [topic:field]" as the series loader words it) and ``model_effects`` ({effect id:
+# parameters with the model file's names} of the compared model) are read where present, so that a
+# Comparison without them is still drawn: its outputs are then ``out<i>`` in ``units``.
+UNNAMED_OUTPUT = "out{}"
+UNNAMED_UNIT = "units"      # the placeholder the views' labels carry (service.diagnose.compare)
+
+
+def output_names(c: Comparison) -> tuple:
+    names = getattr(c, "output_names", None)
+    p = np.asarray(c.y).shape[1]
+    return tuple(names) if names is not None else tuple(UNNAMED_OUTPUT.format(j) for j in range(p))
+
+
+def output_units(c: Comparison) -> tuple:
+    units = getattr(c, "output_units", None)
+    return tuple(units) if units is not None else (UNNAMED_UNIT,) * np.asarray(c.y).shape[1]
+
+
+def output_label(c: Comparison, j: int) -> str:
+    """``name [unit]`` of output ``j``."""
+    return f"{output_names(c)[j]} [{output_units(c)[j]}]"
+
+
+def with_unit(label: str, unit: str) -> str:
+    """A view's axis label with the placeholder ``units`` replaced by the output's ``unit``: "PSD
+    [units^2/Hz]" -> "PSD [(rad/s)^2/Hz]" (a compound unit is bracketed before a power)."""
+    compound = any(ch in unit for ch in "/*· ^")
+
+    def sub(m):
+        return f"({unit}){m.group(1)}" if m.group(1) and compound else unit + (m.group(1) or "")
+
+    return re.sub(r"\[([^\]]*)\]", lambda b: "[" + re.sub(r"\bunits\b(\^\d+)?", sub, b.group(1)) + "]", label)
+
+
+def view_y_label(c: Comparison, v: View) -> str:
+    return with_unit(v.y_label, output_units(c)[v.output])
+
+
+def recording_of(c: Comparison) -> str | None:
+    """Where the data came from (recording path, topic and field), when the comparison says."""
+    src = getattr(c, "recording", None)
+    return str(src) if src else None
+
+
+def model_title(c: Comparison) -> str:
+    """The compared model as the user named it (file or scenario), else its name."""
+    return c.model_source if c.model_source and c.model_source != "<model>" else c.model_name
+
+
+def _fmt_param(v) -> str:
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return "[" + ", ".join(_fmt_param(x) for x in v) + "]"
+    return f"{v:.4g}" if isinstance(v, (int, float, np.floating)) and not isinstance(v, bool) else str(v)
+
+
+def _effects_of(c: Comparison) -> dict | None:
+    eff = getattr(c, "model_effects", None)
+    return dict(eff) if eff is not None else None
+
+
+def model_changes(before: Comparison, after: Comparison) -> list:
+    """What ``after``'s model has that ``before``'s has not, one phrase per effect: "+ sensor.tone
+    (amplitude = 0.02, frequency_hz = 5)", "- actuator.white", "sensor.white: std 0.01 -> 0.012".
+    Without ``model_effects`` the effect ids are those with a contribution in the views (no values)."""
+    a, b = _effects_of(before), _effects_of(after)
+    if a is None or b is None:
+        a = {e: None for e in effect_ids([before])}
+        b = {e: None for e in effect_ids([after])}
+    out = []
+    for eid, params in b.items():
+        if eid not in a:
+            vals = ", ".join(f"{k} = {_fmt_param(v)}" for k, v in (params or {}).items())
+            out.append(f"+ {eid}" + (f" ({vals})" if vals else ""))
+        elif params is not None and a[eid] is not None:
+            ch = [f"{k} {_fmt_param(a[eid].get(k))} -> {_fmt_param(v)}" for k, v in params.items()
+                  if _fmt_param(a[eid].get(k)) != _fmt_param(v)]
+            if ch:
+                out.append(f"{eid}: " + ", ".join(ch))
+    out += [f"- {eid}" for eid in a if eid not in b]
+    return out
+
+
 def validate_comparisons(comparisons) -> list:
     """Check the shapes the viewers rely on; return the comparisons as a list (input order kept).
 
@@ -173,6 +268,14 @@ def validate_comparisons(comparisons) -> list:
             a = np.asarray(getattr(c, name))
             if a.shape != y.shape:
                 raise ViewerInputError(f"{who}: {name} must have the shape of y {y.shape}, found {a.shape}")
+        for name in ("output_names", "output_units"):
+            a = getattr(c, name, None)
+            if a is not None and (isinstance(a, str) or len(a) != y.shape[1]
+                                  or not all(isinstance(s, str) and s for s in a)):
+                raise ViewerInputError(f"{who}: {name} must give one non-empty string per output "
+                                       f"({y.shape[1]}), found {a!r:.80}")
+        if len(set(output_names(c))) != y.shape[1]:
+            raise ViewerInputError(f"{who}: output_names must be distinct, found {output_names(c)}")
         if c.truth is not None:
             tr = np.asarray(c.truth)
             if tr.ndim != 2 or tr.shape[0] != n:
@@ -220,9 +323,13 @@ def report_markdown(comparisons: list) -> str:
     revision (latest first) the regions where the data leave the model and the notes."""
     comps = validate_comparisons(comparisons)
     last = comps[-1]
-    lines = [f"# noiselab model check: {last.model_name}", "",
-             "**Model error**: mean over the views of mean(z^2); about 1 when the model explains the "
-             "data within the estimators' sampling noise, larger with the mismatch.", "",
+    src = recording_of(last)
+    lines = [f"# noiselab model check: {model_title(comps[0])}", ""]
+    if src:
+        lines += [f"recording: `{src}`", ""]
+    lines += ["outputs: " + ", ".join(output_label(last, j) for j in range(np.asarray(last.y).shape[1])), ""]
+    lines += ["**Model error**: mean over the views of mean(z^2); about 1 when the model explains the "
+              "data within the estimators' sampling noise, larger with the mismatch.", "",
              "| revision | model | error | " + " | ".join(VIEW_NAMES) + " |",
              "|---:|---|---:|" + "---:|" * len(VIEW_NAMES)]
     for c in comps:
@@ -231,10 +338,15 @@ def report_markdown(comparisons: list) -> str:
     if len(comps) > 1:
         lines += ["", f"Error {_fmt(comps[0].error)} (revision {comps[0].revision}) -> {_fmt(last.error)} "
                       f"(revision {last.revision})."]
-    for c in reversed(comps):
+    for k in range(len(comps) - 1, -1, -1):
+        c = comps[k]
         lines += ["", f"## Revision {c.revision}: {c.model_name}", ""]
         if c.model_source:
             lines += [f"model source: `{c.model_source}`", ""]
+        if k:
+            changes = model_changes(comps[k - 1], c)
+            lines += [f"**Changed from revision {comps[k - 1].revision}**: "
+                      + ("; ".join(f"`{ch}`" for ch in changes) if changes else "no effect changed"), ""]
         lines += ["**Where the data leave the model**", ""]
         if c.regions:
             for rg in c.regions:
@@ -245,7 +357,7 @@ def report_markdown(comparisons: list) -> str:
                 lines.append(f"- {rg.describe(view_unit(rg.view, xl))}")
         else:
             lines.append("- nowhere: every point is within its band")
-        notes = list(c.notes) + [f"{v.name} (output {v.output}): {n}" for v in c.views for n in v.notes]
+        notes = list(c.notes) + [f"{v.name} ({output_names(c)[v.output]}): {n}" for v in c.views for n in v.notes]
         if notes:
             lines += ["", "**Notes**", ""] + [f"- {n}" for n in notes]
     return "\n".join(lines) + "\n"
@@ -432,8 +544,9 @@ def _curve(rec, rr, path: str, plot: _Plot2D, x, y, rgb, radius=LINE, draw_order
 
 
 def _log_view_2d(rec, rr, base: str, view: View, regions: list, effects: list,
-                 previous: View | None) -> None:
-    """One statistic as a 2D plot under ``base`` (the view entity) + ``base/plot``."""
+                 previous: View | None, y_label: str) -> None:
+    """One statistic as a 2D plot under ``base`` (the view entity) + ``base/plot``; ``y_label``
+    is the view's with the output's unit (:func:`view_y_label`)."""
     log_x, log_y = bool(view.log_x), bool(view.log_y)
     core = [view.empirical, view.predicted, view.lo, view.hi]
     if previous is not None:
@@ -442,12 +555,12 @@ def _log_view_2d(rec, rr, base: str, view: View, regions: list, effects: list,
     ya = _fit_axis(core, log_y, BOX_H, extra=list(view.contributions.values()))
     plot = _Plot2D(xa, ya)
     flagged = _flag_mask(view)
-    rec.log(base, rr.AnyValues(x_label=view.x_label, y_label=view.y_label, error=float(view.error),
+    rec.log(base, rr.AnyValues(x_label=view.x_label, y_label=y_label, error=float(view.error),
                                conf=float(view.conf), output=int(view.output), n_flagged=int(flagged.sum()),
                                z=np.asarray(view.z if view.z is not None else np.full(flagged.size, np.nan), float),
                                flagged=flagged, **plot.mapping()), static=True)
     p = f"{base}/plot"
-    _log_axes(rec, rr, f"{p}", plot, view.x_label, view.y_label)
+    _log_axes(rec, rr, f"{p}", plot, view.x_label, y_label)
     legend = [("data", COLORS["empirical"], "line"), ("model", COLORS["predicted"], "line"),
               (f"band ({view.conf:.3g})", COLORS["band"], "line")]
     band = plot.strips(view.x, view.lo) + plot.strips(view.x, view.hi)
@@ -572,20 +685,41 @@ def _same_data(a: Comparison, b: Comparison) -> bool:
     return np.array_equal(a.truth, b.truth)
 
 
+def output_path(c: Comparison, i: int) -> str:
+    """``/rev<r>/<output name>``: the entities of output ``i`` for ``c``'s revision. (Names are
+    identifiers, valid path parts as they stand; the escape is for a caller's stray name.)"""
+    from rerun import escape_entity_path_part
+
+    return f"{_rev_path(c)}/{escape_entity_path_part(output_names(c)[i])}"
+
+
 def data_paths(comps: list) -> dict:
-    """{revision: entity path of its data}: ``/data`` when t, y, truth equal the first comparison's."""
-    return {c.revision: "/data" if _same_data(c, comps[0]) else f"{_rev_path(c)}/data" for c in comps}
+    """{(revision, output index): entity path of the data}: ``/data/<output name>`` when t, y and
+    truth equal the first comparison's, else ``/rev<r>/<output name>/data``."""
+    from rerun import escape_entity_path_part
+
+    return {(c.revision, i): f"/data/{escape_entity_path_part(output_names(c)[i])}" if _same_data(c, comps[0])
+            else f"{output_path(c, i)}/data" for c in comps for i in range(np.asarray(c.y).shape[1])}
 
 
-def _log_data(rec, rr, base: str, c: Comparison) -> None:
+def has_truth(c: Comparison, i: int) -> bool:
+    """Truth to draw beside output ``i``: the recording has truth and a state ``x[i]``."""
+    return c.truth is not None and i < np.asarray(c.truth).shape[1]
+
+
+def truth_label(i: int) -> str:
+    """The truth drawn beside output ``i`` is the plant's state ``x[i]`` (the shorthand plant
+    measures y = x[0]); the recording holds states, not noise-free outputs."""
+    return f"truth: state x[{i}]"
+
+
+def _log_data(rec, rr, p: str, c: Comparison, i: int) -> None:
     t = np.asarray(c.t, float)
-    for i in range(np.asarray(c.y).shape[1]):
-        p = f"{base}/out{i}"
-        _send_series(rec, rr, f"{p}/measurement", t, np.asarray(c.y, float)[:, i])
-        _style(rec, rr, f"{p}/measurement", [f"y[{i}] measured"], COLORS["measurement"], 1.0)
-        if c.truth is not None and i < np.asarray(c.truth).shape[1]:
-            _send_series(rec, rr, f"{p}/truth", t, np.asarray(c.truth, float)[:, i])
-            _style(rec, rr, f"{p}/truth", [f"truth x[{i}]"], COLORS["truth"], 1.5)
+    _send_series(rec, rr, f"{p}/measurement", t, np.asarray(c.y, float)[:, i])
+    _style(rec, rr, f"{p}/measurement", [f"{output_label(c, i)} measured"], COLORS["measurement"], 1.0)
+    if has_truth(c, i):
+        _send_series(rec, rr, f"{p}/truth", t, np.asarray(c.truth, float)[:, i])
+        _style(rec, rr, f"{p}/truth", [truth_label(i)], COLORS["truth"], 1.5)
 
 
 def _log_time_series(rec, rr, base: str, c: Comparison, i: int) -> None:
@@ -599,11 +733,11 @@ def _log_time_series(rec, rr, base: str, c: Comparison, i: int) -> None:
     _style(rec, rr, f"{p}/band", ["mean - 2 sd", "mean + 2 sd"], COLORS["band"], 1.0)
 
 
-def _log_variance(rec, rr, base: str, v: View, effects: list) -> None:
+def _log_variance(rec, rr, base: str, v: View, effects: list, y_label: str) -> None:
     p = f"{base}/variance"
     x = np.asarray(v.x, float)
     flagged = _flag_mask(v)
-    rec.log(p, rr.AnyValues(x_label=v.x_label, y_label=v.y_label, error=float(v.error), conf=float(v.conf),
+    rec.log(p, rr.AnyValues(x_label=v.x_label, y_label=y_label, error=float(v.error), conf=float(v.conf),
                             x=x, z=np.asarray(v.z if v.z is not None else np.full(x.size, np.nan), float),
                             flagged=flagged), static=True)
     _send_series(rec, rr, f"{p}/empirical", x, v.empirical)
@@ -640,7 +774,8 @@ def build_blueprint(comparisons: list, history: bool = False):
         p = np.asarray(c.y).shape[1]
         blocks = []
         for i in range(p):
-            base = f"{_rev_path(c)}/out{i}"
+            base = output_path(c, i)
+            lab = output_label(c, i)
             names = {v.name for v in c.views if v.output == i}
 
             def err(name, i=i):
@@ -649,13 +784,14 @@ def build_blueprint(comparisons: list, history: bool = False):
                 except KeyError:
                     return "n/a"
 
+            shown = "measured, truth, predicted mean" if has_truth(c, i) else "measured, predicted mean"
             top = [rrb.TimeSeriesView(origin=f"{base}/series",
-                                      contents=["+ $origin/**", f"+ {dpaths[c.revision]}/out{i}/**"],
-                                      name=f"y[{i}]: measured, truth, predicted mean +- 2 sd", axis_x=link)]
+                                      contents=["+ $origin/**", f"+ {dpaths[c.revision, i]}/**"],
+                                      name=f"{lab}: {shown} +- 2 sd", axis_x=link)]
             if "variance" in names:
                 top.append(rrb.TimeSeriesView(origin=f"{base}/variance",
                                               contents=["+ $origin/**", "- $origin/contrib/**"],
-                                              name=f"variance y[{i}], data vs model (error {err('variance')})",
+                                              name=f"variance of {lab}, data vs model (error {err('variance')})",
                                               axis_x=link))
             bottom = []
             for n in ("psd", "acf", "allan", "level"):
@@ -664,11 +800,11 @@ def build_blueprint(comparisons: list, history: bool = False):
                     scale = {(True, True): " log-log", (True, False): " log x", (False, True): " log y"}.get(
                         (bool(v.log_x), bool(v.log_y)), "")
                     bottom.append(rrb.Spatial2DView(origin=f"{base}/{n}", visual_bounds=bounds,
-                                                    name=f"{VIEW_TITLES[n]} y[{i}]{scale} (error {err(n)})"))
+                                                    name=f"{VIEW_TITLES[n]} {lab}{scale} (error {err(n)})"))
             rows = [rrb.Horizontal(*top, column_shares=[2, 1][:len(top)])]
             if bottom:
                 rows.append(rrb.Horizontal(*bottom))
-            blocks.append(rrb.Vertical(*rows, name=f"output {i}"))
+            blocks.append(rrb.Vertical(*rows, name=lab))
         content = blocks[0] if p == 1 else (rrb.Vertical(*blocks) if p == 2 else rrb.Tabs(*blocks))
         tabs.append(rrb.Vertical(content, name=f"rev {c.revision}: {c.model_name} (error {_fmt(c.error)})"))
     extra = [rrb.TimeSeriesView(origin="/error/history", name="model error over time (live analysis)")] \
@@ -718,7 +854,13 @@ def log_comparisons(comparisons: list, path: str, *, app_id: str = "noiselab", h
                     vals = np.array([h["error_per_view"].get(n, np.nan) for h in history], float)
                     rec.send_columns(f"/error/history/{n}", indexes=[rr.TimeColumn("t", duration=th)],
                                      columns=rr.Scalars.columns(scalars=vals))
-            rec.send_recording_name(f"{comps[-1].model_name}: {len(comps)} revision(s)")
+            src = recording_of(comps[-1])
+            rec.send_recording_name((f"{src} against " if src else "") + f"{model_title(comps[0])}: "
+                                    f"{len(comps)} revision(s)")
+            # where the data came from and what they are, for scripts and the viewer's recording panel
+            rec.send_property("source", rr.AnyValues(
+                recording=src or "", model=model_title(comps[0]), output_names=list(output_names(comps[-1])),
+                output_units=list(output_units(comps[-1]))))
             rec.log("/report", rr.TextDocument(report_markdown(comps), media_type=rr.MediaType.MARKDOWN),
                     static=True)
             revs = np.array([c.revision for c in comps], np.int64)
@@ -738,16 +880,19 @@ def log_comparisons(comparisons: list, path: str, *, app_id: str = "noiselab", h
                 rp = _rev_path(c)
                 rec.log(rp, rr.AnyValues(revision=int(c.revision), model_name=c.model_name,
                                          model_source=str(c.model_source), Ts=float(c.Ts), error=float(c.error),
-                                         n_regions=len(c.regions)), static=True)
-                if dpaths[c.revision] not in logged_data:
-                    _log_data(rec, rr, dpaths[c.revision], c)
-                    logged_data.add(dpaths[c.revision])
+                                         n_regions=len(c.regions), recording=recording_of(c) or "",
+                                         output_names=list(output_names(c)), output_units=list(output_units(c)),
+                                         changes=model_changes(prev, c) if prev is not None else []),
+                        static=True)
                 for i in range(np.asarray(c.y).shape[1]):
-                    base = f"{rp}/out{i}"
+                    if dpaths[c.revision, i] not in logged_data:
+                        _log_data(rec, rr, dpaths[c.revision, i], c, i)
+                        logged_data.add(dpaths[c.revision, i])
+                    base = output_path(c, i)
                     _log_time_series(rec, rr, base, c, i)
                     for v in (v for v in c.views if v.output == i):
                         if v.name == "variance":
-                            _log_variance(rec, rr, base, v, effects)
+                            _log_variance(rec, rr, base, v, effects, view_y_label(c, v))
                             continue
                         pv = None
                         if prev is not None:
@@ -756,7 +901,7 @@ def log_comparisons(comparisons: list, path: str, *, app_id: str = "noiselab", h
                             except KeyError:
                                 pv = None
                         regs = [rg for rg in c.regions if rg.view == v.name and rg.output == i]
-                        _log_view_2d(rec, rr, f"{base}/{v.name}", v, regs, effects, pv)
+                        _log_view_2d(rec, rr, f"{base}/{v.name}", v, regs, effects, pv, view_y_label(c, v))
                 prev = c
             rec.flush()
         data = stream.read(flush=True)

@@ -3,33 +3,44 @@
 One figure (matplotlib, Agg backend, no display needed), ``16 x (7.4 p + 4.2)`` inches at 100 dpi
 (:func:`figure_size_px`), for the **last** comparison (the latest model revision); earlier
 revisions appear as the grey dashed "model, previous revision" line and in the error panel.
-Per output i:
+The title says what was compared with what (the recording with its topic and field, the model as
+the user named it, file or scenario), the model error per revision and every effect the last
+revision added, removed or refitted with its values. Outputs are named by the model's
+``[outputs]`` names and units (``name [unit]``). Per output:
 
-* row 1: y[i] measured, truth x[i] (if any), predicted mean with the +-2 sd band | window variance,
-  data vs model with its band;
+* row 1: the measurement, the truth (only when the recording has it), the predicted mean with the
+  +-2 sd band | (records from rest: the level view |) window variance, data vs model with its band;
 * row 2: PSD log-log | autocovariance | Allan deviation log-log, each with the model, its band,
   the per-effect contributions (thin dashed), flagged points (red crosses) and the Regions (red
   spans).
 
 Last row: the model error per revision (overall, and per view, log scale, the line at 1 is
-"explained within sampling noise") and the report text (errors, regions, notes).
+"explained within sampling noise"), the report text (errors, what each revision changed, regions,
+notes; long lines wrapped, not cut) and the legend of the statistic panels.
 """
 
 from __future__ import annotations
 
+import itertools
+import textwrap
 from pathlib import Path
 
 import numpy as np
 
 from service.diagnose.results import VIEW_NAMES, View
 
-from .rerun_log import (COLORS, VIEW_COLORS, VIEW_TITLES, effect_color, effect_ids,
-                        validate_comparisons, view_unit)
+from .rerun_log import (COLORS, VIEW_COLORS, VIEW_TITLES, effect_color, effect_ids, has_truth, model_changes,
+                        model_title, output_label, output_names, recording_of, truth_label, validate_comparisons,
+                        view_unit, view_y_label)
 
 DPI = 100
 WIDTH_PX = 1600
 ROW_PX = 370            # one row of panels
 LAST_ROW_PX = 420       # error per revision + report
+YLABEL_CHARS = 30       # an axis label is wrapped past so many characters (a panel is ~250 px high)
+TITLE_CHARS = 150       # the title's detail line, wrapped (12 pt bold over 1600 px)
+REPORT_CHARS = 96       # the report panel's width in characters (8 pt monospace over ~700 px)
+REPORT_LINES = 24       # lines that fit the report panel
 
 
 def figure_size_px(p: int) -> tuple:
@@ -76,7 +87,7 @@ def _limits(series: list, log: bool, extra: list = (), max_extra_decades: float 
     return lo - pad, hi + pad
 
 
-def _plot_view(ax, view: View, previous: View | None, effects: list, regions: list, title: str,
+def _plot_view(ax, view: View, previous: View | None, effects: list, regions: list, title: str, y_label: str,
                contributions: bool = True) -> None:
     x = np.asarray(view.x, float)
     log_x, log_y = bool(view.log_x), bool(view.log_y)
@@ -107,35 +118,65 @@ def _plot_view(ax, view: View, previous: View | None, effects: list, regions: li
     if lim is not None:
         ax.set_ylim(*lim)
     ax.set_xlabel(view.x_label)
-    ax.set_ylabel(view.y_label)
+    ax.set_ylabel(_wrap(y_label, YLABEL_CHARS))
     ax.set_title(title, fontsize=10)
     ax.grid(True, which="major", alpha=0.35)
     if log_x or log_y:
         ax.grid(True, which="minor", alpha=0.12)
 
 
-def _report_text(comps: list, width: int = 96, max_lines: int = 22) -> str:
+def _wrap(text: str, width: int, indent: str = "") -> str:
+    return "\n".join(textwrap.wrap(text, width, subsequent_indent=indent, break_on_hyphens=False)) or text
+
+
+def _report_text(comps: list, width: int = REPORT_CHARS, max_lines: int = REPORT_LINES,
+                 max_regions: int = 8) -> str:
+    """The report panel: the model error per revision, what each revision changed, where the data
+    leave the model (at most ``max_regions`` lines) and the notes; long lines are wrapped, and past
+    ``max_lines`` the rest is left to the .rrd's report, saying so."""
     last = comps[-1]
     lines = [f"{'revision':>8}  {'model':<18} {'error':>9}  " + "  ".join(f"{n:>9}" for n in VIEW_NAMES)]
     for c in comps:
         lines.append(f"{c.revision:>8}  {c.model_name[:18]:<18} {_fmt(c.error):>9}  "
                      + "  ".join(f"{_fmt(c.error_per_view.get(n, np.nan)):>9}" for n in VIEW_NAMES))
+    changed = [(b, model_changes(a, b)) for a, b in itertools.pairwise(comps)]
+    if changed:
+        lines += ["", "what each revision changed:"]
+        lines += [f"  {b.revision}: " + ("; ".join(ch) if ch else "no effect changed") for b, ch in changed]
     lines += ["", f"where the data leave the model (revision {last.revision}):"]
-    if last.regions:
-        for rg in last.regions:
-            try:
-                xl = last.view(rg.view, rg.output).x_label
-            except KeyError:
-                xl = ""
-            lines.append("  " + rg.describe(view_unit(rg.view, xl)))
-    else:
-        lines.append("  nowhere: every point is within its band")
+    names = output_names(last)
+    regs = []
+    for rg in last.regions:
+        try:
+            xl = last.view(rg.view, rg.output).x_label
+        except KeyError:
+            xl = ""
+        regs.append(f"  {names[rg.output]}: {rg.describe(view_unit(rg.view, xl))}")
+    if len(regs) > max_regions:
+        regs = regs[:max_regions - 1] + [f"  (+{len(regs) - max_regions + 1} more regions in the .rrd report)"]
+    lines += regs or ["  nowhere: every point is within its band"]
     if last.notes:
         lines += ["", "notes:"] + [f"  {n}" for n in last.notes]
-    lines = [ln if len(ln) <= width else ln[: width - 3] + "..." for ln in lines]
-    if len(lines) > max_lines:
-        lines = lines[: max_lines - 1] + [f"  ... ({len(lines) - max_lines + 1} more lines in the .rrd report)"]
-    return "\n".join(lines)
+    out = [w for ln in lines for w in (_wrap(ln, width, "      ").split("\n") if len(ln) > width else [ln])]
+    if len(out) > max_lines:
+        out = out[: max_lines - 1] + [f"  ... ({len(out) - max_lines + 1} more lines in the .rrd report)"]
+    return "\n".join(out)
+
+
+def _title(comps: list) -> tuple:
+    """(headline, detail): what was compared with what, and the model error with what changed."""
+    first, last = comps[0], comps[-1]
+    src = recording_of(last)
+    head = "noiselab: " + (f"{src} against {model_title(first)}" if src else model_title(first))
+    if len(comps) == 1:
+        return head, f"model error {_fmt(last.error)}"
+    detail = f"model error {' -> '.join(_fmt(c.error) for c in comps)} (revisions {first.revision} to {last.revision})"
+    changes = model_changes(first, last)
+    if changes:
+        # one change is not split across lines (no-break spaces inside it)
+        detail += (f"\nrevision {last.revision} against revision {first.revision}: "
+                   + _wrap("; ".join(ch.replace(" ", "\u00a0") for ch in changes), TITLE_CHARS))
+    return head, detail
 
 
 def _shared_legend(ax, effects: list, previous: bool) -> None:
@@ -168,7 +209,9 @@ def write_summary_png(comparisons: list, path: str) -> None:
 
 
 def summary_figure(comparisons: list):
-    """The summary as a matplotlib Figure (on its own Agg canvas)."""
+    """The summary as a matplotlib Figure (on its own Agg canvas). Laid out by matplotlib's
+    constrained layout, which sizes the gaps between panels to their axis labels and titles, so a
+    long label does not run into the next panel."""
     # Figure + the Agg canvas directly: no pyplot, so no global figure state and no display
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -178,32 +221,33 @@ def summary_figure(comparisons: list):
     prev = comps[-2] if len(comps) > 1 else None
     effects = effect_ids(comps)
     p = np.asarray(c.y).shape[1]
+    names = output_names(c)
     w_px, h_px = figure_size_px(p)
-    fig = Figure(figsize=(w_px / DPI, h_px / DPI), dpi=DPI)
+    fig = Figure(figsize=(w_px / DPI, h_px / DPI), dpi=DPI, layout="constrained")
+    fig.get_layout_engine().set(w_pad=4 / DPI, h_pad=6 / DPI, wspace=0.03, hspace=0.04)
     FigureCanvasAgg(fig)
     ratios = [ROW_PX] * (2 * p) + [LAST_ROW_PX]
     # 12 columns: the measurement over 2/3 of a row beside the variance, or over 1/2 beside the
     # level view (records from rest) and the variance; psd, acf and allan a third each below
     has_level = any(v.name == "level" for v in c.views)
-    gs = fig.add_gridspec(2 * p + 1, 12, height_ratios=ratios, left=0.05, right=0.985, top=1 - 80 / h_px,
-                          bottom=50 / h_px, hspace=0.5, wspace=1.8)
-    fig.suptitle(f"noiselab: {c.model_name}, revision {c.revision}: model error {_fmt(c.error)}"
-                 + (f"   (revision {comps[0].revision}, {comps[0].model_name}: {_fmt(comps[0].error)})"
-                    if len(comps) > 1 else ""), fontsize=14, fontweight="bold", y=1 - 14 / h_px, va="top")
+    gs = fig.add_gridspec(2 * p + 1, 12, height_ratios=ratios)
+    head, detail = _title(comps)
+    fig.suptitle(head + "\n" + detail, fontsize=12, fontweight="bold")
     t = np.asarray(c.t, float)
     for i in range(p):
+        lab = output_label(c, i)
         ax = fig.add_subplot(gs[2 * i, 0:6] if has_level else gs[2 * i, 0:8])
         mean, sd = np.asarray(c.y_mean, float)[:, i], np.asarray(c.y_sd, float)[:, i]
         ax.fill_between(t, mean - 2 * sd, mean + 2 * sd, color=_c("band", 0.45), lw=0, label="mean +- 2 sd")
-        ax.plot(t, np.asarray(c.y, float)[:, i], lw=0.6, color=_c((110, 110, 110)), label=f"y[{i}] measured")
-        if c.truth is not None and i < np.asarray(c.truth).shape[1]:
-            ax.plot(t, np.asarray(c.truth, float)[:, i], lw=1.2, color=_c("truth"), label=f"truth x[{i}]")
+        ax.plot(t, np.asarray(c.y, float)[:, i], lw=0.6, color=_c((110, 110, 110)), label=f"{names[i]} measured")
+        if has_truth(c, i):
+            ax.plot(t, np.asarray(c.truth, float)[:, i], lw=1.2, color=_c("truth"), label=truth_label(i))
         ax.plot(t, mean, lw=1.4, color=_c("mean"), label="predicted mean")
         ax.set_xlim(t[0], t[-1])
         ax.set_xlabel("time [s]")
-        ax.set_ylabel(f"y[{i}]")
-        ax.set_title(f"y[{i}]" if has_level else f"y[{i}]: measurement, truth, predicted mean with the 2-sigma band",
-                     fontsize=10, loc="left")
+        ax.set_ylabel(_wrap(lab, YLABEL_CHARS))
+        shown = "measurement, truth, predicted mean" if has_truth(c, i) else "measurement, predicted mean"
+        ax.set_title(lab if has_level else f"{lab}: {shown} with the 2-sigma band", fontsize=10, loc="left")
         ax.grid(True, alpha=0.35)
         ax.legend(fontsize=8, loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=4, frameon=False,
                   borderaxespad=0.2)
@@ -226,10 +270,10 @@ def summary_figure(comparisons: list):
             regs = [rg for rg in c.regions if rg.view == name and rg.output == i]
             n_fl = int(np.sum(v.flagged)) if v.flagged is not None else 0
             _plot_view(fig.add_subplot(slot), v, pv, effects, regs,
-                       f"{VIEW_TITLES[name]} y[{i}]{' (log-log)' if v.log_x and v.log_y else ''}: "
-                       f"error {_fmt(v.error)}" + (f", {n_fl} flagged" if n_fl else ""),
+                       f"{VIEW_TITLES[name]} {names[i]}{' (log-log)' if v.log_x and v.log_y else ''}: "
+                       f"error {_fmt(v.error)}" + (f", {n_fl} flagged" if n_fl else ""), view_y_label(c, v),
                        contributions=name not in ("variance", "level"))
-    last = gs[2 * p, :].subgridspec(1, 3, width_ratios=[1.0, 1.4, 0.6], wspace=0.12)
+    last = gs[2 * p, :].subgridspec(1, 3, width_ratios=[1.0, 1.4, 0.6])
     # error per revision
     ax = fig.add_subplot(last[0, 0])
     k = np.arange(len(comps))
