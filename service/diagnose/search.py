@@ -462,11 +462,11 @@ class Evaluator:
 
     def level_term(self, res_model, free_tone: bool, model) -> float:
         """l_level (:func:`.whittle.level_loglik`): the mean of ``res_model``'s residual against
-        ``model``'s noise; 0 for a record not from rest (its absolute level is not predicted) or a
-        plant that is not stable (no stationary level: an integrator's walk), the same for every
-        hypothesis of a record (they share the plant)."""
+        ``model``'s noise; 0 for a record not from rest or a sensor-only model (its absolute level
+        is not predicted: :attr:`Model.predicts_level`) or a plant that is not stable (no stationary
+        level: an integrator's walk), the same for every hypothesis of a record (they share the plant)."""
         d = self.data
-        if not (LEVEL and d.at_rest and d.stable):
+        if not (LEVEL and d.at_rest and d.stable and model.predicts_level):
             return 0.0
 
         def compute():
@@ -1962,6 +1962,8 @@ class Search:
         for eid, cls in CATALOGUE.items():
             spec = cls.fit
             if spec.kind == "none" or eid in cur.free:
+                continue
+            if not model.can_have(eid):         # e.g. an actuator in a sensor-only model: none is there
                 continue
             if spec.needs_command and not d.has_command:
                 continue
