@@ -378,3 +378,186 @@ def test_summary_png_has_a_level_panel_per_output_when_the_record_is_from_rest(w
     titles = [ax.get_title() for ax in summary_figure(two_outputs).axes]
     assert not any(t.startswith("level") for t in titles)
     assert sum(t.startswith("variance") for t in titles) == 2
+
+
+# -- output names and units, the recording, what each revision changed --------------------------------------
+IMU_NAMES, IMU_UNITS = ("gyro_x", "accel_z"), ("rad/s", "m/s^2")
+RECORDING = "imu_bag.mcap [/imu:angular_velocity.x,linear_acceleration.z]"
+
+
+def described(c: Comparison, effects: dict, names=IMU_NAMES, units=IMU_UNITS, recording=RECORDING,
+              model_name="imu", model_source="scenario imu-nominal") -> Comparison:
+    """``c`` as the analysis gives it for a model with an [outputs] table, on a named recording:
+    the attributes the viewers read beside the Comparison's fields."""
+    import dataclasses
+
+    c = dataclasses.replace(c, model_name=model_name, model_source=model_source)
+    c.output_names, c.output_units, c.recording, c.model_effects = names, units, recording, effects
+    return c
+
+
+NOMINAL = {"actuator.white": {"std": 0.05}, "sensor.white": {"std": 0.002}}
+STEP1 = {"actuator.ar1": {"std": 0.08649, "tau_s": 0.2615}, "sensor.white": {"std": 0.002}}
+FITTED = {"actuator.ar1": {"std": 0.0862, "tau_s": 0.2615}, "sensor.white": {"std": 0.002},
+          "sensor.bias_walk": {"std": 0.001559}}
+
+
+@pytest.fixture(scope="module")
+def diagnosis():
+    """A diagnosis of a 2-output recording without truth: the nominal model, one step, the fitted
+    model (named as diagnose names them: by the device's name, "+ <effect>", "fitted (2 added)")."""
+    rng = np.random.default_rng(5)
+    out = []
+    for rev, (effects, name) in enumerate([(NOMINAL, "imu"), (STEP1, "+ actuator.ar1"),
+                                           (FITTED, "fitted (2 added)")]):
+        c = make_comparison(rng, rev, 2, rev > 0, truth=False)
+        out.append(described(c, effects, model_name=name))
+    return out
+
+
+def figure_texts(fig) -> list:
+    """Every text the figure shows: titles, axis labels, legend entries, free text."""
+    out = [fig._suptitle.get_text()] if fig._suptitle is not None else []
+    for ax in fig.axes:
+        out += [ax.get_title(loc=loc) for loc in ("left", "center", "right")]
+        out += [ax.get_xlabel(), ax.get_ylabel()] + [t.get_text() for t in ax.texts]
+        if ax.get_legend() is not None:
+            out += [t.get_text() for t in ax.get_legend().get_texts()]
+    return [t.replace("\u00a0", " ") for t in out if t]
+
+
+def test_with_unit_replaces_the_units_placeholder():
+    from viewers.rerun_log import with_unit
+
+    assert with_unit("PSD [units^2/Hz]", "rad/s") == "PSD [(rad/s)^2/Hz]"
+    assert with_unit("PSD [units^2/Hz]", "m") == "PSD [m^2/Hz]"
+    assert with_unit("Allan deviation [units]", "m/s^2") == "Allan deviation [m/s^2]"
+    assert with_unit("mean of y - E[y] in the window [units]", "rad/s") == "mean of y - E[y] in the window [rad/s]"
+    assert with_unit("frequency [Hz]", "rad/s") == "frequency [Hz]"
+
+
+def test_rrd_entity_paths_and_views_use_the_output_names(tmp_path, diagnosis):
+    from rerun.chunk import RrdReader
+
+    path = tmp_path / "named.rrd"
+    log_comparisons(diagnosis, str(path))
+    ch = read_chunks(path)
+    ents = set(ch)
+    assert not any("/out0" in e or "/out1" in e for e in ents), sorted(e for e in ents if "/out" in e)[:5]
+    for name in IMU_NAMES:
+        assert f"/data/{name}/measurement" in ents
+        for rev in (0, 1, 2):
+            assert {f"/rev{rev}/{name}/series/mean", f"/rev{rev}/{name}/variance/empirical",
+                    f"/rev{rev}/{name}/psd/plot/empirical", f"/rev{rev}/{name}/allan"} <= ents
+    # the numbers under a name are that output's
+    c = diagnosis[-1]
+    assert np.array_equal(np.concatenate(column(ch["/data/accel_z/measurement"], "Scalars:scalars")), c.y[:, 1])
+    assert np.array_equal(column(ch["/rev2/accel_z/psd/plot/empirical"], "y")[0], c.view("psd", 1).empirical)
+    # axes in the output's unit: the PSD of a rate in (rad/s)^2/Hz
+    assert column(ch["/rev2/gyro_x/psd"], "y_label")[0] == ["PSD [(rad/s)^2/Hz]"]
+    titles = column(ch["/rev2/accel_z/allan/plot/axes/titles"], "Points2D:labels")[0]
+    assert "Allan deviation [m/s^2] (log)" in titles
+    assert not any("units" in lab for lab in titles)
+    # the source: a recording property, and the report
+    src = ch["/__properties/source"]
+    assert column(src, "recording")[0] == [RECORDING]
+    assert column(src, "output_names")[0] == list(IMU_NAMES) and column(src, "output_units")[0] == list(IMU_UNITS)
+    assert column(src, "model")[0] == ["scenario imu-nominal"]
+    report = column(ch["/report"], "TextDocument:text")[0][0]
+    assert RECORDING in report and "gyro_x [rad/s], accel_z [m/s^2]" in report
+    assert "+ sensor.bias_walk (std = 0.001559)" in report and "- actuator.white" in report
+    # the blueprint's views are named by the output, name [unit]
+    bp = read_chunks(path, store=RrdReader(path).blueprints()[0])
+    names = blueprint_values(bp, "ViewBlueprint:display_name")
+    assert any(n.startswith("gyro_x [rad/s]: measured, predicted mean") for n in names), names
+    assert any(n.startswith("PSD accel_z [m/s^2]") for n in names), names
+    assert not any("truth" in n for n in names)         # the recording has none
+    assert not any("y[" in n for n in names)
+
+
+def test_rrd_without_names_keeps_a_valid_layout(rrd):
+    ents = set(read_chunks(rrd))
+    assert "/data/out0/measurement" in ents and "/rev1/out0/psd/plot/empirical" in ents
+
+
+def test_output_names_are_checked(tmp_path, diagnosis):
+    bad = described(diagnosis[0], NOMINAL, names=("gyro_x",))
+    with pytest.raises(ViewerInputError, match="output_names"):
+        log_comparisons([bad], str(tmp_path / "x.rrd"))
+    bad = described(diagnosis[0], NOMINAL, names=("gyro_x", "gyro_x"))
+    with pytest.raises(ViewerInputError, match="distinct"):
+        write_summary_png([bad], str(tmp_path / "x.png"))
+    bad = described(diagnosis[0], NOMINAL, units=("rad/s",))
+    with pytest.raises(ViewerInputError, match="output_units"):
+        write_summary_png([bad], str(tmp_path / "x.png"))
+    assert not (tmp_path / "x.rrd").exists() and not (tmp_path / "x.png").exists()
+
+
+def test_png_names_the_outputs_units_recording_compared_model_and_every_added_effect(diagnosis):
+    from viewers.summary_png import summary_figure
+
+    fig = summary_figure(diagnosis)
+    texts = figure_texts(fig)
+    joined = "\n".join(texts)
+    title = texts[0]
+    # what was compared with what: the recording and the model the user gave, not the device's name
+    assert RECORDING in title and "scenario imu-nominal" in title
+    # every effect the diagnosis added, with its fitted values, and the one it replaced
+    for phrase in ("+ actuator.ar1 (std = 0.0862, tau_s = 0.2615)", "+ sensor.bias_walk (std = 0.001559)",
+                   "- actuator.white"):
+        assert phrase in " ".join(title.split()), title
+    # the report panel: each step with its values
+    report = next(t for ax in fig.axes for t in (x.get_text() for x in ax.texts) if "revision" in t)
+    assert "1: + actuator.ar1 (std = 0.08649, tau_s = 0.2615); - actuator.white" in report
+    assert "2: actuator.ar1: std 0.08649 -> 0.0862; + sensor.bias_walk (std = 0.001559)" in report
+    # outputs by name and unit, axes in the output's unit; no index labels, no placeholder unit
+    ylabels = [" ".join(ax.get_ylabel().split()) for ax in fig.axes]
+    assert "gyro_x [rad/s]" in ylabels and "accel_z [m/s^2]" in ylabels
+    assert "PSD [(rad/s)^2/Hz]" in ylabels and "Allan deviation [m/s^2]" in ylabels
+    assert "y[" not in joined.replace("E[y]", "") and "units" not in joined
+    assert "x[" not in joined                         # no truth drawn: none recorded
+
+
+def test_png_says_truth_only_when_the_recording_has_it(two_revisions, two_outputs):
+    from viewers.summary_png import summary_figure
+
+    without = figure_texts(summary_figure(two_outputs))
+    assert not any("truth" in t for t in without), [t for t in without if "truth" in t]
+    with_truth = figure_texts(summary_figure(two_revisions))
+    assert "truth: state x[0]" in with_truth
+
+
+def test_png_notes_are_wrapped_not_cut(diagnosis):
+    import dataclasses
+
+    from viewers.summary_png import summary_figure
+
+    note = ("the record does not start at rest: analysis starts at t = 2.31 s, the command's mean response from "
+            "the mean state fitted there (2 states, least squares), and the command is assumed to be the model's own")
+    c = dataclasses.replace(diagnosis[0], notes=[note])
+    c.output_names, c.output_units = IMU_NAMES, IMU_UNITS
+    report = next(t for ax in summary_figure([c]).axes for t in (x.get_text() for x in ax.texts) if "notes:" in t)
+    assert " ".join(note.split()) in " ".join(report.split("notes:")[1].split())
+    assert "..." not in report
+
+
+@pytest.mark.parametrize("which", ["with_level", "diagnosis"])
+def test_png_panels_do_not_overlap(request, which):
+    """Each panel with its title, tick and axis labels (its tight box) stays clear of every other
+    panel's: a long axis label does not run into the neighbouring panel."""
+    from viewers.summary_png import summary_figure
+
+    comps = request.getfixturevalue(which)
+    fig = summary_figure(comps)
+    fig.canvas.draw()
+    r = fig.canvas.get_renderer()
+    boxes = [(ax, ax.get_tightbbox(r)) for ax in fig.axes if ax.axison]
+    for k, (a, ba) in enumerate(boxes):
+        for b, bb in boxes[k + 1:]:
+            dx = min(ba.x1, bb.x1) - max(ba.x0, bb.x0)
+            dy = min(ba.y1, bb.y1) - max(ba.y0, bb.y0)
+            assert dx <= 1 or dy <= 1, (a.get_title(), a.get_ylabel(), b.get_title(), b.get_ylabel(), dx, dy)
+    # and everything is on the canvas
+    w, h = fig.canvas.get_width_height()
+    for ax, bb in boxes:
+        assert bb.x0 >= -1 and bb.y0 >= -1 and bb.x1 <= w + 1 and bb.y1 <= h + 1, (ax.get_title(), bb)
