@@ -217,7 +217,7 @@ def test_the_emulator_streams_a_sensor_only_model(tmp_path, capsys):
     path = tmp_path / "gyro.toml"
     path.write_text(GYRO_WALK)
     rep = run_json(capsys, "run", path, "--duration", "2", "--seed", "5", "--out", tmp_path / "rec",
-                   "--speed", "4", "--no-analyze", "--json")
+                   "--no-analyze", "--json")
     check_recording(rep["recording"], parse_model(GYRO_WALK), 5, 200)
 
 
