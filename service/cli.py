@@ -405,15 +405,9 @@ def load_series(args, model, truth: bool = True, read=None):
 
     path = args.recording
     _check_recording(path)
-    if args.measurement:
-        if args.segment is not None:
-            raise UsageError("--segment takes a stream segment of a noiselab recording whose source restarted; "
-                             "a foreign recording (--measurement) has none")
-        series = dload.load_foreign(path, args.measurement, args.time, model.Ts, model=model)
-    else:
-        series = dload.load_noiselab(path, args.device, truth=truth, Ts=model.Ts,
-                                     rec=None if read is None else read.result(), segment=args.segment,
-                                     model=model)
+    series = dload.load_recording(path, spec=args.measurement, time_field=args.time, device=args.device,
+                                  Ts=model.Ts, model=model, segment=args.segment, truth=truth,
+                                  rec=None if read is None else read.result())
     note = dload.command_note(series)
     if note is not None:
         print(f"noiselab {args.command}: {note}", file=sys.stderr, flush=True)
@@ -427,11 +421,14 @@ def _read_early(args, truth: bool):
     over 6 paired runs; the pickled arrays' trip costs 0.3 s). None for foreign recordings and missing files;
     an error in the reading is raised where :func:`load_series` would raise it (the child's
     failure is redone here), after the model's and the outputs' checks as before."""
-    if args.measurement or not args.recording:
+    if args.measurement or args.time or not args.recording:
         return None
     try:
         _check_recording(args.recording)
     except UsageError:
+        return None
+    from .nodes.rosbag import bag_kind
+    if bag_kind(args.recording) is not None:
         return None
     from . import parallel
     from .diagnose.load import noiselab_kinds
@@ -452,9 +449,12 @@ def _reading_early(args, body) -> int:
 
 
 def _check_recording(path: str):
+    """A recording is a file, or a rosbag2 bag directory (its ``metadata.yaml`` beside the storage files)."""
     p = Path(path)
     if p.is_dir():
-        raise UsageError(f"{path}: is a directory, not an MCAP recording")
+        if (p / "metadata.yaml").is_file():
+            return
+        raise UsageError(f"{path}: is a directory, not an MCAP recording or a rosbag2 bag directory (no metadata.yaml)")
     if not p.is_file():
         raise UsageError(f"{path}: no such file")
 
@@ -676,7 +676,8 @@ def build_parser() -> argparse.ArgumentParser:
     sv.set_defaults(func=cmd_recover)
 
     sp2 = sub.add_parser("replay", help="republish a recording over Zenoh, paced by its publish times")
-    sp2.add_argument("recording", help=".mcap to replay")
+    sp2.add_argument("recording", help=".mcap to replay, or a ROS bag (rosbag2 directory, .mcap, .db3, ROS 1 .bag): "
+                                       "each message republished as JSON, paced by log time")
     pace = sp2.add_mutually_exclusive_group()
     pace.add_argument("--speed", type=speed_arg(), default=1.0, help="playback speed (default 1)")
     pace.add_argument("--fast", action="store_true", help="as fast as possible")
@@ -699,8 +700,12 @@ def build_parser() -> argparse.ArgumentParser:
     sa.add_argument("--png", help="write the PNG summary here (default: next to --rrd)")
     sa.add_argument("--device", help="device name in a noiselab recording with several devices")
     sa.add_argument("--measurement", metavar="TOPIC:FIELD",
-                    help="foreign recordings: topic and JSON field(s) of the measurement, e.g. /imu:linear_acceleration.x")
-    sa.add_argument("--time", metavar="FIELD", help="foreign recordings: time field in s (or ns if it ends in _ns); default publish_time")
+                    help="foreign recordings (JSON MCAP or ROS bag): topic and field(s) of the measurement, e.g. "
+                         "/imu:angular_velocity.x, /joint_states:position[2], /imu:linear_acceleration.* (every numeric "
+                         "field), or a comma list")
+    sa.add_argument("--time", metavar="FIELD",
+                    help="foreign recordings: time field in s (ns if it ends in _ns; exact ns for a {sec, nanosec} "
+                         "stamp); default: a ROS message's header.stamp, else the log time (ROS) or publish_time (JSON)")
     sa.add_argument("--segment", type=_segment, metavar="N",
                     help="a recording whose source restarted (read as stream segments): analyse segment N, 1 = the "
                          "first (default: the one with the longest gap-free run)")
@@ -728,8 +733,11 @@ def build_parser() -> argparse.ArgumentParser:
     sd.add_argument("--max-effects", type=count_arg(), default=3, metavar="K",
                     help="add at most K effects (default 3)")
     sd.add_argument("--device", help="device name in a noiselab recording with several devices")
-    sd.add_argument("--measurement", metavar="TOPIC:FIELD", help="foreign recordings: topic and JSON field(s)")
-    sd.add_argument("--time", metavar="FIELD", help="foreign recordings: time field (s, or ns if it ends in _ns)")
+    sd.add_argument("--measurement", metavar="TOPIC:FIELD",
+                    help="foreign recordings (JSON MCAP or ROS bag): topic and field(s), e.g. /imu:angular_velocity.x")
+    sd.add_argument("--time", metavar="FIELD",
+                    help="foreign recordings: time field (s, ns if it ends in _ns, or a {sec, nanosec} stamp); default: "
+                         "header.stamp (ROS), else log time (ROS) or publish_time (JSON)")
     sd.add_argument("--segment", type=_segment, metavar="N",
                     help="a recording whose source restarted (read as stream segments): analyse segment N, 1 = the "
                          "first (default: the one with the longest gap-free run)")

@@ -1,14 +1,26 @@
 """Turn a recording into regularly sampled arrays for the analysis, saying what was wrong with it.
 
+:func:`load_recording` is the one entry: it tells a noiselab recording, a foreign JSON MCAP and a
+ROS bag apart and calls the loader of each.
+
 * noiselab recordings: the device's ``measurement`` (and ``command``, ``truth`` when present),
   aligned by seq; t = the payload's ``t``.
-* foreign recordings: ``--measurement TOPIC:FIELD`` picks a JSON field (dotted path, ``[i]`` for
-  list items, e.g. ``/imu:linear_acceleration.x`` or ``/odom:twist.linear[0]``), time from a field
-  (``--time FIELD``, seconds, or ``FIELD_ns`` style integer ns when the name ends in ``_ns``) or
-  from the MCAP publish_time; several FIELDs may be given comma-separated for a vector. A file's
-  message is untrusted: parsed within the wire decoders' bounds (:func:`wire.loads`: size,
-  nesting; NaN and Infinity are not JSON), its fields numbers within float64 (times in ns within
-  int64), else one line naming the topic, the sample and the field.
+* foreign recordings: ``--measurement TOPIC:FIELD`` picks a field (dotted path, ``[i]`` for list
+  items, a final ``.*`` for every numeric field below, e.g. ``/imu:linear_acceleration.x``,
+  ``/joint_states:position[2]``, ``/imu:angular_velocity.*``); several FIELDs may be given
+  comma-separated for a vector. One parser (:func:`parse_field_path`) serves both kinds:
+  - a JSON MCAP: time from a field (``--time FIELD``, seconds, or ``FIELD_ns`` style integer ns
+    when the name ends in ``_ns``, or a ``{sec, nanosec}`` stamp object, exact integer ns) or
+    from the MCAP publish_time. A file's message is untrusted: parsed within the wire decoders'
+    bounds (:func:`wire.loads`: size, nesting; NaN and Infinity are not JSON), its fields numbers
+    within float64 (times in ns within int64), else one line naming the topic, the sample and
+    the field. ``.*`` expands on the first message, in its key order.
+  - a ROS bag (rosbag2 MCAP or SQLite3, a bag directory, a ROS 1 bag): decoded by
+    :mod:`service.nodes.rosbag` (rosbags), time from ``header.stamp`` when the message has one,
+    else ``--time FIELD``, else the bag's log time.
+  Both then pass the same checks (magnitude, NaN, order, regular timing, the longest gap-free run).
+  Without a model (``Ts`` None: the ``allan`` command) the sample period is the record's median
+  step, said in a note; :attr:`Series.Ts` is the period the series was checked against.
 
 Gaps (a missing seq, or a time step over 1.5 Ts) are never silently ignored: the analysis uses
 the longest gap-free run and the notes say what was left out. A noiselab stream whose source
@@ -41,7 +53,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..bounds import MAGNITUDE_MAX
-from ..nodes import mcapio, wire
+from ..nodes import mcapio, rosbag, wire
 from .results import AnalysisError
 
 
@@ -55,23 +67,37 @@ class Series:
     notes: list = field(default_factory=list)
     starts_at_rest: bool = False   # a noiselab stream from seq 0 (the emulator starts at rest)
     command: dict | None = None    # the command analysed (command_used), None when no model was given
+    names: list | None = None      # a foreign recording's field per column of y (``.*`` expanded)
+    Ts: float | None = None        # s: the period the timing was checked against (the model's, or the median step)
 
 
 _PATH_RE = re.compile(r"([^.\[\]]+)|\[(\d+)\]")
+WILDCARD = rosbag.WILDCARD
+
+
+def parse_field_path(path: str) -> tuple:
+    """``a.b[2].c`` -> ``("a", "b", 2, "c")``; a final ``.*`` is :data:`WILDCARD` (every numeric
+    field below). The one parser of field paths, JSON and ROS alike."""
+    parts = tuple(int(idx) if idx else name for name, idx in _PATH_RE.findall(path))
+    if not parts:
+        raise AnalysisError(f"field {path!r}: empty field path")
+    if WILDCARD in parts[:-1]:
+        raise AnalysisError(f"field {path!r}: '*' stands only at the end of a path (e.g. linear_acceleration.*)")
+    return parts
 
 
 def _field_getter(path: str):
-    parts = []
-    for name, idx in _PATH_RE.findall(path):
-        parts.append(int(idx) if idx else name)
-    if not parts:
-        raise AnalysisError(f"field {path!r}: empty field path")
+    """(JSON object -> the value at ``path``, its parts)."""
+    parts = parse_field_path(path)
+    return _getter_of(parts), parts
 
+
+def _getter_of(parts: tuple):
     def get(obj):
         for p in parts:
             obj = obj[p]
         return obj
-    return get, parts
+    return get
 
 
 def _split_spec(spec: str) -> tuple[str, list[str]]:
@@ -127,8 +153,10 @@ def load_noiselab(path: str, device: str | None = None, truth: bool = True, Ts: 
         if v is not None:
             _check_magnitude(v, f"{path}: {mcapio.shown(td.topic)}", wire.VECTOR_FIELD[td.kind], seq[keep], "seq")
     command = command_used(model, None if u is None else dev.command.topic, notes)
+    if Ts is None and t.size >= 2:       # the payload's t is the source's own k*Ts: its step is Ts
+        Ts = float(np.median(np.diff(t)))
     return Series(t=t - t[0], y=y, u=u, truth=x, source=f"{path} [{mcapio.shown(dev.name)}]", notes=notes,
-                  starts_at_rest=bool(seq[keep][0] == 0), command=command)
+                  starts_at_rest=bool(seq[keep][0] == 0), command=command, Ts=Ts)
 
 
 def _unfinished_without_measurement(path: str, rec: mcapio.Recording) -> str:
@@ -277,17 +305,78 @@ def _longest_run(seq: np.ndarray, notes: list, what: str) -> slice:
     return slice(a, b)
 
 
-def load_foreign(path: str, spec: str, time_field: str | None, Ts: float, *, model=None) -> Series:
-    """``model``: as for :func:`load_noiselab` (a foreign recording's command is never read: the
-    model's own command is named in a note)."""
+def load_recording(path: str, *, spec: str | None = None, time_field: str | None = None,
+                   device: str | None = None, Ts: float | None = None, model=None, segment: int | None = None,
+                   truth: bool = True, rec: mcapio.Recording | None = None) -> Series:
+    """The series of any recording noiselab reads: a noiselab MCAP (``device``, ``segment``,
+    ``truth``, ``rec`` as for :func:`load_noiselab`), or with ``spec`` (``TOPIC:FIELD[,FIELD...]``)
+    a foreign JSON MCAP or a ROS bag (:func:`load_foreign`). ``Ts`` None and no ``model``: the
+    record's own step (:attr:`Series.Ts`)."""
+    if spec is None:
+        if time_field is not None:
+            raise AnalysisError(f"--time {time_field!r} is for foreign recordings (with --measurement TOPIC:FIELD)")
+        kind = rosbag.bag_kind(path)
+        if kind is not None:
+            with rosbag.open_bag(path) as reader:
+                have = rosbag.topics(reader)
+            listed = ", ".join(f"{t} ({m})" for t, m in list(have.items())[:12]) + (
+                f", ... ({len(have)} in all)" if len(have) > 12 else "")
+            raise AnalysisError(f"{path}: a {kind}: give --measurement TOPIC:FIELD (topics: {listed or 'none'})")
+        return load_noiselab(path, device, truth=truth, Ts=Ts, rec=rec, segment=segment, model=model)
+    if segment is not None:
+        raise AnalysisError("--segment takes a stream segment of a noiselab recording whose source restarted; "
+                            "a foreign recording (--measurement) has none")
+    return load_foreign(path, spec, time_field, Ts, model=model)
+
+
+def load_foreign(path: str, spec: str, time_field: str | None, Ts: float | None = None, *, model=None) -> Series:
+    """The fields ``spec`` names of a JSON MCAP or a ROS bag (the module docstring). ``Ts``: the
+    sample period the timing is checked against (None: the model's, else the record's median
+    step, noted). ``model``: as for :func:`load_noiselab` (a foreign recording's command is never
+    read: the model's own command is named in a note)."""
+    if Ts is None and model is not None:
+        Ts = model.Ts
     topic, fields = _split_spec(spec)
-    getters = [_field_getter(f)[0] for f in fields]
-    tget = _field_getter(time_field)[0] if time_field else None
+    paths = [(f, parse_field_path(f)) for f in fields]
+    tpath = (time_field, parse_field_path(time_field)) if time_field else None
+    if rosbag.bag_kind(path) is not None:
+        got = rosbag.read_fields(path, topic, paths, tpath)
+        what = f"{got.topic} ({got.msgtype})"
+        if got.time_ns:
+            raw, ns = got.time, True
+        else:                                     # a numeric --time field: s, or ns by the name's _ns
+            ns = time_field.endswith("_ns")
+            raw = _time_array(got.time, ns, f"{path}: {what}", time_field)
+        return _foreign_series(path, spec, what, got.names, got.values, raw, ns, Ts, model, got.notes)
+    return _load_json(path, spec, topic, paths, tpath, Ts, model)
+
+
+def _time_array(values: np.ndarray, ns: bool, where: str, name: str) -> np.ndarray:
+    """A numeric time field's values as int64 ns (``ns``) or float64 s; a value that is not finite,
+    or beyond int64 as ns, is refused in one line naming the sample."""
+    if ns and values.dtype.kind in "iu":
+        bad = values > np.iinfo(np.int64).max if values.dtype.kind == "u" else np.zeros(values.shape, bool)
+    else:
+        f = values.astype(np.float64)
+        bad = ~np.isfinite(f) | ((np.abs(f) >= 2.0**63) if ns else False)
+    if bad.any():
+        k = int(np.flatnonzero(bad)[0])
+        raise AnalysisError(f"{where}: sample {k}: {name} = {values[k].item()!r} is not a number"
+                            + (" of ns within int64" if ns else " within float64"))
+    return values.astype(np.int64) if ns else values.astype(np.float64)
+
+
+def _load_json(path: str, spec: str, topic: str, paths: list, tpath, Ts: float | None, model) -> Series:
+    """A JSON MCAP's fields (:func:`load_foreign`)."""
     want = topic.lstrip("/")
     topic = mcapio.shown(topic)                               # as messages name it
-    names = fields if tget is None else fields + [time_field]
-    ys, ts = [], []
+    time_field = tpath[0] if tpath else None
+    tget = _field_getter(time_field)[0] if time_field else None
     ns_time = tget is None or time_field.endswith("_ns")      # integer ns: publish_time or a *_ns field
+    stamp_time = None                                         # a {sec, nanosec} object: decided on the first message
+    getters: list | None = None
+    names: list[str] = []
+    ys, ts = [], []
     found_topic = False
     report = mcapio.ScanReport()
     for schema, channel, message in mcapio.iter_messages(path, report=report):
@@ -299,45 +388,127 @@ def load_foreign(path: str, spec: str, time_field: str | None, Ts: float, *, mod
             obj = wire.loads(message.data, where)
         except wire.WireError as e:
             enc = channel.message_encoding
-            raise AnalysisError(str(e) + ("" if enc == "json" else
-                                          f" (message encoding {mcapio.shown(enc)!r}: only JSON topics are read)")) from None
-        try:
-            got = [g(obj) for g in getters] + ([tget(obj)] if tget is not None else [])
-        except (KeyError, IndexError, TypeError):
-            keys = sorted(obj) if isinstance(obj, dict) else []
-            listed = ", ".join(k if len(k) <= 40 else k[:40] + "..." for k in keys[:12]) + (
-                f", ... ({len(keys)} keys)" if len(keys) > 12 else "") if keys else type(obj).__name__
-            raise AnalysisError(f"{path}: {topic}: field {', '.join(names)} not found in a message "
-                                f"(keys: {mcapio.shown(listed)})") from None
-        ys.append([_number(v, False, where, name) for v, name in zip(got, fields)])
-        ts.append(_number(message.publish_time, True, where, "publish_time") if tget is None else
-                  _number(got[-1], ns_time, where, time_field))
+            why = ("" if enc == "json" else
+                   f" (message encoding {mcapio.shown(enc)!r}: only JSON topics are read"
+                   + ("; a ROS 2 bag is read when its MCAP profile is 'ros2'" if enc == "cdr" else "") + ")")
+            raise AnalysisError(str(e) + why) from None
+        if getters is None:
+            names, getters = _json_fields(path, topic, obj, paths)
+            named = list(zip(names, getters)) + ([(time_field, tget)] if tget else [])
+        got = []
+        for name, g in named:
+            try:
+                got.append(g(obj))
+            except (KeyError, IndexError, TypeError):
+                raise AnalysisError(f"{path}: {topic}: field {name} not found in a message "
+                                    f"({_keys_of(obj)})") from None
+        ys.append([_number(v, False, where, name) for v, name in zip(got, names)])
+        if tget is None:
+            ts.append(_number(message.publish_time, True, where, "publish_time"))
+            continue
+        if stamp_time is None:
+            stamp_time = isinstance(got[-1], dict)
+            ns_time = ns_time or stamp_time
+        ts.append(_stamp_ns(got[-1], where, time_field) if stamp_time else _number(got[-1], ns_time, where, time_field))
     if not found_topic:
         raise AnalysisError(f"{path}: no topic {topic!r} in the recording")
     notes = [] if report.complete else [f"the recording is unfinished: {report.note}"]
-    y = np.asarray(ys, float)
+    y = np.asarray(ys, float).reshape(len(ys), len(names) or len(paths))
+    raw = np.asarray(ts, np.int64) if ns_time else np.asarray(ts, float)
+    return _foreign_series(path, spec, topic, names or [f for f, _ in paths], y, raw, ns_time, Ts, model, notes)
+
+
+def _keys_of(obj) -> str:
+    """A JSON message's keys, cut short, for a field-not-found message."""
+    keys = sorted(obj) if isinstance(obj, dict) else []
+    if not keys:
+        return f"it is a {type(obj).__name__}"
+    listed = ", ".join(k if len(k) <= 40 else k[:40] + "..." for k in keys[:12]) + (
+        f", ... ({len(keys)} keys)" if len(keys) > 12 else "")
+    return f"keys: {mcapio.shown(listed)}"
+
+
+def _json_fields(path: str, topic: str, obj, paths: list) -> tuple[list[str], list]:
+    """(column names, getters) of the field paths on a JSON message ``obj`` (the first one): a final
+    ``*`` becomes every number below it, in the object's key order (or every item of a list)."""
+    names, getters = [], []
+    for text, parts in paths:
+        if parts[-1] != WILDCARD:
+            names.append(text)
+            getters.append(_getter_of(parts))
+            continue
+        try:
+            leaves = _json_leaves(_getter_of(parts[:-1])(obj), parts[:-1])
+        except (KeyError, IndexError, TypeError):
+            raise AnalysisError(f"{path}: {topic}: field {text} not found in a message ({_keys_of(obj)})") from None
+        if not leaves:
+            raise AnalysisError(f"{path}: {topic}: field {text}: no number below {text[:-2] or 'the message'}")
+        for at in leaves:
+            names.append("".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in at).lstrip("."))
+            getters.append(_getter_of(at))
+    return names, getters
+
+
+def _json_leaves(v, at: tuple) -> list[tuple]:
+    """The paths of the numbers in ``v`` (found at ``at``), depth first in key and item order."""
+    if isinstance(v, dict):
+        return [leaf for k, w in v.items() for leaf in _json_leaves(w, (*at, k))]
+    if isinstance(v, list):
+        return [leaf for j, w in enumerate(v) for leaf in _json_leaves(w, (*at, j))]
+    return [at] if isinstance(v, (int, float)) and not isinstance(v, bool) else []
+
+
+def _stamp_ns(v, where: str, name: str) -> int:
+    """A ``{sec, nanosec}`` stamp object (ROS 2's ``builtin_interfaces/msg/Time`` as JSON; ROS 1's
+    ``{secs, nsecs}`` too) as exact integer ns, sec * 10**9 + nanosec."""
+    if isinstance(v, dict):
+        sec, nsec = v.get("sec", v.get("secs")), v.get("nanosec", v.get("nsecs"))
+        if (type(sec) is int and type(nsec) is int and 0 <= nsec < 1_000_000_000
+                and -2**63 <= sec * 1_000_000_000 + nsec < 2**63):
+            return sec * 1_000_000_000 + nsec
+    raise AnalysisError(f"{where}: {name} = {mcapio.shown(reprlib.repr(v))} is not a {{sec, nanosec}} stamp "
+                        "(integers, 0 <= nanosec < 10^9) as the first message's is")
+
+
+def _foreign_series(path: str, spec: str, what: str, names: list[str], y: np.ndarray, raw: np.ndarray,
+                    ns_time: bool, Ts: float | None, model, notes: list) -> Series:
+    """The checks every foreign series passes, JSON or ROS: sample count, NaN, magnitude, time
+    order, the period (``Ts``, or the median step when None), regular timing and the longest
+    gap-free run. ``what``: the topic as messages name it (and its type); ``raw``: the times,
+    int64 ns (``ns_time``) or float s."""
+    where = f"{path}: {what}"
     if ns_time:                                   # subtract in integers, then to s
-        raw = np.asarray(ts, np.int64)
-        t = (raw - raw.min()).astype(float) * 1e-9
+        t = (raw - raw.min()).astype(float) * 1e-9 if raw.size else raw.astype(float)
         resolution = 1e-9
     else:
-        raw = np.asarray(ts, float)
-        t = raw - raw.min()
+        t = raw - raw.min() if raw.size else raw
         resolution = float(np.spacing(np.max(np.abs(raw)))) if raw.size else 0.0
     if y.shape[0] < 2:
-        raise AnalysisError(f"{path}: {topic}: only {y.shape[0]} samples")
+        raise AnalysisError(f"{where}: only {y.shape[0]} samples")
     if not np.all(np.isfinite(y)):
         k = int(np.flatnonzero(~np.all(np.isfinite(y), axis=1))[0])
-        raise AnalysisError(f"{path}: {topic}: NaN or inf in the measurement (first at sample {k})")
-    _check_magnitude(y, f"{path}: {topic}", fields, np.arange(y.shape[0]), "sample")
+        raise AnalysisError(f"{where}: NaN or inf in the measurement (first at sample {k})")
+    _check_magnitude(y, where, names, np.arange(y.shape[0]), "sample")
     order = np.argsort(t, kind="stable")
     if np.any(order != np.arange(t.size)):
-        notes.append(f"{topic}: timestamps out of order; sorted by time")
+        notes.append(f"{what}: timestamps out of order; sorted by time")
         t, y = t[order], y[order]
-    keep = _regular_run(t, Ts, notes, topic, resolution)
+    if Ts is None:
+        Ts = _record_step(t, where, what, notes)
+    keep = _regular_run(t, Ts, notes, what, resolution)
     t, y = t[keep], y[keep]
     return Series(t=t - t[0], y=y, u=None, truth=None, source=f"{path} [{spec}]", notes=notes,
-                  command=command_used(model, None, notes))
+                  command=command_used(model, None, notes), names=list(names), Ts=Ts)
+
+
+def _record_step(t: np.ndarray, where: str, what: str, notes: list) -> float:
+    """The record's median sample step [s], the period of a series read without a model."""
+    step = float(np.median(np.diff(t)))
+    if not step > 0.0:
+        raise AnalysisError(f"{where}: the median step between sample times is 0 (repeated stamps): no sample "
+                            "period; give --time FIELD or --model")
+    notes.append(f"{what}: no model: the sample period is the record's median step, Ts = {step:.6g} s")
+    return step
 
 
 def _number(v, ns: bool, where: str, name: str):

@@ -7,7 +7,15 @@ for one sample truth, command, measurement), each topic in its recorded order, w
 the file holds them in: :func:`mcapio.iter_time_ordered` merges the topics as it reads (a
 streaming k-way merge, memory about one chunk per topic). A file written with large per-topic
 blocks (``noiselab simulate`` before it interleaved, or a foreign writer) thus replays like the
-live stream it describes instead of one topic after another."""
+live stream it describes instead of one topic after another.
+
+A ROS bag (rosbag2 directory, ``.mcap`` with the ``ros2`` profile or ``.db3``, ROS 1 ``.bag``:
+:func:`rosbag.bag_kind`) is replayed too: each message of every topic, decoded by rosbags
+(:func:`rosbag.iter_json`), is published as a JSON object of its fields by their ROS names
+(nested messages as objects, so ``header.stamp`` is ``{"sec": ..., "nanosec": ...}``; arrays as
+lists; NaN and infinities as null) under the topic without its leading '/', in log-time order and
+paced by the bag's log time (the recorder's receive time, ns). Every message type is checked
+decodable before the first put. These are not noiselab streams: no join point is served for them."""
 
 from __future__ import annotations
 
@@ -18,7 +26,7 @@ from dataclasses import dataclass
 
 import zenoh
 
-from . import mcapio, transport, wire
+from . import mcapio, rosbag, transport, wire
 
 
 @dataclass
@@ -37,7 +45,10 @@ class ReplaySummary:
 def replay_topics(path: str) -> list[str]:
     """The topics (without a leading ``/``) of a recording, from its summary (raises NotMcapError
     for a file that is not MCAP); an unfinished file is read for the topics of its intact messages.
-    Payloads are not decoded: replay republishes them as recorded, whatever they hold."""
+    Payloads are not decoded: replay republishes them as recorded, whatever they hold. A ROS bag's
+    topics, once every message type is known decodable (:func:`rosbag.bag_topics`)."""
+    if rosbag.bag_kind(path) is not None:
+        return rosbag.bag_topics(path)
     topics = mcapio.channel_topics(path)
     if topics is not None:
         return topics
@@ -60,13 +71,26 @@ def _joinable(key: str) -> bool:
         return False
 
 
-def _seq_matches(message) -> bool:
+def _seq_matches(data: bytes, sequence: int | None) -> bool:
     """The message's MCAP sequence is its payload's seq (as noiselab's recorder writes it)."""
+    if sequence is None:
+        return False
     try:
-        obj = wire.loads(message.data, "replay")
-        return isinstance(obj, dict) and obj.get("seq") == message.sequence
+        obj = wire.loads(data, "replay")
+        return isinstance(obj, dict) and obj.get("seq") == sequence
     except ValueError:
         return False
+
+
+def _messages(path: str, report: mcapio.ScanReport):
+    """(topic, pacing time ns, MCAP sequence or None, payload) of every message in publish order:
+    an MCAP file's as recorded, paced by publish_time; a ROS bag's as JSON, paced by log time."""
+    if rosbag.bag_kind(path) is not None:
+        for topic, log_ns, data in rosbag.iter_json(path):
+            yield topic, log_ns, None, data
+        return
+    for _, channel, message in mcapio.iter_time_ordered(path, report=report):
+        yield channel.topic, message.publish_time, message.sequence, message.data
 
 
 def run_replay(session: "zenoh.Session", path: str, *, speed: float | None = 1.0, prefix: str | None = None,
@@ -109,27 +133,27 @@ def run_replay(session: "zenoh.Session", path: str, *, speed: float | None = 1.0
     pub0 = None
     n = 0
     start = time.monotonic()
-    for schema, channel, message in mcapio.iter_time_ordered(path, report=report):
+    for topic, at_ns, sequence, data in _messages(path, report):
         if stop.is_set():
             break
         if speed is not None:
             if t_wall0 is None:
-                t_wall0, pub0 = time.monotonic_ns(), message.publish_time
-            due = t_wall0 + int((message.publish_time - pub0) / speed)
+                t_wall0, pub0 = time.monotonic_ns(), at_ns
+            due = t_wall0 + int((at_ns - pub0) / speed)
             delay = due - time.monotonic_ns()
             if delay > 0:
                 time.sleep(delay / 1e9)
-        pub = publisher(channel.topic)
+        pub = publisher(topic)
         key = str(pub.key_expr)
         if key in started:
-            started[key] = message.sequence
-        elif key not in foreign and _joinable(key) and _seq_matches(message):
+            started[key] = sequence
+        elif key not in foreign and _joinable(key) and _seq_matches(data, sequence):
             with grow:
-                started[key] = message.sequence
+                started[key] = sequence
         else:
             foreign.add(key)                 # no join point: not a counted stream, or its MCAP sequence is not its seq
-        pub.put(message.data)
-        counts[channel.topic] = counts.get(channel.topic, 0) + 1
+        pub.put(data)
+        counts[topic] = counts.get(topic, 0) + 1
         n += 1
     for q in joins:
         q.undeclare()
