@@ -158,7 +158,7 @@ def test_imu_bag_round_trip_is_exact(tmp_path):
     assert sorted(p.name for p in bag.iterdir()) == ["imu_bag.mcap", "metadata.yaml"]
 
     rec = model.simulate(n, seed=seed)
-    stamps = START + np.arange(n, dtype=np.int64) * wire.period_ns(model.Ts)
+    stamps = np.array([START + round(k * model.Ts * 1e9) for k in range(n)])      # the anchor contract
     got = _read_bag(bag)
     assert {t: (g["type"], g["count"]) for t, g in got.items()} == {
         "/imu6/measurement": ("sensor_msgs/msg/Imu", n),
@@ -235,7 +235,6 @@ def test_json_mcap_is_anchored_at_the_start(tmp_path):
     out = tmp_path / "run.mcap"
     rep = write_simulation(model, n, seed, out, start_time_ns=START)
     assert rep["start_time_ns"] == START and rep["format"] == "mcap"
-    Ts_ns = wire.period_ns(model.Ts)
     rec = model.simulate(n, seed=seed)
     with open(out, "rb") as f:
         r = make_reader(f)
@@ -244,7 +243,7 @@ def test_json_mcap_is_anchored_at_the_start(tmp_path):
         for _s, ch, msg in r.iter_messages(log_time_order=False):
             kind = ch.topic.rsplit("/", 1)[1]
             k = seen.setdefault(kind, 0)
-            assert msg.publish_time - START == k * Ts_ns == msg.log_time - START
+            assert msg.publish_time - START == round(k * model.Ts * 1e9) == msg.log_time - START
             vec = {"truth": rec.x, "command": rec.u, "measurement": rec.y}[kind][k]
             # the payload keeps t in s from the start, and is the wire encoder's bytes
             assert msg.data == wire.encode(k, k * model.Ts, vec, kind=kind)
@@ -324,3 +323,36 @@ def test_unknown_format_is_bad_input(tmp_path):
     with pytest.raises(BadInput, match="--format 'rosbag'"):
         write_simulation(load_model("seed"), 5, 0, tmp_path / "x", fmt="rosbag")
     assert not os.listdir(tmp_path)
+
+
+# a 6-axis IMU at rest without [plant]: each output is the reference (the command) + sensor effects
+IMU_AT_REST = """
+name = "imu"
+[sampling]
+Ts = 0.005
+[outputs]
+names = ["gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z"]
+units = ["rad/s", "rad/s", "rad/s", "m/s^2", "m/s^2", "m/s^2"]
+[command]
+kind = "none"
+[sensor.white]
+density = [1.7e-4, 1.7e-4, 1.7e-4, 2.0e-3, 2.0e-3, 2.0e-3]
+[sensor.bias_walk]
+std = [1.9e-5, 1.9e-5, 1.9e-5, 3.0e-3, 3.0e-3, 3.0e-3]
+"""
+
+
+def test_sensor_only_imu_has_no_truth_topic(tmp_path):
+    model = parse_model(IMU_AT_REST, "imu.toml")
+    n = 400
+    write_simulation(model, n, 9, tmp_path / "bag", fmt="ros2", start_time_ns=START)
+    got = _read_bag(tmp_path / "bag")
+    assert sorted(got) == ["/imu/command", "/imu/measurement"]       # no state, no truth
+    rec = model.simulate(n, seed=9)
+    meas = got["/imu/measurement"]["msgs"]
+    y = np.array([[m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z,
+                   m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z] for m in meas])
+    assert np.array_equal(y, rec.y)
+    # the covariance: the white noise's per-sample variance density^2 / Ts (+ the bias' initial spread)
+    cov = np.diag(meas[0].angular_velocity_covariance.reshape(3, 3))
+    assert np.all(cov >= (1.7e-4) ** 2 / model.Ts)

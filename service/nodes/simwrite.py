@@ -12,8 +12,8 @@ Two formats (``fmt``):
 
 Times in both: the run is anchored at its wall-clock start ``start_time_ns`` (int ns since the
 Unix epoch, taken when the write begins unless given), so viewers show the real date: sample k's
-publish_time (MCAP) or ``header.stamp`` (ROS 2) is ``start_time_ns + k * round(Ts * 1e9)`` ns
-(:func:`service.nodes.wire.sample_times`), and offline there is no receive time, so log_time is
+publish_time (MCAP) or ``header.stamp`` (ROS 2) is ``start_time_ns + round(k * Ts * 1e9)`` ns
+(the wire contract's anchor, from the payload time t = k * Ts), and offline there is no receive time, so log_time is
 the same instant (one time base per file; readers must not assume log_time is wall-clock).
 ``start_time_ns`` is written as a decimal string in the file's ``noiselab`` metadata record (the
 bag's ``custom_data`` for ROS 2, as ``noiselab.start_time_ns``), beside the model (TOML), Ts and
@@ -107,14 +107,15 @@ def write_simulation(model, n: int, seed: int, out: Path, *, force: bool = False
 
 
 def _blocks(model, n: int, seed: int, start: int):
-    """``(k0, t, stamp_ns, block)`` of consecutive blocks: ``t`` s since the start, ``stamp_ns``
-    the anchored publish times."""
+    """``(k0, t, stamp_ns, block)`` of consecutive blocks: ``t`` the payload times (s since the
+    start, :func:`service.nodes.wire.sample_times`), ``stamp_ns`` the anchored publish times
+    ``start + round(t * 1e9)`` (int64 ns; ``np.rint`` rounds half to even, as Python's ``round``)."""
     from . import wire
 
     k0 = 0
     for blk in model.simulate_blocks(n, seed=seed):
-        t, pub = wire.sample_times(k0, blk.t.size, model.Ts)
-        yield k0, t, pub + np.int64(start), blk
+        t, _ = wire.sample_times(k0, blk.t.size, model.Ts)
+        yield k0, t, np.int64(start) + np.rint(t * 1e9).astype(np.int64), blk
         k0 += blk.t.size
 
 
