@@ -26,6 +26,16 @@ What is measured (every ratio is taken against its peer *in the same run*):
    over ``execve`` and Python starts the child with vfork, so the child's ``ru_maxrss`` starts at
    the *parent's* peak (this benchmark's parent holds the 1e6 runs, ~240 MiB).
 4. ``trials``: ``simulate(6000, trials=1000)`` time per sample-trial (informational, no target).
+5. ``write``: ``noiselab simulate`` writing N = 1e6 samples of ``seed`` (3e6 messages: truth, command,
+   measurement), ``write_simulation(..., fmt=F)`` for F = ``mcap`` (noiselab's JSON MCAP) and
+   ``ros2`` (a rosbag2 bag: CDR ``sensor_msgs/JointState``), against the raw ``mcap.writer.Writer``
+   writing *the same messages*: every message of the file just written (its bytes, channel,
+   log/publish time, sequence, in file order) is read back and held in memory, then written by a
+   bare ``add_message`` loop with the same profile, schemas, channels, chunk size (1 MiB) and
+   compression (zstd). Ours includes everything ``simulate`` does (simulation, encoding, checks,
+   writing, closing); the peer only writes. Target: ours >= 0.8x the peer's rate (peer time /
+   our time), best runs; a 1e4-sample call of each side is the warm-up, and the two sides' runs
+   alternate (ours, then peer and ours ``--repeat`` times) so that both meet the same load.
 
 Timing: ``time.perf_counter`` around each call, one warm-up call first; every figure is repeated
 and reported as best, median and [min, max]. Pass/fail uses the *best* run of each side (noise from
@@ -66,12 +76,12 @@ for p in (str(REPO), str(REPO / "tests")):
     if p not in sys.path:
         sys.path.insert(0, p)
 
-import numpy as np  # noqa: E402
-import scipy  # noqa: E402
+import numpy as np
+import scipy
+import seed_reference
 
-import seed_reference  # noqa: E402
-from service.model.effects import CATALOGUE  # noqa: E402
-from service.model.model import load_model, parse_model  # noqa: E402
+from service.model.effects import CATALOGUE
+from service.model.model import load_model, parse_model
 
 RESULTS = HERE / "RESULTS.md"
 SECTION = "## Simulation (issue 2)"
@@ -88,6 +98,7 @@ def markers(tag: str) -> tuple[str, str]:
             f"<!-- END bench_simulate [{tag}] -->")
 
 TARGET_RATIO = 50.0     # batch vs lesson loop, per sample
+TARGET_WRITE = 0.8      # simulate's writing rate / the raw mcap writer's, same messages
 TARGET_STEP_US = 20.0   # step API, per sample
 
 # Every effect of the catalogue on a 2-state plant (keys as the effect modules parse them).
@@ -214,11 +225,11 @@ def bench_batch(sizes, repeat, peer_repeat_for) -> list[dict]:
     model = load_model("seed")
     rows = []
     for n in sizes:
-        sim = timed(lambda: model.simulate(n, seed=1), repeat)
+        sim = timed(lambda n=n: model.simulate(n, seed=1), repeat)
         pr = peer_repeat_for(n)
         # the peer's warm-up is a small call (import, first-call costs), not a second full run
         seed_reference.seed_loop(1000)
-        peer = timed(lambda: seed_reference.seed_loop(n), pr, warmup=0)
+        peer = timed(lambda n=n: seed_reference.seed_loop(n), pr, warmup=0)
         s, p = summary(sim), summary(peer)
         rows.append({"n": n, "sim": s, "peer": p,
                      "ratio_best": p["best"] / s["best"], "ratio_median": p["median"] / s["median"],
@@ -232,7 +243,7 @@ def bench_batch(sizes, repeat, peer_repeat_for) -> list[dict]:
 def bench_step(models, steps, repeat, percall) -> list[dict]:
     rows = []
     for label, model in models:
-        def loop():
+        def loop(model=model):
             st = model.stepper(seed=1)
             step = st.step
             for _ in range(steps):
@@ -322,6 +333,103 @@ def bench_trials(n: int, trials: int, repeat: int) -> dict:
     return res
 
 
+# -- 5. simulate's writers against the raw mcap writer ----------------------------------------------
+WRITE_START_NS = 1_700_000_000_000_000_000          # a fixed wall-clock anchor: the same bytes every run
+
+
+def _file_of(out: Path, fmt: str) -> Path:
+    return out / f"{out.name}.mcap" if fmt == "ros2" else out
+
+
+def _held_messages(path: Path):
+    """Everything the raw writer needs to write ``path``'s messages again, held in memory."""
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        r = make_reader(f)
+        header = r.get_header()
+        summary = r.get_summary()
+        rows = [(ch.id, m.log_time, m.data, m.publish_time, m.sequence)
+                for _s, ch, m in r.iter_messages(log_time_order=False)]
+    return header.profile, summary.schemas, summary.channels, rows
+
+
+def _raw_write(path: Path, profile, schemas, channels, rows) -> None:
+    from mcap.writer import CompressionType, Writer
+
+    with open(path, "wb") as f:
+        w = Writer(f, chunk_size=1 << 20, compression=CompressionType.ZSTD)
+        w.start(profile=profile, library="bench peer")
+        sid = {i: w.register_schema(s.name, s.encoding, s.data) for i, s in schemas.items()}
+        cid = {i: w.register_channel(c.topic, c.message_encoding, sid[c.schema_id], c.metadata)
+               for i, c in channels.items()}
+        add = w.add_message
+        for c, log, data, pub, seq in rows:
+            add(channel_id=cid[c], log_time=log, data=data, publish_time=pub, sequence=seq)
+        w.finish()
+
+
+def bench_write(n: int, repeat: int) -> list[dict]:
+    import shutil
+    import tempfile
+
+    from service.nodes.simwrite import write_simulation
+
+    model = load_model("seed")
+    rows = []
+    with tempfile.TemporaryDirectory() as d:
+        for fmt in ("mcap", "ros2"):
+            out = Path(d) / f"sim-{fmt}"
+
+            def ours(k=n, out=out, fmt=fmt):
+                if out.is_dir():
+                    shutil.rmtree(out)
+                elif out.exists():
+                    out.unlink()
+                write_simulation(model, k, 1, out, fmt=fmt, start_time_ns=WRITE_START_NS)
+
+            ours(10**4)                               # warm-up (imports, first calls)
+            mine = timed(ours, 1, warmup=0)           # this run's file holds the peer's messages
+            held = _held_messages(_file_of(out, fmt))
+            peer_path = Path(d) / "peer.mcap"
+            _raw_write(peer_path, *held[:3], held[3][:10**4])
+
+            def peer_once(held=held, peer_path=peer_path):
+                _raw_write(peer_path, *held)
+
+            peer = []
+            for _ in range(repeat):                   # alternated: both sides meet the same load
+                peer += timed(peer_once, 1, warmup=0)
+                mine += timed(ours, 1, warmup=0)
+            s, p = summary(mine), summary(peer)
+            rows.append({"fmt": fmt, "n": n, "messages": len(held[3]), "ours": s, "peer": p,
+                         "bytes": _file_of(out, fmt).stat().st_size, "peer_bytes": peer_path.stat().st_size,
+                         "ratio_best": p["best"] / s["best"], "ratio_median": p["median"] / s["median"]})
+            held = peer_once = None                   # the next format's messages take their place
+            r = rows[-1]
+            print(f"  write {fmt} N={n:.0e}: ours best {s['best']:.2f} s, raw writer best {p['best']:.2f} s, "
+                  f"ratio {r['ratio_best']:.2f}x (median {r['ratio_median']:.2f}x)", flush=True)
+    return rows
+
+
+def profile_write(n: int) -> str:
+    import tempfile
+
+    from service.nodes.simwrite import write_simulation
+
+    buf = io.StringIO()
+    model = load_model("seed")
+    with tempfile.TemporaryDirectory() as d:
+        for fmt in ("mcap", "ros2"):
+            pr = cProfile.Profile()
+            pr.enable()
+            write_simulation(model, n, 1, Path(d) / f"p-{fmt}", fmt=fmt, start_time_ns=WRITE_START_NS)
+            pr.disable()
+            buf.write(f"\n=== cProfile: write_simulation(seed, {n}, fmt={fmt!r}) (sorted by tottime)\n")
+            pstats.Stats(pr, stream=buf).sort_stats("tottime").print_stats(15)
+    return buf.getvalue()
+
+
 # -- profile ---------------------------------------------------------------------------------------
 def profile(n_batch: int, n_step: int) -> str:
     buf = io.StringIO()
@@ -355,8 +463,8 @@ def fmt_s(s: dict, unit: float = 1.0, digits: int = 3) -> str:
 
 
 def table(res: dict) -> str:
-    rows = ["| # | measure | N | time best / median [min–max] ×runs | per sample (best / median) | "
-            "target | result |",
+    rows = [("| # | measure | N | time best / median [min–max] ×runs | per sample (best / median) | "
+            "target | result |"),
             "|---|---|---|---|---|---|---|"]
     for b in res.get("batch", []):
         n = b["n"]
@@ -395,6 +503,18 @@ def table(res: dict) -> str:
         rows.append(f"| 4 | `simulate({t['n']}, trials={t['trials']})` | {t['n'] * t['trials']:.0e} "
                     f"sample-trials | {fmt_s(t['t'], 1, 3)} s | {t['ns_best']:.1f} / {t['ns_median']:.1f} "
                     f"ns per sample-trial | | info |")
+    for w in res.get("write", []):
+        n, s, p = w["n"], w["ours"], w["peer"]
+        what = {"mcap": "JSON MCAP", "ros2": "rosbag2 (CDR)"}[w["fmt"]]
+        rows.append(f"| 5 | `simulate` → {what}, `write_simulation(fmt={w['fmt']!r})` | {n:.0e} samples, "
+                    f"{w['messages']:.0e} msgs | {fmt_s(s, 1, 2)} s | "
+                    f"{s['best'] / w['messages'] * 1e6:.2f} / {s['median'] / w['messages'] * 1e6:.2f} µs per message | | |")
+        rows.append(f"| 5 | peer: raw `mcap.writer.Writer`, the same messages | {w['messages']:.0e} msgs | "
+                    f"{fmt_s(p, 1, 2)} s | {p['best'] / w['messages'] * 1e6:.2f} / "
+                    f"{p['median'] / w['messages'] * 1e6:.2f} µs per message | | |")
+        ok = w["ratio_best"] >= TARGET_WRITE
+        rows.append(f"| 5 | **rate ratio ours/peer** ({what}) | {n:.0e} | best {w['ratio_best']:.2f}×, median "
+                    f"{w['ratio_median']:.2f}× | | ≥ {TARGET_WRITE}× | **{'PASS' if ok else 'FAIL'}** |")
     return "\n".join(rows)
 
 
@@ -416,13 +536,13 @@ def markdown(res: dict, argv: list[str]) -> str:
         "",
         f"Run: {res['date']} (local time). Wall clock {res['wall']:.0f} s.",
         "",
-        f"Machine: nproc {m['nproc']}, CPU `{m['cpu']}`, {m['platform']}; Python {m['python']}, "
+        (f"Machine: nproc {m['nproc']}, CPU `{m['cpu']}`, {m['platform']}; Python {m['python']}, "
         f"numpy {m['numpy']}, scipy {m['scipy']}, BLAS {m['blas']}. Load average (1/5/15 min) at start "
         f"{res['load_start']}, at end {res['load_end']} (other processes were sharing the machine "
-        "if the 1-min figure is near or above 1).",
+        "if the 1-min figure is near or above 1)."),
         "",
-        "Times: best / median [min–max] ×runs. Ratios are against the peer in the same run; "
-        "pass/fail uses the best run of each side.",
+        ("Times: best / median [min–max] ×runs. Ratios are against the peer in the same run; "
+        "pass/fail uses the best run of each side."),
         "",
         table(res),
         "",
@@ -456,7 +576,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="small smoke sizes (seconds); never writes")
-    ap.add_argument("--only", nargs="+", choices=("batch", "step", "memory", "trials"),
+    ap.add_argument("--only", nargs="+", choices=("batch", "step", "memory", "trials", "write"),
                     help="run only these parts")
     ap.add_argument("--repeat", type=int, default=None, help="runs per batch/step figure (default 7, quick 2)")
     ap.add_argument("--peer-repeat", type=int, default=2, help="runs of the lesson loop at N=1e6 (~15 s each)")
@@ -479,7 +599,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.quick and args.write:
         ap.error("--quick figures are smoke sizes: not written to RESULTS.md")
 
-    parts = set(args.only or ("batch", "step", "memory", "trials"))
+    parts = set(args.only or ("batch", "step", "memory", "trials", "write"))
     q = args.quick
     repeat = args.repeat or (2 if q else 7)
     sizes = (10**4,) if q else (10**5, 10**6)
@@ -487,6 +607,7 @@ def main(argv: list[str] | None = None) -> int:
     percall = min(args.percall, 2000) if q else args.percall
     mem_n = 10**5 if q else 10**7
     tr_n, tr_k = (600, 100) if q else (6000, 1000)
+    write_n = 10**5 if q else 10**6
 
     res: dict = {"date": _dt.datetime.now().strftime("%Y-%m-%d %H:%M"), "machine": machine(),
                  "load_start": loadavg(), "quick": q, "tag": run_tag()}
@@ -505,6 +626,8 @@ def main(argv: list[str] | None = None) -> int:
         res["memory"] = bench_memory(mem_n, 1 if q else args.mem_repeat)
     if "trials" in parts:
         res["trials"] = bench_trials(tr_n, tr_k, repeat if q else 5)
+    if "write" in parts:
+        res["write"] = bench_write(write_n, 2 if q else 3)
     res["wall"] = time.perf_counter() - t_all
     res["load_end"] = loadavg()
     print()
@@ -512,6 +635,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"\nload average at end: {res['load_end']}; wall {res['wall']:.0f} s")
     if args.profile:
         print(profile(10**5 if q else 10**6, steps))
+        if "write" in parts:
+            print(profile_write(write_n))
     if args.json:
         args.json.write_text(json.dumps(res, indent=1, default=float))
     if args.write:
