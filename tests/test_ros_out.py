@@ -356,3 +356,20 @@ def test_sensor_only_imu_has_no_truth_topic(tmp_path):
     # the covariance: the white noise's per-sample variance density^2 / Ts (+ the bias' initial spread)
     cov = np.diag(meas[0].angular_velocity_covariance.reshape(3, 3))
     assert np.all(cov >= (1.7e-4) ** 2 / model.Ts)
+
+
+def test_noiselab_reads_its_own_bag_back(tmp_path):
+    """What `simulate --format ros2` writes, `analyze`/`diagnose` read back: the IMU's six axes bit
+    for bit, the time from header.stamp (s from the first sample)."""
+    from service.diagnose.load import load_recording
+
+    model = parse_model(IMU, "imu6.toml")
+    n = 3000
+    write_simulation(model, n, 5, tmp_path / "bag", fmt="ros2", start_time_ns=START)
+    s = load_recording(str(tmp_path / "bag"), spec="/imu6/measurement:angular_velocity.*,linear_acceleration.*",
+                       model=model)
+    assert np.array_equal(s.y, model.simulate(n, seed=5).y)
+    assert s.names == [f"{v}.{a}" for v in ("angular_velocity", "linear_acceleration") for a in "xyz"]
+    assert np.allclose(s.t, np.arange(n) * model.Ts, rtol=0, atol=1e-12)
+    truth = load_recording(str(tmp_path / "bag"), spec="/imu6/truth:position.*", model=model)
+    assert np.array_equal(truth.y, model.simulate(n, seed=5).x)
