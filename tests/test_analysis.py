@@ -341,13 +341,13 @@ def test_rrd_holds_the_numbers_of_compare(seed_recording, tmp_path):
     c = compare(load_model("seed-nominal"), rec.t, rec.y, rec.u, burn=None, level=True)
     assert rep["error"] == c.error and rep["error_per_view"] == c.error_per_view
     ch = read_chunks(rrd)
-    assert np.array_equal(column(ch["/rev0/out0/level"], "z")[0], c.view("level").z)
+    assert np.array_equal(column(ch["/rev0/position/level"], "z")[0], c.view("level").z)
     v = c.view("psd")
-    emp = ch["/rev0/out0/psd/plot/empirical"]
+    emp = ch["/rev0/position/psd/plot/empirical"]
     assert np.array_equal(column(emp, "x")[0], v.x)
     assert np.array_equal(column(emp, "y")[0], v.empirical)
-    assert np.array_equal(column(ch["/rev0/out0/psd/plot/predicted"], "y")[0], v.predicted)
-    assert np.array_equal(column(ch["/rev0/out0/psd"], "z")[0], v.z)
+    assert np.array_equal(column(ch["/rev0/position/psd/plot/predicted"], "y")[0], v.predicted)
+    assert np.array_equal(column(ch["/rev0/position/psd"], "z")[0], v.z)
     # the model error per revision (one revision) is the --json error
     ov = ch["/error/overall"]
     assert column(ov, "revision") == [0]

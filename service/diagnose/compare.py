@@ -1137,4 +1137,6 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
         nts.append(f"analysis starts at t = {t[burn]:.3g} s, after the model's transient from rest ({burn} samples)")
     return Comparison(model_name=model.name, model_source=model.source, revision=revision, Ts=model.Ts,
                       t=t, y=y, y_mean=y_mean, y_sd=y_sd, truth=truth, views=views, error=error,
-                      error_per_view=per_view, regions=regions, notes=nts)
+                      error_per_view=per_view, regions=regions, notes=nts,
+                      output_names=tuple(model.output_names), output_units=tuple(model.output_units),
+                      model_effects={eid: e.param_dict() for eid, e in model.effects.items()})

@@ -90,6 +90,10 @@ class Comparison:
     error_per_view: dict           # view name -> mean error over outputs
     regions: list                  # of Region
     notes: list = field(default_factory=list)   # data problems found (gaps, irregular timing, ...)
+    output_names: tuple | None = None   # the model's [outputs] names and units, one per column of y
+    output_units: tuple | None = None
+    model_effects: dict | None = None   # {effect id: its parameters}: what each revision holds
+    recording: str | None = None        # where the data came from (path [topic:field] or [device])
 
     def view(self, name: str, output: int = 0) -> View:
         for v in self.views:
