@@ -155,10 +155,25 @@ def file_messages(path) -> dict[str, list]:
     return dict(out)
 
 
-def check_recording(path, model, seed: int, n: int, *, batch: bool = True) -> None:
+def recorded_start(path, name: str) -> int:
+    """The wall-clock start of device ``name``'s stream in a recording: the file's start_time_ns
+    (metadata record ``noiselab``), which the recorder took from the source (``stated``)."""
+    meta = mcapio.read_recording(path).metadata
+    start = int(meta["noiselab"]["start_time_ns"])
+    assert json.loads(meta["noiselab.recorder"]["starts"]) == {
+        f"noiselab/{name}": {"start_time_ns": start, "stated": True}}
+    return start
+
+
+def check_recording(path, model, seed: int, n: int, *, batch: bool = True, start_time_ns: int | None = None) -> None:
     """A finished recording holds exactly samples 0..n-1 per data topic, on the wire contract,
-    with the step API's payload bytes (and the batch API's values when ``batch``)."""
-    name, Ts_ns = model.name, wire.period_ns(model.Ts)
+    with the step API's payload bytes (and the batch API's values when ``batch``); its publish
+    times are the source's start (``start_time_ns``, the emulator's summary, when given) + k Ts,
+    on the wall clock of its receive times."""
+    name = model.name
+    start = recorded_start(path, name)
+    if start_time_ns is not None:
+        assert start == start_time_ns
     msgs = file_messages(path)
     steps = step_path(model, seed, n)
     for kind in DATA_KINDS:
@@ -171,7 +186,10 @@ def check_recording(path, model, seed: int, n: int, *, batch: bool = True) -> No
         seqs = [json.loads(m.data)["seq"] for _, _, m in got]
         assert seqs == list(range(n)), f"{topic}: not 0..{n - 1} in order"
         assert [m.sequence for _, _, m in got] == seqs
-        assert [m.publish_time for _, _, m in got] == [k * Ts_ns for k in range(n)]
+        assert [m.publish_time for _, _, m in got] == [start + round(k * model.Ts * 1e9) for k in range(n)]
+        # one time base: every sample is received after it was due (it is put at its deadline or later)
+        early = [m.sequence for _, _, m in got if m.log_time < m.publish_time]
+        assert not early, f"{topic}: received before due (wall clock), first at seq {early[0]}"
         want = expected_payloads(model, steps, kind, n)
         bad = [k for k, (_, _, m) in enumerate(got) if m.data != want[k]]
         assert not bad, f"{topic}: {len(bad)} payloads differ from the step API, first at seq {bad[0]}"
@@ -282,7 +300,7 @@ def test_run_records_5000_consecutive_messages_equal_to_the_batch_simulation(fas
                                                           "measurement": N_FAST, "health": 5}}
     path = Path(rep["recording"])
     assert path.parent == tmp_path / "rec" and path.is_file()
-    check_recording(path, fast_model, SEED_FAST, N_FAST)
+    check_recording(path, fast_model, SEED_FAST, N_FAST, start_time_ns=rep["emulator"]["start_time_ns"])
 
 
 def test_separate_record_and_emulate_processes(separate_recording, fast_model):
@@ -292,7 +310,7 @@ def test_separate_record_and_emulate_processes(separate_recording, fast_model):
     assert rec_summary["malformed"] == 0
     check_summary_topics(rec_summary["topics"], "fast", N_FAST)
     check_end_acknowledged(emu_summary, "fast", N_FAST)
-    check_recording(path, fast_model, SEED_FAST, N_FAST)
+    check_recording(path, fast_model, SEED_FAST, N_FAST, start_time_ns=emu_summary["start_time_ns"])
     meta = mcapio.read_recording(path).metadata["noiselab.recorder"]
     assert json.loads(meta["topics"]) == rec_summary["topics"]
 
@@ -383,7 +401,7 @@ def test_router_and_two_clients_carry_a_device(fast_model_file, fast_model, spaw
     assert rec.interrupt() == 0, rec.stderr_text()
     assert router.interrupt() == 0, router.stderr_text()
     check_summary_topics(rec.json()["topics"], "fast", 2000)
-    check_recording(out, fast_model, 11, 2000, batch=False)
+    check_recording(out, fast_model, 11, 2000, batch=False, start_time_ns=emu.json()["start_time_ns"])
 
 
 # ---------------------------------------------------------------------- 3. closed loop
@@ -884,6 +902,8 @@ def test_end_of_stream_is_answered_after_the_data_and_a_shortfall_is_a_gap(spawn
         pubs = {kind: session.declare_publisher(wire.key("src", kind), **transport.DATA_QOS)
                 for kind in ("measurement", "command", "end")}
         assert transport.wait_matching(pubs.values(), T_EVENT), "the recorder did not match"
+        # a foreign publisher: its puts say zenoh's default encoding and no attachment, and count the same
+        assert str(pubs["measurement"].encoding) == "zenoh/bytes"
         for payload in meas:
             pubs["measurement"].put(payload)
         for k, payload in enumerate(cmds):
@@ -916,7 +936,12 @@ def test_end_of_stream_is_answered_after_the_data_and_a_shortfall_is_a_gap(spawn
     assert [m.data for _, _, m in msgs["noiselab/src/measurement"]] == meas
     assert [m.data for _, _, m in msgs["noiselab/src/command"]] == cmds
     assert [m.sequence for _, _, m in msgs["noiselab/src/measurement"]] == list(range(n))
-    assert [m.publish_time for _, _, m in msgs["noiselab/src/measurement"]] == [k * 1_000_000 for k in range(n)]
+    # a source that states no start is anchored at its first sample's arrival (t = 0 then)
+    pub = [m.publish_time for _, _, m in msgs["noiselab/src/measurement"]]
+    assert pub == [pub[0] + k * 1_000_000 for k in range(n)]
+    assert pub[0] == msgs["noiselab/src/measurement"][0][2].log_time
+    assert summary["starts"] == {"noiselab/src": {"start_time_ns": pub[0], "stated": False}}
+    assert mcapio.read_recording(out).metadata["noiselab"]["start_time_ns"] == str(pub[0])
     (schema, channel, end_msg), = msgs["noiselab/src/end"]
     assert schema.name == "noiselab.End" and wire.decode_end(end_msg.data)["counts"] == claimed
     assert "noiselab/src/truth" not in msgs
@@ -944,7 +969,7 @@ def test_emulator_at_10_khz_loses_nothing_at_the_end(spawn, tmp_path):
     rec.wait_line("noiselab record: noiselab/fast10k ended (duration) after 20000 samples: every message recorded")
     assert rec.interrupt() == 0, rec.stderr_text()
     check_summary_topics(rec.json()["topics"], "fast10k", n)
-    check_recording(out, model, 3, n, batch=False)
+    check_recording(out, model, 3, n, batch=False, start_time_ns=summary["start_time_ns"])
 
 
 def test_recorder_batches_equal_message_by_message(tmp_path):

@@ -612,3 +612,30 @@ def test_one_magnitude_bound_from_the_wire_to_the_analysis(tmp_path):
                 w.write(wire.key("loop", kind), kind, k, pub, pub, wire.encode(k, wire.sample_time(k, model.Ts), v, kind=kind))
     series = load.load_noiselab(path, model=model)
     assert series.y.shape == (400, 1) and np.abs(series.y).max() > 1e40
+
+
+def test_zenoh_encoding_names_the_schema():
+    for kind in wire.ALL_KINDS:
+        assert wire.zenoh_encoding(kind) == f"application/json;{wire.SCHEMA_NAMES[kind]}"
+    with pytest.raises(WireError, match="unknown"):
+        wire.zenoh_encoding("state")
+
+
+def test_anchor_round_trip_and_anchored_publish_time():
+    """The attachment states the start; publish_time = start + round(t 1e9), exact in int64 (a
+    float64 epoch in ns would keep only ~0.25 us), refused when t is negative or past int64."""
+    start = 1_760_000_000_123_456_789
+    assert wire.decode_anchor(wire.encode_anchor(start)) == start
+    assert wire.encode_anchor(start) == json.dumps({"start_time_ns": start}, separators=(",", ":")).encode()
+    for bad in (-1, wire.START_MAX + 1, 1.0, True):
+        with pytest.raises(WireError, match="start_time_ns"):
+            wire.encode_anchor(bad)
+    Ts = 1 / 3
+    assert [wire.anchored_ns(start, wire.sample_time(k, Ts)) for k in (0, 1, 3)] == [
+        start, start + 333_333_333, start + 1_000_000_000]
+    assert wire.anchored_ns(wire.START_MAX, 2**62 / 1e9 - 1) < 2**63
+    for t in (-1e-9, math.nan, math.inf):
+        with pytest.raises(WireError, match="sample time"):
+            wire.anchored_ns(start, t)
+    with pytest.raises(WireError, match="exceeds"):
+        wire.anchored_ns(wire.SEQ_MAX - 5, 1.0)

@@ -329,7 +329,7 @@ def run_live(session, model_spec: str, *, device: str | None, window_s: float, u
     # that waits for any match start between them and lose the first commands (seq 0 incomplete:
     # the analysis no longer starts at rest). The other kinds (truth, our own analysis) are ignored.
     subs = [session.declare_subscriber(f"{wire.PREFIX}/{wire.check_name(an.device)}/*", an.on_sample)]
-    pub = session.declare_publisher(wire.key(an.device, wire.ANALYSIS))
+    pub = transport.declare_stream(session, wire.key(an.device, wire.ANALYSIS), wire.ANALYSIS)
     print(f"{READY_MARK} noiselab/{an.device}/measurement, window {window_s:g} s, "
           f"update every {update_s:g} s, model {an.model.source}", file=log, flush=True)
     t_start = time.monotonic()

@@ -6,6 +6,12 @@ not accumulate; the loop sleeps until ``spin`` before the deadline and spins the
 skips a sample: when it falls behind it catches up and counts an *overrun* (work for sample k
 finished after d_{k+1}). Lateness is the wake-up time minus the deadline.
 
+Time base (wire contract, "Time"): ``start_time_ns`` is the wall-clock time (Unix ns) at which
+sample 0 is due, read once beside the monotonic clock that sets the deadlines; every data and
+health sample carries it as its attachment, so a recorder writes publish_time = start_time_ns +
+round(k Ts 1e9) on the same wall clock as its receive times, and a late joiner learns it from
+its first sample. Puts say Zenoh encoding ``application/json;<schema name>``.
+
 Data streams are published with congestion control BLOCK (a slow subscriber slows the loop,
 which the health shows, instead of losing recorded data), without ``express`` (with a subscriber
 attached it tripled the cost of the three puts, ~110 -> ~31 us, and bought no latency).
@@ -65,9 +71,11 @@ class EmulatorSummary:
     speed: float = 1.0
     rejected_controls: int = 0
     diverged_at: int | None = None
+    start_time_ns: int = 0
 
     def as_dict(self) -> dict:
         return {"node": "emulate", "name": self.name, "samples": self.samples, "Ts": self.Ts, "seed": self.seed, "speed": self.speed,
+                "start_time_ns": self.start_time_ns,
                 "lateness_us": self.lateness_us, "overruns": self.overruns, "wall_s": self.wall_s,
                 "stale_control_events": self.stale_control_events, "rejected_controls": self.rejected_controls,
                 "diverged_at": self.diverged_at, "keys": self.keys, "end": self.end}
@@ -132,8 +140,10 @@ def run_emulator(model, session: "zenoh.Session", *, duration: float | None, see
     wall_ns = Ts_ns / speed                       # wall-clock period (float ns; deadlines rounded per sample)
     n_total = None if duration is None else max(1, int(round(duration / Ts)))
     keys = {kind: wire.key(name, kind) for kind in (*wire.KINDS, wire.HEALTH, wire.CONTROL, wire.END)}
-    pubs = {kind: session.declare_publisher(keys[kind], **transport.DATA_QOS) for kind in (*wire.KINDS, wire.END)}
-    health_pub = session.declare_publisher(keys[wire.HEALTH], congestion_control=zenoh.CongestionControl.DROP)
+    pubs = {kind: transport.declare_stream(session, keys[kind], kind, **transport.DATA_QOS)
+            for kind in (*wire.KINDS, wire.END)}
+    health_pub = transport.declare_stream(session, keys[wire.HEALTH], wire.HEALTH,
+                                          congestion_control=zenoh.CongestionControl.DROP)
     started = [-1, -1]            # the last sample / health report whose puts have begun
     data_keys = [keys[kind] for kind in wire.KINDS]
 
@@ -163,6 +173,8 @@ def run_emulator(model, session: "zenoh.Session", *, duration: float | None, see
     health_seq = 0
     t0 = time.monotonic_ns() + 2_000_000          # first deadline 2 ms from now
     start_ns = t0
+    start_time_ns = time.time_ns() + (t0 - time.monotonic_ns())   # the wall clock when sample 0 is due
+    anchor = wire.encode_anchor(start_time_ns)
     k = 0
     mono = time.monotonic_ns
     try:
@@ -207,9 +219,9 @@ def run_emulator(model, session: "zenoh.Session", *, duration: float | None, see
                 p_command = wire.encode(k, tk, u_applied, kind="command", topic=keys["command"])
                 p_measurement = wire.encode(k, tk, y, kind="measurement", topic=keys["measurement"])
                 started[0] = k
-                pubs["truth"].put(p_truth)
-                pubs["command"].put(p_command)
-                pubs["measurement"].put(p_measurement)
+                pubs["truth"].put(p_truth, attachment=anchor)
+                pubs["command"].put(p_command, attachment=anchor)
+                pubs["measurement"].put(p_measurement, attachment=anchor)
                 if mono() > deadline + wall_ns:
                     overruns += 1
                 k += 1
@@ -219,7 +231,7 @@ def run_emulator(model, session: "zenoh.Session", *, duration: float | None, see
                     stats = {"k": k, "lateness_p50_us": p50, "lateness_p99_us": p99, "lateness_max_us": mx,
                              "overruns": overruns, "late_control": int(stale)}
                     started[1] = health_seq
-                    health_pub.put(wire.encode_health(health_seq, tk, stats))
+                    health_pub.put(wire.encode_health(health_seq, tk, stats), attachment=anchor)
                     health_seq += 1
     finally:
         if sub is not None:
@@ -238,7 +250,7 @@ def run_emulator(model, session: "zenoh.Session", *, duration: float | None, see
                            lateness_us={"p50": p50, "p99": p99, "max": mx}, overruns=overruns,
                            wall_s=wall_s, stale_control_events=stale_events,
                            rejected_controls=control.bad if external else 0, diverged_at=diverged_at,
-                           keys={k_: v for k_, v in keys.items()}, end=end)
+                           start_time_ns=start_time_ns, keys={k_: v for k_, v in keys.items()}, end=end)
 
 
 def _beyond(*vectors) -> str | None:

@@ -1,6 +1,18 @@
 """The recorder node: subscribes to a key expression (default ``noiselab/**``) and writes every
 sample it receives to MCAP (wire contract: one channel per key, JSON Schema, sequence = seq,
-publish_time = the sample time t in ns, log_time = receive time, wall clock ns).
+publish_time = the stream's wall-clock start + the sample time t, log_time = receive time, both in
+ns on the wall clock: one time base per file).
+
+* Time base (:mod:`wire`, "Time"): a source states its run's wall-clock start (``start_time_ns``)
+  in its samples' attachment; the recorder writes publish_time = start_time_ns + round(t 1e9)
+  for every topic of that source (``noiselab/<name>/...``). A source that states none is
+  anchored at its first sample's arrival, max(0, log_time - round(t 1e9)). The first source's
+  start is the file's ``start_time_ns`` (metadata record ``noiselab``, written before the first
+  message); every source's is in ``noiselab.recorder`` (``starts``). An attachment that breaks
+  the contract is ignored and counted (``bad_anchors``, once per change of a topic's attachment:
+  a source repeats it on every sample), the sample with it recorded as usual.
+  The anchor a source states is taken per batch (a few ms), so a source restarted with a new
+  start has its new anchor from the batch its first sample comes in.
 
 * Samples wait in a bounded zenoh FIFO channel (:data:`CAPACITY`); the main thread takes them in
   batches (whatever has arrived, at most :data:`BATCH`), so no Python code runs per message on
@@ -153,12 +165,14 @@ class RecorderSummary:
     ended: dict = field(default_factory=dict)
     malformed_topics: dict = field(default_factory=dict)   # key -> messages skipped
     unended: dict = field(default_factory=dict)            # prefix -> {kind: last seq}: no end of stream came
+    starts: dict = field(default_factory=dict)             # prefix -> {"start_time_ns": int, "stated": bool}
+    bad_anchors: int = 0                                   # attachments that broke the contract (ignored)
 
     def as_dict(self) -> dict:
         return {"node": "record", "out": self.out, "messages": self.messages, "malformed": self.malformed,
                 "malformed_topics": self.malformed_topics, "wall_s": self.wall_s,
                 "topics": {k: v.as_dict() for k, v in self.topics.items()}, "ended": self.ended,
-                "unended": self.unended}
+                "unended": self.unended, "starts": self.starts, "bad_anchors": self.bad_anchors}
 
     def lines(self) -> list[str]:
         out = [f"recorded {self.messages} messages to {self.out} in {self.wall_s:.1f} s"]
@@ -213,10 +227,15 @@ class Ingest:
     """Decode, check, write and book batches of received samples (the recorder's main-thread
     work, without the transport: tests/bench calls it in-process)."""
 
-    def __init__(self, writer: "mcapio.RecordingWriter", out: str = "", log=sys.stderr):
+    def __init__(self, writer: "mcapio.RecordingWriter", out: str = "", log=sys.stderr,
+                 metadata: dict[str, str] | None = None):
         self.w = writer
         self.out = out
         self.log = log
+        self.metadata = metadata                 # the "noiselab" record, written before the first message
+        self.starts: dict[str, int] = {}         # prefix -> its stream's wall-clock start, ns
+        self.stated: set[str] = set()            # prefixes whose start their source stated
+        self.bad_anchors = 0
         self.books: dict[str, TopicBook] = {}
         self.gates: dict[str, seqgate.SeqGate] = {}  # topic -> its gate (items: (seq, t, payload, rx_ns))
         self.malformed = 0
@@ -241,6 +260,43 @@ class Ingest:
             if once is not None:
                 self.said.add(once)
             self._say(f"skipped a message: {exc}")
+
+    def state(self, key: str, attachment: bytes) -> None:
+        """A sample of ``key`` came with ``attachment``: its source's stream start
+        (:func:`wire.decode_anchor`), taken for every topic of the source from the next batch on.
+        One that breaks the contract is ignored and counted (the sample itself is judged apart)."""
+        try:
+            start = wire.decode_anchor(attachment, topic=key)
+        except wire.WireError as exc:
+            self.bad_anchors += 1
+            if "anchor" not in self.said:
+                self.said.add("anchor")
+                self._say(f"ignored an attachment (further ones counted in 'bad_anchors'): {exc}")
+            return
+        prefix = key.rsplit("/", 1)[0]
+        self.starts[prefix] = start
+        self.stated.add(prefix)
+
+    def _start(self, key: str, t: float, rx_ns: int) -> int:
+        """The wall-clock start of ``key``'s stream: the one its source stated, else fixed now from
+        this sample (time ``t`` s, received at ``rx_ns``) as ``max(0, rx_ns - round(t 1e9))``. The
+        first start fixed is the file's: the ``noiselab`` metadata record is written with it."""
+        prefix = key.rsplit("/", 1)[0]
+        start = self.starts.get(prefix)
+        if start is None:
+            try:
+                start = max(0, rx_ns - wire.anchored_ns(0, t))
+            except wire.WireError:
+                return 0                         # not a sample time: writing it fails and says why
+            self.starts[prefix] = start
+        if self.metadata is not None:
+            self.w.add_metadata("noiselab", {**self.metadata, "start_time_ns": str(start)})
+            self.metadata = None
+        return start
+
+    def starts_dict(self) -> dict:
+        """{prefix: {"start_time_ns": int, "stated": bool}} of every source recorded."""
+        return {p: {"start_time_ns": n, "stated": p in self.stated} for p, n in sorted(self.starts.items())}
 
     def _gate(self, key: str, kind: str) -> seqgate.SeqGate:
         gate = self.gates.get(key)
@@ -356,10 +412,14 @@ class Ingest:
 
     def finish(self) -> None:
         """The recorder stops: write what waits for a join point; a message still held by its
-        seq gate had no successor, so it is skipped."""
+        seq gate had no successor, so it is skipped. A file that got no message gets its
+        ``noiselab`` metadata record now (without a start)."""
         self.flush_join()
         for key, gate in self.gates.items():
             self._dropped(key, gate.flush())
+        if self.metadata is not None:
+            self.w.add_metadata("noiselab", self.metadata)
+            self.metadata = None
 
     def _add_run(self, key: str, kind: str, payloads: list[bytes], rx_ns: int) -> None:
         """Many payloads of one vector topic at once: decoded with ``wire.decode_batch``, and each
@@ -371,14 +431,15 @@ class Ingest:
         except wire.WireError:
             seq = None
         if seq is not None:
-            pub = np.rint(t * 1e9)
-            if ((pub < 0) | (pub >= 2.0**63)).any():   # not a u64 publish_time: write() names it
-                seq = None
+            rel = np.rint(t * 1e9)                      # wire.anchored_ns, for the whole run
+            start = self._start(key, float(t[0]), rx_ns)
+            if ((rel < 0) | (rel >= 2.0**63)).any() or int(rel.max()) > wire.SEQ_MAX - start:
+                seq = None                              # not an int64 publish_time: _write names it
         if seq is None:
             for payload in payloads:
                 self._add_one(key, kind, payload, rx_ns)
             return
-        pub = pub.astype(np.int64)
+        pub = rel.astype(np.int64) + np.int64(start)
         log = np.full(len(payloads), rx_ns, dtype=np.int64)
         gate, dim = self._gate(key, kind), vals.shape[1]
         breaks = np.flatnonzero(np.diff(seq) != 1) + 1
@@ -398,6 +459,7 @@ class Ingest:
             self._skip(key, exc)
             return
         item = (obj["seq"], float(obj["t"]), payload, rx_ns)
+        self._start(key, item[1], rx_ns)
         if kind == wire.END:                     # one message per stream, each with seq 0
             doubt = self._doubtful_end(key, obj)
             if doubt:
@@ -415,10 +477,10 @@ class Ingest:
                end: dict | None = None) -> None:
         """Write one message that has passed every check, and book it."""
         try:
-            self.w.write(key, kind, seq, int(round(t * 1e9)), rx_ns, payload)
+            self.w.write(key, kind, seq, wire.anchored_ns(self._start(key, t, rx_ns), t), rx_ns, payload)
         except mcapio.McapWriteError:
             raise                                # the file takes no more: not a bad message
-        except mcapio.McapIoError as exc:        # this message cannot be written (its times)
+        except (mcapio.McapIoError, wire.WireError) as exc:   # this message cannot be written (its times)
             self._skip(key, exc)
             return
         if end is not None:
@@ -546,8 +608,8 @@ def run_recorder(session: "zenoh.Session", key_expr: str, out: str, *, duration:
     stop = stop or threading.Event()
     t_start = time.monotonic()
     meta = {"generator": "noiselab record", "key_expr": key_expr, "started_unix_ns": str(time.time_ns())}
-    with mcapio.RecordingWriter(out, force=force, chunk_size=chunk_size, metadata=meta) as w:
-        ing = Ingest(w, str(out), log)
+    with mcapio.RecordingWriter(out, force=force, chunk_size=chunk_size) as w:
+        ing = Ingest(w, str(out), log, metadata=meta)
         # the queryable first: a source that sees the subscriber has seen it too
         queries = session.declare_queryable(key_expr, zenoh.handlers.FifoChannel(256))
         sub = session.declare_subscriber(key_expr, zenoh.handlers.FifoChannel(CAPACITY))
@@ -556,6 +618,7 @@ def run_recorder(session: "zenoh.Session", key_expr: str, out: str, *, duration:
         if ready is not None:
             ready(w.writing_path)
         recv, recv_query = sub.try_recv, queries.try_recv
+        anchors: dict[str, bytes] = {}     # key -> the last attachment taken (most samples repeat it)
         pending: list[list] = []          # [query, samples still to take before it may be answered]
         last_flush = last_rx = time.monotonic()
         stop_at = caught_up_at = None
@@ -565,7 +628,11 @@ def run_recorder(session: "zenoh.Session", key_expr: str, out: str, *, duration:
                     pending.append([q, CAPACITY])     # what preceded it is in the channel, at most CAPACITY
                 items = []
                 while len(items) < BATCH and (s := recv()) is not None:
-                    items.append((str(s.key_expr), s.payload.to_bytes()))
+                    key = str(s.key_expr)
+                    if (att := s.attachment) is not None and (att := att.to_bytes()) != anchors.get(key):
+                        anchors[key] = att
+                        ing.state(key, att)
+                    items.append((key, s.payload.to_bytes()))
                 empty = len(items) < BATCH            # the channel ran dry: what preceded the queries is in
                 now = time.monotonic()
                 if join is not None:
@@ -612,11 +679,13 @@ def run_recorder(session: "zenoh.Session", key_expr: str, out: str, *, duration:
             summary = RecorderSummary(out=str(out), topics=ing.books, messages=ing.messages,
                                       malformed=ing.malformed, wall_s=time.monotonic() - t_start,
                                       ended={k: v["counts"] for k, v in ing.ends.items()},
-                                      malformed_topics=dict(ing.malformed_topics), unended=unended)
+                                      malformed_topics=dict(ing.malformed_topics), unended=unended,
+                                      starts=ing.starts_dict(), bad_anchors=ing.bad_anchors)
             w.add_metadata("noiselab.recorder", {
                 "topics": json.dumps({k: v.as_dict() for k, v in ing.books.items()}),
                 "messages": str(ing.messages), "malformed": str(ing.malformed),
                 "malformed_topics": json.dumps(ing.malformed_topics), "unended": json.dumps(unended),
+                "starts": json.dumps(ing.starts_dict()), "bad_anchors": str(ing.bad_anchors),
                 "stopped_unix_ns": str(time.time_ns())})
     return summary
 

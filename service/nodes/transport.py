@@ -171,6 +171,13 @@ losing data). No ``express``: it makes zenoh send every message in its own write
 the cost of a put with a subscriber attached and bought no latency (tests/bench/RESULTS.md)."""
 
 
+def declare_stream(session, key_expr: str, kind: str, **options) -> zenoh.Publisher:
+    """A publisher of ``kind`` payloads on ``key_expr`` whose puts say the wire's Zenoh encoding,
+    ``application/json;<schema name>`` (:func:`wire.zenoh_encoding`), so generic Zenoh tools
+    decode them. ``options``: the publisher's QoS (e.g. :data:`DATA_QOS`)."""
+    return session.declare_publisher(key_expr, encoding=wire.zenoh_encoding(kind), **options)
+
+
 def end_stream(session, publisher, payload: bytes, timeout: float) -> dict:
     """End a stream without losing its tail: publish ``payload`` (a :func:`wire.encode_end`
     message) on ``publisher`` (``noiselab/<name>/end``), then query that key and wait, at most

@@ -32,11 +32,30 @@ Untrusted input (a payload comes from any peer on the network, or from a file)
     :class:`.seqgate.SeqGate`.
 
 Time (integer nanoseconds end to end, STYLE.md 13)
-    ``Ts_ns = round(Ts * 1e9)`` once (:func:`period_ns`); the MCAP ``publish_time`` of sample k
-    is the integer ``k * Ts_ns`` (:func:`publish_time_ns`), never a float epoch converted to ns.
-    The payload ``t`` is the float ``k * Ts`` (:func:`sample_time`). The two may differ by
-    ``k * |Ts*1e9 - Ts_ns|`` ns when Ts is not a whole number of ns; ``t`` is the model's clock,
-    ``publish_time`` the ordering key.
+    ``Ts_ns = round(Ts * 1e9)`` once (:func:`period_ns`). The payload ``t`` is the float
+    ``k * Ts`` (:func:`sample_time`), the model's clock, from 0 at the stream's first sample.
+    A live stream is anchored at its run's wall-clock start: ``start_time_ns``, the Unix-epoch
+    time in integer ns at which sample 0 was due, stated by the source in every sample's
+    attachment (below). The MCAP ``publish_time`` of sample k is ``start_time_ns +
+    round(k * Ts * 1e9)`` (:func:`anchored_ns`, from the payload's ``t``), so viewers show the
+    real date and ``publish_time`` and the recorder's wall-clock ``log_time`` share one time
+    base; the recording's ``noiselab`` metadata record holds ``start_time_ns`` as a decimal
+    string. A stream whose source states no anchor (a foreign publisher) is anchored by the
+    recorder at its first sample's arrival, ``max(0, log_time - round(t * 1e9))``: the same
+    time base, the latency of that one sample off.
+
+Attachment of a sample (Zenoh, optional; a wire extension)
+    ``{"start_time_ns":N}`` (compact UTF-8 JSON, :func:`encode_anchor`): N, int, 0 <= N <=
+    :data:`START_MAX`, the stream's wall-clock start as above. A source sends it on every data
+    and health sample, so a recorder that joins late learns it from whatever it receives first.
+    A sample without one is as valid as ever; a malformed one is ignored (counted), never the
+    sample with it.
+
+Zenoh encoding
+    Every noiselab put says ``application/json;<schema name>`` (:func:`zenoh_encoding`, e.g.
+    ``application/json;noiselab.Measurement``), so a generic Zenoh tool decodes the payload.
+    Receivers do not require it: a foreign publisher's ``zenoh/bytes`` sample with a valid
+    payload is taken the same.
 """
 
 from __future__ import annotations
@@ -87,6 +106,11 @@ __all__ = [
     "parse_key",
     "period_ns",
     "publish_time_ns",
+    "START_MAX",
+    "anchored_ns",
+    "decode_anchor",
+    "encode_anchor",
+    "zenoh_encoding",
     "sample_time",
     "sample_times",
     "schema",
@@ -159,6 +183,19 @@ far below the depth at which Python's JSON parser recurses out of its stack (~10
 
 SEQ_MAX = 2**63 - 1
 """Largest ``seq``: readers hold seqs in int64 arrays."""
+
+START_MAX = 2**62
+"""Largest ``start_time_ns`` a stream may state (the year 2116): its publish times, ``start +
+round(t * 1e9)``, stay within int64 for some 146 years of samples."""
+
+ZENOH_JSON = "application/json"
+"""The Zenoh encoding of every noiselab payload; its schema suffix names the payload's schema."""
+
+
+def zenoh_encoding(kind: str) -> str:
+    """The Zenoh encoding of a ``kind`` payload, ``application/json;<schema name>`` (Zenoh
+    accepts the string wherever it takes an Encoding)."""
+    return f"{ZENOH_JSON};{SCHEMA_NAMES[_check_kind(kind)]}"
 
 
 
@@ -406,8 +443,43 @@ def period_ns(Ts: float) -> int:
 
 
 def publish_time_ns(k: int, Ts_ns: int) -> int:
-    """MCAP publish_time of sample ``k``: the integer ``k * Ts_ns`` in ns (exact, no float)."""
+    """Sample ``k``'s offset from its stream's start on the exact integer grid ``k * Ts_ns`` (ns,
+    no float). It equals ``round(k * Ts * 1e9)`` (:func:`anchored_ns`'s offset) when Ts is a
+    whole number of ns, and differs by at most ``k * |Ts*1e9 - Ts_ns|`` ns otherwise."""
     return _check_seq(k, "sample index") * operator.index(Ts_ns)
+
+
+def anchored_ns(start_time_ns: int, t: float) -> int:
+    """MCAP publish_time of a sample of time ``t`` (s, from the stream's start) in a stream that
+    started at ``start_time_ns``: ``start_time_ns + round(t * 1e9)``, an int within int64; a
+    WireError when ``t`` is negative, not finite or too late for int64."""
+    rel = t * 1e9
+    if not (0.0 <= rel < 2.0**63):                      # NaN fails too
+        raise WireError(f"t={t!r} s is not a sample time from 0 that fits in int64 ns")
+    ns = operator.index(start_time_ns) + round(rel)
+    if ns > SEQ_MAX:
+        raise WireError(f"publish time {ns} ns (start {start_time_ns} + t={t!r} s) exceeds 2**63-1")
+    return ns
+
+
+def encode_anchor(start_time_ns: int) -> bytes:
+    """The attachment of a sample of a stream that started at ``start_time_ns`` (int, Unix ns)."""
+    if isinstance(start_time_ns, bool) or not isinstance(start_time_ns, int) \
+            or not 0 <= start_time_ns <= START_MAX:
+        raise WireError(f"start_time_ns={start_time_ns!r} must be an integer from 0 to 2**62 (ns)")
+    return b'{"start_time_ns":%d}' % start_time_ns
+
+
+def decode_anchor(data: bytes | bytearray | memoryview | str, *, topic: str | None = None) -> int:
+    """``start_time_ns`` of a sample's attachment (:func:`encode_anchor`), or a WireError."""
+    where = f"{topic or 'sample'} attachment"
+    obj = loads(data, where)
+    if not isinstance(obj, dict) or set(obj) != {"start_time_ns"}:
+        raise WireError(f"{where}: must be an object with start_time_ns only")
+    start = obj["start_time_ns"]
+    if type(start) is not int or not 0 <= start <= START_MAX:
+        raise WireError(f"{where}: start_time_ns={_short(start)} is not an integer from 0 to 2**62")
+    return start
 
 
 def sample_time(k: int, Ts: float) -> float:
