@@ -412,6 +412,12 @@ def bad_bags(bags, tmp_path_factory) -> dict:
     out["short seq"] = write_bag(d / "short_seq", {"/joint_states": ("sensor_msgs/msg/JointState", joints)})
     (d / "no_bag").mkdir()
     out["no bag"] = d / "no_bag"
+    with Writer(d / "garbled", version=9, storage_plugin=StoragePlugin.MCAP) as w:   # message 20 cut short
+        c = w.add_connection("/imu", "sensor_msgs/msg/Imu", typestore=STORE)
+        for k, (log, m) in enumerate(imu_messages(50)[0]):
+            raw = bytes(STORE.serialize_cdr(m, "sensor_msgs/msg/Imu"))
+            w.write(c, log, raw[:30] if k == 20 else raw)
+    out["garbled"] = d / "garbled"
     return out
 
 
@@ -440,6 +446,11 @@ def bad_cases(bags, bad) -> dict:
                                    ["/imu (sensor_msgs/msg/Imu)", "orientation_covariance has 9 items"]),
         "index beyond a sequence": ([bad["short seq"], *m, "/joint_states:position[2]"],
                                     ["/joint_states (sensor_msgs/msg/JointState)", "sample 30", "position[2]"]),
+        "sequence length changes": ([bad["short seq"], *m, "/joint_states:position.*"],
+                                    ["/joint_states (sensor_msgs/msg/JointState)",
+                                     "sample 30: position has 2 items, the first message 3"]),
+        "undecodable message": ([bad["garbled"], *m, "/imu:angular_velocity.x"],
+                                ["/imu (sensor_msgs/msg/Imu)", "message 20 cannot be read"]),
         "wildcard in the middle": ([imu, *m, "/imu:*.x"], ["'*' stands only at the end"]),
         "time field not a time": ([imu, *m, "/imu:angular_velocity.x", "--time", "header.frame_id"],
                                   ["/imu (sensor_msgs/msg/Imu)", "time field 'header.frame_id' is a string"]),
@@ -459,7 +470,8 @@ def bad_cases(bags, bad) -> dict:
 
 
 CASES = ["unknown type", "missing field", "missing top field", "empty topic", "topic not in the bag", "a string",
-         "a message", "index of a fixed array", "index beyond a sequence", "wildcard in the middle",
+         "a message", "index of a fixed array", "index beyond a sequence", "sequence length changes",
+         "undecodable message", "wildcard in the middle",
          "time field not a time", "NaN in a field", "truncated MCAP", "truncated SQLite3", "truncated ROS 1",
          "no --measurement", "a directory that is no bag", "--segment"]
 
@@ -542,3 +554,25 @@ def test_replay_of_an_undecodable_bag_is_one_line(bad_bags, capsys):
     """A bag with a type nothing defines is refused before any put, in one line."""
     assert_bad(cli(capsys, "replay", bad_bags["nodef"], "--listen", f"tcp/127.0.0.1:{free_port()}"),
                "/sample (noiselab_test/msg/Sample)", "cannot be decoded")
+
+
+def test_a_cdr_mcap_without_the_ros2_profile_is_named(tmp_path, capsys):
+    """CDR messages in an MCAP whose header profile is not 'ros2' (rosbags refuses such a file):
+    read as JSON, refused in one line that names the encoding and the profile rosbags needs."""
+    from mcap.writer import Writer as McapWriter
+
+    path = tmp_path / "cdr_no_profile.mcap"
+    with open(path, "wb") as f:
+        w = McapWriter(f)
+        w.start(profile="", library="elsewhere")
+        sid = w.register_schema(name="std_msgs/msg/Float64", encoding="ros2msg", data=b"float64 data")
+        cid = w.register_channel(topic="/plain", message_encoding="cdr", schema_id=sid)
+        for k in range(10):
+            w.add_message(channel_id=cid, log_time=k, publish_time=k, sequence=k,
+                          data=bytes(STORE.serialize_cdr(Float64(float(k)), "std_msgs/msg/Float64")))
+        w.finish()
+    assert rosbag.bag_kind(path) is None
+    model = tmp_path / "gyro.toml"
+    model.write_text(GYRO_MODEL)
+    assert_bad(cli(capsys, "analyze", path, "--measurement", "/plain:data", "--model", model),
+               "/plain: sample 0", "message encoding 'cdr'", "a ROS 2 bag is read when its MCAP profile is 'ros2'")
