@@ -212,7 +212,8 @@ def _node_name(node) -> str:
 @dataclass
 class _Leaf:
     """One column: its name, the steps from the message to it (attribute names, indices), the
-    node it ends on; ``length`` set for a sequence whose items are columns (from the first message)."""
+    node it ends on; ``sequence``: a numeric sequence under ``.*``, one column per item (their
+    count from the first message)."""
     text: str
     steps: tuple
     node: tuple
