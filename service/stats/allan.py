@@ -218,7 +218,7 @@ def oadev_from_phase(
     line is removed from x first (the estimator is invariant to it; it keeps the numbers small).
     """
     rate = positive_float(rate, "rate")
-    xx = as_series(x, "x", min_len=3)
+    xx = as_series(x, "x", min_len=4)  # as for rate data: 3 rate samples
     n = xx.size - 1
     k = np.arange(n + 1, dtype=np.float64)
     line = xx[0] + (xx[-1] - xx[0]) * (k / n)
@@ -390,7 +390,9 @@ def _line_region(r: AllanResult, alpha: int) -> tuple[slice | None, str | None]:
     """The longest run of consecutive taus identified as ``alpha`` (the first of equals), or
     None and the reason."""
     slope = NOISE_SLOPES[alpha]
-    runs = _runs(r.alpha == alpha)
+    if not np.any(r.dev > 0.0):
+        return None, "the deviation is 0 at every tau (constant data)"
+    runs = _runs((r.alpha == alpha) & (r.dev > 0.0))     # a zero deviation has no logarithm
     if not runs:
         found = ", ".join(sorted({NOISE_NAMES[int(a)] for a in r.alpha}, key=list(NOISE_NAMES.values()).index))
         return None, f"no tau where the noise is {NOISE_NAMES[alpha]} (slope {slope:+g}); found {found}"
@@ -453,6 +455,9 @@ def _floor_reading(r: AllanResult) -> SlopeReading:
     """B = min dev / 0.664 where the minimum is a floor. See :func:`ieee952_readings`."""
     i = int(np.argmin(r.dev))
     n = r.dev.size
+    if not r.dev[i] > 0.0:
+        return SlopeReading(None, None, None, 0, f"the deviation is 0 at tau = {r.taus[i]:.4g} s (constant data "
+                            "there): no flicker floor")
     rises = i < n - 1 and bool(np.any(r.lo[i + 1:] > r.hi[i]))
     if not (r.alpha[i] == -1 or (i > 0 and rises)):
         at = f"{r.taus[i]:.4g} s"
@@ -672,7 +677,9 @@ class _Series:
 
 def _rate_series(y, rate) -> _Series:
     rate = positive_float(rate, "rate")
-    yy = as_series(y, "y", min_len=2)
+    # three rate samples (four phase points) at least: m = 1 needs two adjacent means, and the
+    # Greenhall edf of the second difference needs L + 1 = 4 phase points
+    yy = as_series(y, "y", min_len=3)
     yc = yy - yy.mean()
     s = np.empty(yy.size + 1)
     s[0] = 0.0
