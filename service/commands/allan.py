@@ -1,0 +1,254 @@
+"""``noiselab allan RECORDING``: the Allan table IMU users read, and the IEEE Std 952 slope readings.
+
+Per output of the recording (a noiselab recording's measurement, or ``--measurement
+TOPIC:FIELD[,FIELD...]`` of a foreign one):
+
+* the fully overlapping Allan deviation (NIST SP 1065 eq. (11)) at octave taus, tau = m Ts with
+  m = 1, 2, 4, ... up to N/4 (Stable32's list, :func:`service.stats.allan.oadev`); its chi-squared
+  interval at 68.3 % (Greenhall & Riley 2003 equivalent degrees of freedom, SP 1065 eq. (45)); the
+  noise type identified at each tau (lag-1 autocorrelation, Riley & Greenhall 2004, with at least
+  30 averages; Stable32's B1 / R(n) rule below that), named as SP 1065 names the power laws;
+* the slope readings (:func:`service.stats.allan.ieee952_readings`): N at tau = 1 s on the -1/2
+  line, K at tau = 3 s on the +1/2 line, B = the floor / 0.664, each with the tau range it was
+  read on, or null with the reason;
+* with ``--model``: the model's predicted Allan deviation at the same taus (the exact discrete
+  Allan variance of the sampled process, :meth:`service.model.predict.Predictor.allan`, summed
+  over its effects) and its IEEE 952 coefficients (:mod:`service.model.coefficients`).
+
+The data are taken as recorded (no mean response removed: a sensor at rest); the model's curve is
+that of its noise, so a model with a command says so in a note. Units are the model's ``[outputs]``
+units when a model is given; otherwise the output is named by its field and the field name stands
+for the unit. Ts is the model's, else the median step of the recording's times.
+
+Output: the table on stdout; ``--json`` the same as one JSON document (keys below, stable);
+``--csv FILE`` one row per output and tau; ``--png FILE`` the log-log figure
+(:mod:`viewers.allan_png`). An output file that exists needs ``--force``.
+
+JSON: {"recording", "Ts", "samples", "conf", "estimator", "model", "notes", "outputs": {name:
+{"unit", "tau", "m", "n_terms", "adev", "interval": [[lo, hi], ...], "edf", "alpha",
+"noise_type", "readings": {"N"|"K"|"B": {"value", "unit", "tau_range", "interval", "points",
+"reason"}}, "model_adev": [...] or null, "model_coefficients": {name: {"value", "unit",
+"interval"}} or null}}}.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import BadInput
+from ..model.outputs import DEFAULT_UNIT
+
+CONF = 0.683  # Stable32's "Confidence Factor": one-sigma intervals
+READING_UNITS = {"N": "{u}/sqrt(Hz)", "K": "{u}/sqrt(s)", "B": "{u}"}
+READING_TAUS = {"N": "tau = 1 s on the -1/2 line", "K": "tau = 3 s on the +1/2 line", "B": "floor / 0.664"}
+CSV_COLUMNS = ("output", "unit", "tau_s", "m", "n_terms", "adev", "adev_lo", "adev_hi", "edf", "alpha",
+               "noise_type", "model_adev")
+
+
+def register(sub) -> None:
+    p = sub.add_parser("allan", help="the Allan deviation table (tau, ADEV, interval, noise type) and the "
+                                     "IEEE 952 slope readings N, K, B of a recording")
+    p.add_argument("recording", help="the .mcap to read")
+    p.add_argument("--measurement", metavar="TOPIC:FIELD",
+                   help="foreign recordings: topic and field(s) of the rate data, e.g. /imu:angular_velocity.x")
+    p.add_argument("--time", metavar="FIELD", help="foreign recordings: time field (s, or ns if it ends in _ns); "
+                                                  "default publish_time")
+    p.add_argument("--device", help="device name in a noiselab recording with several devices")
+    p.add_argument("--model", help="model file (TOML) or built-in scenario name: its predicted Allan "
+                                   "deviation, coefficients, output names and units")
+    fmt = p.add_mutually_exclusive_group()
+    fmt.add_argument("--json", action="store_true", help="machine-readable report on stdout")
+    fmt.add_argument("--csv", metavar="FILE", help="write the table as CSV (one row per output and tau)")
+    p.add_argument("--png", metavar="FILE", help="write the log-log figure here")
+    p.add_argument("--force", action="store_true", help="overwrite existing output files")
+    p.set_defaults(func=cmd_allan)
+
+
+# -- output files ---------------------------------------------------------------------------------
+def _check_out(path: str | None, force: bool) -> None:
+    """An output path, before any work: a directory in its place, or an existing file without
+    ``--force``, is bad input; a missing parent directory is made."""
+    if not path:
+        return
+    p = Path(path)
+    if p.is_dir():
+        raise BadInput(f"{path}: is a directory; give a file name")
+    if p.exists() and not force:
+        raise BadInput(f"{path}: already exists (use --force to overwrite)")
+    try:
+        p.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise BadInput(f"{path}: cannot make its directory ({e.strerror or e})") from None
+
+
+def _write(path: str, data: bytes) -> None:
+    """``data`` into ``path`` through a temporary beside it, renamed over it when complete (an
+    existing file is replaced whole or not at all); an OS error names the file, one line."""
+    tmp = Path(f"{path}.partial")
+    try:
+        tmp.write_bytes(data)
+        os.replace(tmp, path)
+    except OSError as e:
+        tmp.unlink(missing_ok=True)
+        raise BadInput(f"{path}: cannot write it ({e.strerror or e})") from None
+
+
+# -- reading --------------------------------------------------------------------------------------
+def _load(args, model):
+    """(series, output names, units, Ts) of the recording, through the one loader."""
+    from ..diagnose.load import load_recording
+
+    if args.measurement and args.device:
+        raise BadInput("--device names a device of a noiselab recording; with --measurement give the topic")
+    series = load_recording(args.recording, spec=args.measurement, time_field=args.time, device=args.device,
+                            model=model, truth=False)
+    p_data = series.y.shape[1]
+    fields = series.names or [f"y{j}" for j in range(p_data)]
+    if model is not None:
+        if model.p != p_data:
+            raise BadInput(f"--model {args.model}: the model has {model.p} output(s), the recording "
+                           f"{p_data} ({', '.join(fields)})")
+        return series, list(model.output_names), list(model.output_units), model.Ts
+    # no model: a foreign field stands for its own unit; a noiselab output is y<j> in "units"
+    units = list(fields) if series.names else [DEFAULT_UNIT] * p_data
+    return series, fields, units, series.Ts
+
+
+# -- the report -------------------------------------------------------------------------------------
+def _num(v) -> float | None:
+    v = float(v)
+    return v if np.isfinite(v) else None
+
+
+def _reading_json(rd, unit: str) -> dict:
+    return {"value": rd.value, "unit": unit,
+            "tau_range": None if rd.tau_range is None else list(rd.tau_range),
+            "interval": None if rd.interval is None else list(rd.interval),
+            "points": rd.points, "reason": rd.reason}
+
+
+def allan_report(series, names, units, Ts: float, model=None, model_label: str | None = None) -> dict:
+    """The report (module docstring's JSON) of ``series`` (``y`` (N, p) rate data at ``Ts``)."""
+    from ..stats.allan import NOISE_NAMES, ieee952_readings, oadev
+    from ..stats.errors import StatsError
+
+    notes = list(series.notes)
+    results = []
+    for j, name in enumerate(names):
+        try:
+            results.append(oadev(series.y[:, j], 1.0 / Ts, taus="octave", conf=CONF))
+        except StatsError as e:                     # the estimator's check, said of this recording
+            raise BadInput(f"{series.source}: {name}: {e}") from None
+    model_avar = coefficients = None
+    if model is not None:
+        from ..model.coefficients import model_coefficients
+
+        m = results[0].m
+        parts = [a for a in model.predictor().allan(m).values() if a is not None]
+        model_avar = sum(parts) if parts else np.zeros((m.size, model.p))
+        coefficients = model_coefficients(model)
+        if model.command.kind not in ("none", "external"):
+            notes.append(f"the model's Allan deviation is that of its noise; its [command] ({model.command.kind}) "
+                         "moves the recorded outputs too, which the data's deviation includes")
+    outputs = {}
+    for j, (name, unit, r) in enumerate(zip(names, units, results)):
+        rd = ieee952_readings(r)
+        outputs[name] = {
+            "unit": unit,
+            "tau": r.taus.tolist(), "m": r.m.tolist(), "n_terms": r.n.tolist(),
+            "adev": r.dev.tolist(), "interval": [[float(a), float(b)] for a, b in zip(r.lo, r.hi)],
+            "edf": r.edf.tolist(), "alpha": r.alpha.tolist(),
+            "noise_type": [NOISE_NAMES[int(a)] for a in r.alpha],
+            "readings": {k: _reading_json(v, READING_UNITS[k].replace("{u}", unit)) for k, v in rd.items()},
+            "model_adev": None if model_avar is None else [_num(np.sqrt(max(v, 0.0))) for v in model_avar[:, j]],
+            "model_coefficients": None if coefficients is None else coefficients.get(name, {}),
+        }
+    return {"recording": series.source, "Ts": Ts, "samples": int(series.y.shape[0]), "conf": CONF,
+            "estimator": "overlapping Allan deviation (NIST SP 1065 eq. 11), octave taus up to N/4",
+            "model": model_label, "notes": notes, "outputs": outputs}
+
+
+def _g(v, width: int = 10) -> str:
+    return f"{'-':>{width}}" if v is None else f"{v:>{width}.4e}"
+
+
+def report_lines(rep: dict) -> list[str]:
+    """The table on stdout: per output, one row per tau, then the readings."""
+    lines = [f"{rep['recording']}: {rep['samples']} samples at Ts = {rep['Ts']:g} s; {rep['estimator']}, "
+             f"{100 * rep['conf']:.1f} % intervals (Greenhall edf, chi-squared)"
+             + (f"; model {rep['model']}" if rep["model"] else "")]
+    for name, o in rep["outputs"].items():
+        has_model = o["model_adev"] is not None
+        lines += ["", f"{name} [{o['unit']}]",
+                  f"{'tau [s]':>10} {'m':>8} {'ADEV':>10} {'lo':>10} {'hi':>10}  {'noise type':<15}"
+                  + (f" {'model ADEV':>10}" if has_model else "")]
+        for i, tau in enumerate(o["tau"]):
+            lo, hi = o["interval"][i]
+            lines.append(f"{tau:>10.4g} {o['m'][i]:>8d} {_g(o['adev'][i])} {_g(lo)} {_g(hi)}  "
+                         f"{o['noise_type'][i]:<15}" + (f" {_g(o['model_adev'][i])}" if has_model else ""))
+        lines.append("IEEE 952 readings:")
+        for key, rd in o["readings"].items():
+            mc = (o["model_coefficients"] or {}).get(key)
+            model_part = "" if not has_model else "   model " + (
+                "-" if mc is None or mc.get("value") is None else f"{mc['value']:.4e} {mc['unit']}")
+            if rd["value"] is None:
+                lines.append(f"  {key} = -  ({rd['reason']})" + model_part)
+                continue
+            lo, hi = rd["interval"]
+            t0, t1 = rd["tau_range"]
+            lines.append(f"  {key} = {rd['value']:.4e} {rd['unit']}  [{lo:.4e}, {hi:.4e}]  {READING_TAUS[key]}, "
+                         f"read on tau {t0:.4g} .. {t1:.4g} s ({rd['points']} taus)" + model_part)
+    for note in rep["notes"]:
+        lines.append(f"note: {note}")
+    return lines
+
+
+def _csv_rows(rep: dict):
+    for name, o in rep["outputs"].items():
+        for i, tau in enumerate(o["tau"]):
+            yield [name, o["unit"], repr(tau), o["m"][i], o["n_terms"][i], repr(o["adev"][i]),
+                   repr(o["interval"][i][0]), repr(o["interval"][i][1]), repr(o["edf"][i]), o["alpha"][i],
+                   o["noise_type"][i], "" if o["model_adev"] is None or o["model_adev"][i] is None
+                   else repr(o["model_adev"][i])]
+
+
+def csv_text(rep: dict) -> str:
+    f = io.StringIO(newline="")
+    w = csv.writer(f)
+    w.writerow(CSV_COLUMNS)
+    w.writerows(_csv_rows(rep))
+    return f.getvalue()
+
+
+def cmd_allan(args) -> int:
+    for out in (args.csv, args.png):
+        _check_out(out, args.force)
+    if args.csv and args.png and Path(args.csv).resolve() == Path(args.png).resolve():
+        raise BadInput(f"--csv and --png name the same file {args.csv}")
+    model = None
+    if args.model:
+        from ..model import load_model
+        model = load_model(args.model)
+    series, names, units, Ts = _load(args, model)
+    rep = allan_report(series, names, units, Ts, model, None if model is None else f"{model.name} ({model.source})")
+    written = []
+    if args.csv:
+        _write(args.csv, csv_text(rep).encode())
+        written.append(args.csv)
+    if args.png:
+        from viewers.allan_png import allan_png_bytes
+        _write(args.png, allan_png_bytes(rep))
+        written.append(args.png)
+    if args.json:
+        rep["written"] = written
+        print(json.dumps(rep, indent=1))
+    else:
+        for line in report_lines(rep) + [f"wrote {w}" for w in written]:
+            print(line)
+    return 0
