@@ -7,9 +7,11 @@ Conventions (DESIGN.md, "Wire contract (Zenoh and MCAP)"):
   (schema encoding ``jsonschema``, names :data:`wire.SCHEMA_NAMES`);
 - MCAP ``sequence`` = payload ``seq``. MCAP's sequence is a uint32, so past 2**32 - 1 it wraps
   modulo 2**32; the payload ``seq`` stays exact and is the one the reader returns;
-- ``publish_time`` = sample time ``k * Ts_ns`` in integer ns (:func:`wire.publish_time_ns`);
-  ``log_time`` = receive time in integer ns on whatever clock the recorder uses: readers must
-  not assume it is wall-clock. All times stay Python ints / int64, never float64.
+- ``publish_time`` = the stream's wall-clock start + the sample's time from it, in integer ns
+  (:mod:`wire`, "Time"; the start is ``start_time_ns`` in the ``noiselab`` metadata record);
+  ``log_time`` = receive time in integer ns. Readers order and pace by publish_time and take a
+  sample's time from the payload ``t``; they must not assume that either time is wall-clock (a
+  foreign file's need not be). All times stay Python ints / int64, never float64.
 
 Readers accept topics with or without a leading ``/``, find devices by the ``/measurement``
 suffix, and treat an absent ``truth`` topic as normal (real data has none).
