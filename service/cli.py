@@ -90,6 +90,8 @@ def predict_report(model) -> dict:
         "Ts": model.Ts,
         "discretization": model.discretization,
         "outputs": model.p,
+        "output_names": list(model.output_names),
+        "output_units": list(model.output_units),
         "var_y": _vec(st.var_y),
         "std_y": None if st.var_y is None else _vec(np.sqrt(st.var_y)),
         "bias_var_rate": _vec(st.bias_var_rate),
@@ -114,7 +116,8 @@ def cmd_predict(args) -> int:
         print(json.dumps(rep, indent=2))
         return 0
     print(f"model {rep['model']} ({rep['source']}), Ts = {rep['Ts']:g} s, {rep['discretization']}")
-    print(f"{'effect':<24} {'variance added to y (units^2)':>32}   share")
+    print("outputs: " + ", ".join(model.outputs.label(j) for j in range(model.p)))
+    print(f"{'effect':<24} {'variance added to y (unit^2)':>32}   share")
     total = rep["var_y"]
     for eid, v in rep["contributions"].items():
         share = "" if v is None or total is None else "  ".join(
@@ -130,6 +133,8 @@ def cmd_predict(args) -> int:
     if rep["P"] is None:
         print("P: null (the plant integrates: no steady state, stationary increments)" if rep["walk_var_rate"]
               is not None else "P: null (the plant is not stable: no steady state)")
+    elif not rep["P"]:
+        print("P: [] (no plant states: a sensor-only model, y = reference + sensor effects)")
     else:
         print("P (plant state covariance, " + ", ".join(rep["state_names"]) + "):")
         for row in rep["P"]:
@@ -140,77 +145,31 @@ def cmd_predict(args) -> int:
 
 
 # -- simulate -------------------------------------------------------------------------------------
-class Progress:
-    """A one-line progress bar on stderr for long runs (only on a terminal, or when forced)."""
-
-    def __init__(self, total: int, label: str, enabled: bool | None = None):
-        self.total, self.label = total, label
-        self.enabled = sys.stderr.isatty() if enabled is None else enabled
-        self.t0 = time.monotonic()
-        self.last = 0.0
-
-    def update(self, done: int) -> None:
-        now = time.monotonic()
-        if not self.enabled or (now - self.last < 0.2 and done < self.total):
-            return
-        self.last = now
-        frac = done / self.total
-        bar = "#" * int(30 * frac)
-        rate = done / max(now - self.t0, 1e-9)
-        eta = (self.total - done) / rate if rate > 0 else 0
-        sys.stderr.write(f"\r{self.label} [{bar:<30}] {100 * frac:5.1f} %  {rate:,.0f} samples/s  eta {eta:4.0f} s")
-        if done >= self.total:
-            sys.stderr.write("\n")
-        sys.stderr.flush()
-
-
-def write_simulation(model, n: int, seed: int, out: Path, *, force: bool = False,
-                     progress: bool | None = None) -> dict:
-    """Simulate ``n`` samples and write them in the wire contract (DESIGN.md) to ``out``."""
-    from .nodes import mcapio, wire
-
-    topics = {kind: wire.key(model.name, kind) for kind in ("truth", "command", "measurement")}
-    meta = {"generator": "noiselab simulate", "version": __version__, "model_name": model.name,
-            "model_source": model.source, "model_toml": model.to_toml(), "Ts": repr(model.Ts),
-            "seed": str(seed), "samples": str(n)}
-    bar = Progress(n, f"simulate {model.name}", progress)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    # a diverging plant (unstable, or forward Euler over too long a Ts) overflows to inf: the encoder
-    # refuses that sample in one line naming it, and numpy's overflow warnings are no news
-    with mcapio.RecordingWriter(out, force=force, chunk_size=1 << 20, metadata=meta) as w, \
-            np.errstate(over="ignore", invalid="ignore"):
-        k0 = 0
-        for blk in model.simulate_blocks(n, seed=seed):
-            nb = blk.t.size
-            t, pub = wire.sample_times(k0, nb, model.Ts)
-            # sample by sample (truth, command, measurement of k, then of k + 1), as the emulator
-            # publishes and the recorder stores them; offline there is no receive time:
-            # log_time = publish_time (readers must not assume log_time is wall-clock, DESIGN.md)
-            w.write_interleaved([(topics[kind], kind, k0, pub, pub,
-                                  wire.encode_batch(kind, k0, t, arr, topic=topics[kind]))
-                                 for kind, arr in (("truth", blk.x[0]), ("command", blk.u[0]),
-                                                   ("measurement", blk.y[0]))])
-            k0 += nb
-            bar.update(k0)
-        counts = w.counts
-    return {"out": str(out), "samples": n, "messages": counts}
-
-
 def cmd_simulate(args) -> int:
     model = load_model(args.model)
     n = int(round(args.duration / model.Ts))
     if n < 1:
         raise UsageError(f"--duration {args.duration:g} s is shorter than one sample (Ts = {model.Ts:g} s)")
-    out = Path(args.out) if args.out else Path("recordings") / f"{model.name}-seed{args.seed}.mcap"
-    _check_out(str(out), args.force)
+    from .nodes.simwrite import write_simulation
+
+    ros2 = args.format == "ros2"
+    out = Path(args.out) if args.out else Path("recordings") / (f"{model.name}-seed{args.seed}" + ("" if ros2 else ".mcap"))
+    if ros2:                       # a bag is a directory: the writer checks what is there (only a bag is replaced)
+        if out.exists() and not args.force:
+            raise UsageError(f"{out}: already exists (use --force to overwrite)")
+        _make_dir(str(out), out.parent)
+    else:
+        _check_out(str(out), args.force)
     t0 = time.perf_counter()
-    rep = write_simulation(model, n, args.seed, out, force=args.force, progress=args.progress or None)
+    rep = write_simulation(model, n, args.seed, out, force=args.force, progress=args.progress or None,
+                           fmt=args.format)
     dt = time.perf_counter() - t0
     rep["seconds"] = dt
     if args.json:
         print(json.dumps(rep))
     else:
-        print(f"wrote {rep['out']}: {n} samples x 3 topics of {model.name} "
+        topics = len(rep.get("messages") or {}) or 3
+        print(f"wrote {rep['out']} ({'a rosbag2 bag' if ros2 else 'MCAP'}): {n} samples x {topics} topics of {model.name} "
               f"({args.duration:g} s at Ts = {model.Ts:g} s) in {dt:.2f} s")
     return 0
 
@@ -293,10 +252,10 @@ def cmd_record(args) -> int:
 def cmd_recover(args) -> int:
     from .nodes import mcapio
 
-    st = mcapio.recover(args.broken, args.output, force=args.force)
-    rep = {"node": "recover", "input": args.broken, "output": args.output, "messages": st.messages,
+    st = mcapio.recover(args.broken, args.out, force=args.force)
+    rep = {"node": "recover", "input": args.broken, "output": args.out, "messages": st.messages,
            "total": st.total, "already_complete": st.already_complete, "note": st.note}
-    lines = [f"recovered {st.total} messages from {args.broken} into {args.output}"
+    lines = [f"recovered {st.total} messages from {args.broken} into {args.out}"
              + (" (the input was complete)" if st.already_complete else "")]
     lines += [f"  {topic}: {count}" for topic, count in sorted(st.messages.items())]
     if st.note:
@@ -544,6 +503,7 @@ def _analyze_cmd(args, read) -> int:
         int(round(float(args.burn) / model.Ts))
     cmp = compare(model, series.t, series.y, series.u, truth=series.truth, burn=burn,
                   level=series.starts_at_rest, free_start=not series.starts_at_rest)
+    cmp.recording = series.source
     extra = {}
     if args.rrd:
         from viewers.rerun_log import log_comparisons
@@ -584,8 +544,9 @@ def _diagnose_cmd(args, read) -> int:
             Path(args.fit_out).write_text(rep["fitted_model"])
         extra["fit_out"] = args.fit_out
     comps = rep["comparisons"]
-    if series.truth is not None:
-        for c in comps:
+    for c in comps:
+        c.recording = series.source
+        if series.truth is not None:
             c.truth = series.truth
     if args.rrd:
         from viewers.rerun_log import log_comparisons
@@ -633,7 +594,11 @@ def build_parser() -> argparse.ArgumentParser:
     ss.add_argument("model", help="model file (TOML) or built-in scenario name")
     ss.add_argument("--duration", type=seconds_arg(), required=True, help="seconds of signal")
     ss.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
-    ss.add_argument("--out", help="output .mcap (default recordings/<name>-seed<N>.mcap)")
+    ss.add_argument("--out", help="output .mcap, or the bag directory with --format ros2 "
+                                  "(default recordings/<name>-seed<N>[.mcap])")
+    ss.add_argument("--format", choices=("mcap", "ros2"), default="mcap",
+                    help="mcap: noiselab's JSON MCAP (the wire contract); ros2: a rosbag2 bag (MCAP storage, CDR; "
+                         "sensor_msgs/msg/Imu for an IMU model, sensor_msgs/msg/JointState otherwise)")
     ss.add_argument("--force", action="store_true", help="overwrite an existing output file")
     ss.add_argument("--progress", action="store_true", help="show the progress bar even when not on a terminal")
     ss.add_argument("--json", action="store_true", help="machine-readable summary")
@@ -670,7 +635,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     sv = sub.add_parser("recover", help="salvage every intact message of an unfinished MCAP file")
     sv.add_argument("broken", help="the unfinished (or damaged) .mcap")
-    sv.add_argument("-o", "--output", required=True, help="the repaired .mcap to write")
+    sv.add_argument("--out", "-o", required=True, help="the repaired .mcap to write")
     sv.add_argument("--force", action="store_true", help="overwrite an existing output file")
     sv.add_argument("--json", action="store_true", help="machine-readable summary")
     sv.set_defaults(func=cmd_recover)

@@ -349,7 +349,7 @@ def test_replay_paced_and_prefixed(spawn, tmp_path):
     before the replay was started (CLOCK_MONOTONIC is the machine's, shared by both processes), and
     the arrivals spread over less than real time; --prefix P publishes under P/noiselab/...,
     nothing under noiselab/... ."""
-    from service.cli import write_simulation
+    from service.nodes.simwrite import write_simulation
 
     f = tmp_path / "paced.toml"
     f.write_text(model_text("paced", 0.04))
