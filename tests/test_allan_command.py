@@ -272,3 +272,35 @@ def test_a_recording_too_short_for_a_tau(tmp_path, capsys):
             assert_bad(result, str(path), "v:", "at least 3 samples, found 2")
     with pytest.raises(StatsError, match="at least 4"):
         oadev_from_phase([0.0, 1.0, 0.0], 1.0)
+
+
+def test_imu_scenario_reads_its_published_densities(tmp_path, capsys):
+    """The imu-nominal scenario (six axes, 200 Hz, EuRoC's ADIS16448 densities): N of every axis
+    within 3 of its sigmas of the model's own, named and in the units of its [outputs]. Its
+    command (gravity on accel_z from t = 0) is a constant: no note about a moving mean."""
+    rec = tmp_path / "imu.mcap"
+    assert main(["simulate", "imu-nominal", "--duration", "300", "--seed", "11", "--out", str(rec)]) == 0
+    capsys.readouterr()
+    code, out, err = run(capsys, rec, "--model", "imu-nominal", "--json")
+    assert code == 0, err
+    rep = json.loads(out)
+    assert list(rep["outputs"]) == ["gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z"]
+    assert not any("mean response" in note for note in rep["notes"]), rep["notes"]
+    for name, o in rep["outputs"].items():
+        n, model_n = o["readings"]["N"], o["model_coefficients"]["N"]
+        density = 1.6968e-4 if name.startswith("gyro") else 2.0e-3
+        assert model_n["value"] == pytest.approx(density, rel=1e-12)
+        assert n["unit"] == model_n["unit"] == ("rad/s/sqrt(Hz)" if name.startswith("gyro") else "m/s^2/sqrt(Hz)")
+        assert abs(math.log(n["value"] / density)) < 3 * sigma(n), (name, n)
+
+
+def test_a_moving_mean_is_noted(tmp_path, capsys):
+    """The seed model's sine command moves its output: the data's deviation holds the sine, the
+    model's curve only the noise, and a note says so."""
+    rec = tmp_path / "seed.mcap"
+    assert main(["simulate", "seed", "--duration", "60", "--out", str(rec)]) == 0
+    capsys.readouterr()
+    code, out, err = run(capsys, rec, "--model", "seed", "--json")
+    assert code == 0, err
+    notes = json.loads(out)["notes"]
+    assert any("mean response ([command] sine) moves position" in note for note in notes), notes

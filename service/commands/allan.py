@@ -150,12 +150,17 @@ def allan_report(series, names, units, Ts: float, model=None, model_label: str |
         from ..model.coefficients import model_coefficients
 
         m = results[0].m
-        parts = [a for a in model.predictor().allan(m).values() if a is not None]
+        pr = model.predictor()
+        parts = [a for a in pr.allan(m).values() if a is not None]
         model_avar = sum(parts) if parts else np.zeros((m.size, model.p))
         coefficients = model_coefficients(model)
-        if model.command.kind not in ("none", "external"):
-            notes.append(f"the model's Allan deviation is that of its noise; its [command] ({model.command.kind}) "
-                         "moves the recorded outputs too, which the data's deviation includes")
+        # the data's deviation includes whatever moves the mean (a constant, e.g. gravity on an
+        # accelerometer axis, does not); the model's curve is that of its noise alone
+        mean_y = pr.mean_response(series.y.shape[0]).y
+        moving = [name for j, name in enumerate(names) if np.ptp(mean_y[:, j]) > 0.0]
+        if moving:
+            notes.append(f"the model's mean response ([command] {model.command.kind}) moves {', '.join(moving)} "
+                         "over the record: the data's Allan deviation includes it, the model's curve is its noise alone")
     outputs = {}
     for j, (name, unit, r) in enumerate(zip(names, units, results)):
         rd = ieee952_readings(r)
