@@ -304,3 +304,29 @@ def test_a_moving_mean_is_noted(tmp_path, capsys):
     assert code == 0, err
     notes = json.loads(out)["notes"]
     assert any("mean response ([command] sine) moves position" in note for note in notes), notes
+
+
+def test_ros2_bag(tmp_path, capsys):
+    """A rosbag2 bag of sensor_msgs/Imu (the emulator's own ROS 2 writer), read through the one
+    loader: the bag directory, the six axes by two '.*' paths, time from header.stamp."""
+    from service.model import load_model
+    from service.nodes import rosbag
+    from service.nodes.simwrite import write_simulation
+
+    bag = tmp_path / "imu_bag"
+    write_simulation(load_model("imu-nominal"), 20_000, 5, bag, fmt="ros2")
+    with rosbag.open_bag(str(bag)) as reader:
+        (topic,) = [t for t, msgtype in rosbag.topics(reader).items() if msgtype == "sensor_msgs/msg/Imu"]
+    spec = f"{topic}:angular_velocity.*,linear_acceleration.*"
+    code, out, err = run(capsys, bag, "--measurement", spec, "--model", "imu-nominal", "--json")
+    assert code == 0, err
+    rep = json.loads(out)
+    assert rep["samples"] == 20_000 and rep["Ts"] == 0.005
+    for name, o in rep["outputs"].items():
+        n = o["readings"]["N"]
+        assert abs(math.log(n["value"] / o["model_coefficients"]["N"]["value"])) < 3 * sigma(n), (name, n)
+    # without a model: the fields name the outputs, the step of the stamps is Ts
+    code, out, err = run(capsys, bag, "--measurement", f"{topic}:angular_velocity.z", "--json")
+    assert code == 0, err
+    rep = json.loads(out)
+    assert list(rep["outputs"]) == ["angular_velocity.z"] and rep["Ts"] == pytest.approx(0.005, rel=1e-9)
