@@ -65,15 +65,18 @@ def test_simulate_writes_the_wire_contract(tmp_path, capsys):
     dev = rec.device("seed")
     batch = load_model("seed").simulate(300, seed=5)
     Ts_ns = wire.period_ns(0.01)
+    meta = rec.metadata["noiselab"]
+    start = int(meta["start_time_ns"])          # the run's wall-clock start (DESIGN.md wire contract)
+    assert abs(start - summary["start_time_ns"]) == 0 and start > 1_600_000_000 * 10**9
     for kind, values in (("truth", batch.x), ("command", batch.u), ("measurement", batch.y)):
         td = getattr(dev, kind)
         assert td.topic == f"noiselab/seed/{kind}"
         np.testing.assert_array_equal(td.seq, np.arange(300))
         np.testing.assert_array_equal(td.values, values)          # JSON floats round-trip exactly
         np.testing.assert_array_equal(td.t, np.arange(300) * 0.01)
-        np.testing.assert_array_equal(td.publish_ns, np.arange(300) * Ts_ns)
+        np.testing.assert_array_equal(td.publish_ns - start, np.arange(300) * Ts_ns)
+        np.testing.assert_array_equal(td.log_ns, td.publish_ns)        # one time base; offline, no receive time
         assert td.gaps() == []
-    meta = rec.metadata["noiselab"]
     assert meta["seed"] == "5" and meta["model_name"] == "seed"
     assert load_model("seed").to_toml() == meta["model_toml"]
     with open(out, "rb") as fh:
@@ -97,7 +100,7 @@ def test_simulate_refuses_existing_and_shows_progress(tmp_path):
     res = subprocess.run([sys.executable, "-m", "service.cli", "simulate", "seed", "--duration", "2",
                           "--out", str(out), "--force", "--progress"], capture_output=True, text=True, env=env)
     assert res.returncode == 0, res.stderr
-    assert "100.0 %" in res.stderr and "samples/s" in res.stderr
+    assert "100%" in res.stderr and "200/200" in res.stderr and "samples/s" in res.stderr
     assert mcapio.read_recording(out).device("seed").measurement.seq.size == 200
 
 

@@ -911,7 +911,7 @@ def test_analyze_of_a_cut_file_without_a_measurement_names_recover(tmp_path, cap
     assert main(["analyze", str(path), "--model", "seed"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "incomplete MCAP" in err and "read 2 intact messages" in err
-    assert f"`noiselab recover {path} -o FIXED.mcap` keeps the 2 messages read" in err
+    assert f"`noiselab recover {path} --out FIXED.mcap` keeps the 2 messages read" in err
 
 
 def test_recover_of_a_finished_file_copies_it(tmp_path):

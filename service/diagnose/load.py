@@ -162,7 +162,7 @@ def load_noiselab(path: str, device: str | None = None, truth: bool = True, Ts: 
 def _unfinished_without_measurement(path: str, rec: mcapio.Recording) -> str:
     """Why an unfinished file gives nothing to analyse: the reader's note (where it stopped), and
     the way to keep what it did read."""
-    keep = (f"; `noiselab recover {path} -o FIXED.mcap` keeps the {rec.messages} messages read"
+    keep = (f"; `noiselab recover {path} --out FIXED.mcap` keeps the {rec.messages} messages read"
             if rec.messages else "")
     return f"{rec.note}; none of them is a measurement (a topic ending in /measurement){keep}"
 
