@@ -219,6 +219,14 @@ def test_plain_model_bag_is_joint_state(tmp_path):
     assert np.array_equal(np.array([m.position for m in got["/seed/truth"]["msgs"]]), rec.x)
 
 
+def test_topic_names_are_ros_2_names(tmp_path):
+    assert [rosout.ros_token(x) for x in ("imu-nominal", "seed", "a--b__c", "9axis")] == \
+        ["imu_nominal", "seed", "a_b_c", "_9axis"]
+    model = parse_model(IMU.replace('name = "imu6"', 'name = "imu-6"'), "imu-6.toml")
+    write_simulation(model, 5, 0, tmp_path / "bag", fmt="ros2")
+    assert sorted(_read_bag(tmp_path / "bag")) == [f"/imu_6/{k}" for k in ("command", "measurement", "truth")]
+
+
 def test_imu_axes_convention():
     assert rosout.imu_axes(["gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z"]) == \
         ([0, 1, 2], [3, 4, 5])

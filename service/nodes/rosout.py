@@ -7,7 +7,8 @@ by ``rosbags.rosbag2.Writer`` with the ROS 2 Jazzy type store, so ``rosbags``, `
 (Jazzy and later read version 9) and Foxglove open it.
 
 The documented standard messages, for a model named ``<name>``, one message per sample ``k`` on
-each topic:
+each topic (``<name>`` as a ROS 2 name token, :func:`ros_token`: ``imu-nominal`` gives
+``/imu_nominal/measurement``):
 
 ``/<name>/measurement``
     An IMU model (exactly six outputs, three whose names start with ``gyro`` and three with
@@ -53,6 +54,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import shutil
 import struct
 from pathlib import Path
@@ -207,6 +209,14 @@ def imu_covariance(model, axes) -> tuple[np.ndarray, np.ndarray]:
     return var[axes[0]], var[axes[1]]
 
 
+def ros_token(name: str) -> str:
+    """``name`` as one token of a ROS 2 topic name (letters, digits and single underscores, not
+    starting with a digit: ROS 2's name rules): every run of other characters (``-``) becomes
+    ``_``, repeated underscores one, and a leading digit gets a ``_`` before it."""
+    token = re.sub(r"_+", "_", re.sub(r"[^A-Za-z0-9_]", "_", name))
+    return f"_{token}" if token[:1].isdigit() else token
+
+
 class _Topic:
     def __init__(self, topic: str, msgtype: str, layout: CdrLayout, kind: str, fields):
         self.topic, self.msgtype, self.layout, self.kind = topic, msgtype, layout, kind
@@ -217,7 +227,7 @@ class _Topic:
 def model_topics(model) -> list[_Topic]:
     """The topics of ``model``'s bag, in the order their messages of one sample are written
     (truth, command, measurement: as the emulator publishes them)."""
-    name = model.name
+    name = ros_token(model.name)
     topics = []
     state_names = tuple(model.plant.state_names)
     if state_names:
