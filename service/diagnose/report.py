@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..model.coefficients import model_coefficients
 from .results import VIEW_UNITS as UNITS
 from .results import fmt_score
 
@@ -36,8 +37,29 @@ def diagnosis_json(rep: dict, series=None, extra: dict | None = None) -> dict:
     if series is not None:
         out["recording"] = series.source
         out["command"] = series.command        # recorded, or the model's own assumed (load.command_used)
+    out["coefficients"] = fitted_coefficients(rep)
     out.update(extra or {})
     return _clean(out)
+
+
+def fitted_coefficients(rep: dict) -> dict:
+    """The IEEE Std 952 coefficients of the diagnosis' fitted model (``rep["model"]``: the input
+    model with the effects found added or refitted), with the profile intervals of the parameters
+    the diagnosis fitted (:func:`service.model.coefficients.model_coefficients`)."""
+    return model_coefficients(rep["model"], {m["effect"]: m.get("interval") or {} for m in rep["missing"]})
+
+
+def coefficient_lines(coeffs: dict) -> list[str]:
+    """The coefficients as report lines, one per output that has any."""
+    lines = [f"  {name}: " + ", ".join(_coefficient_text(k, c) for k, c in cs.items())
+             for name, cs in coeffs.items() if cs]
+    return ["IEEE Std 952 coefficients of the fitted model ([95 % interval] where fitted):"] + lines if lines else []
+
+
+def _coefficient_text(k: str, c: dict) -> str:
+    v = "n/a" if c["value"] is None else _fmt(c["value"])
+    iv = "" if c["interval"] is None else f" [{_fmt(c['interval'][0])}, {_fmt(c['interval'][1])}]"
+    return f"{k} = {v}{iv} {c['unit']}"
 
 
 def region_lines(regions, limit: int) -> list[str]:
@@ -76,6 +98,7 @@ def diagnosis_lines(rep: dict, series=None, extra: dict | None = None) -> list[s
             lines.append(f"     {m['evidence']}")
         lines.append(f"model error: {rep['error_before']:.3g} -> " + " -> ".join(f"{s['error']:.3g}" for s in rep["steps"])
                      + (f" (final joint fit {a.error:.3g})" if abs(a.error - rep['steps'][-1]['error']) > 1e-9 else ""))
+    lines += coefficient_lines(fitted_coefficients(rep))
     for note in (list(series.notes) if series is not None else []) + list(rep.get("notes", [])):
         lines.append(f"note: {note}")
     for k in ("fit_out", "rrd", "png"):

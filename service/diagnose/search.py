@@ -1506,9 +1506,11 @@ def _vec(a):
 
 
 def _set(model, eid: str, values: dict):
-    """The model with effect ``eid``'s parameters updated (added if absent)."""
-    params = model.effects[eid].param_dict() if eid in model.effects else {}
-    params.update(values)
+    """The model with effect ``eid``'s parameters updated (added if absent), in the spelling its
+    file used (:meth:`.effects.base.Effect.respell`: a white noise given as a density stays one)."""
+    eff = model.effects.get(eid)
+    params = eff.param_dict() if eff is not None else {}
+    params.update(eff.respell(values) if eff is not None else values)
     if "tau_s" in values:
         params.pop("rho", None)
     return model.with_params(eid, params)

@@ -56,7 +56,7 @@ class ActuatorAR1(Effect):
         input at sample k carries n_{k+1}. The state n is carried between blocks."""
         out = np.empty_like(e)
         for j in range(self.dims.m):
-            out[..., j], zf = lfilter([self.c[j]], [1.0, -self.rho[j]], e[..., j], axis=-1,
+            out[..., j], _ = lfilter([self.c[j]], [1.0, -self.rho[j]], e[..., j], axis=-1,
                                       zi=(self.rho[j] * state["n"][:, j])[:, None])
         state["n"] = out[:, -1, :].copy()
         return out

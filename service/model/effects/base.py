@@ -42,10 +42,22 @@ Diagnosis hooks (how the effect is found and fitted from a residual, :mod:`servi
 over what range, which effect it can replace), ``explain(params, Ts)`` (one sentence of evidence in
 physical terms) and ``equivalents(params, Ts)`` (the same fit in the file's other spellings, e.g.
 ``rho`` for ``tau_s``, for users' scripts).
+
+Spelling hooks: a parameter the file may give in another spelling (``sensor.white``'s ``density``
+for its ``std``) is held in ``params`` under the catalogue's name, which the simulation, the
+predictions and the diagnosis read; ``param_dict()`` writes it back as the file gave it, and
+``respell(values)`` turns values set under the catalogue's names (a refit) into the file's
+spelling, so a fitted model keeps the user's words.
+
+IMU vocabulary: ``coefficients()`` gives the effect's IEEE Std 952 coefficients (N, K, B, ...) as
+:class:`Coefficient` values per output (default: none); :mod:`service.model.coefficients` collects
+them for a model without naming any effect. A bias-instability effect (a flicker floor) would give
+``B`` through the same hook.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -76,6 +88,27 @@ class FitSpec:
     unit_scale: float | str = 1.0
     replaces: tuple = ()
     needs_command: bool = False
+
+
+@dataclass(frozen=True)
+class Coefficient:
+    """One IEEE Std 952 coefficient of an effect, one value per output.
+
+    name: the IEEE 952 symbol (``N``, ``K``, ``B``) or, where IEEE 952 has none, the effect's own
+    (``q``, ``sigma_GM``); unit: text in which ``{u}`` stands for the output's unit
+    (``"{u}/sqrt(Hz)"`` -> ``rad/s/sqrt(Hz)``); param: the model-file parameter (catalogue
+    spelling) it follows from, and ``of`` the map from that parameter's values to the
+    coefficient's, increasing, so the parameter's interval maps end to end onto the
+    coefficient's; white: True where it is (part of) the white-noise density seen by a user of N
+    (Kalibr's noise density adds these in quadrature).
+    """
+
+    name: str
+    value: np.ndarray
+    unit: str
+    param: str
+    of: Callable[[np.ndarray], np.ndarray]
+    white: bool = False
 
 
 @dataclass(frozen=True)
@@ -119,11 +152,17 @@ class Effect:
     # -- description ------------------------------------------------------------------------
     def param_dict(self) -> dict:
         """Parameters with the model file's names; scalars when every channel is equal."""
-        out = {}
-        for k, v in self.params.items():
-            a = np.atleast_1d(np.asarray(v, float))
-            out[k] = float(a[0]) if np.all(a == a[0]) else [float(x) for x in a]
-        return out
+        return {k: _plain_value(v) for k, v in self.params.items()}
+
+    def respell(self, values: dict) -> dict:
+        """``values`` set under the catalogue's names (a diagnosis' refit), in the spelling this
+        effect's file used (see the module docstring); by default the same."""
+        return values
+
+    # -- IEEE Std 952 coefficients ---------------------------------------------------------------
+    def coefficients(self) -> list[Coefficient]:
+        """The effect's IEEE Std 952 coefficients (:class:`Coefficient`); none by default."""
+        return []
 
     # -- diagnosis ----------------------------------------------------------------------------
     @classmethod
@@ -139,6 +178,12 @@ class Effect:
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.param_dict()})"
+
+
+def _plain_value(v):
+    """A parameter vector as the file writes it: a float when every channel is equal, else a list."""
+    a = np.atleast_1d(np.asarray(v, float))
+    return float(a[0]) if np.all(a == a[0]) else [float(x) for x in a]
 
 
 def _g(v) -> str:

@@ -2,6 +2,17 @@
 
 Continuous beta' = -beta / tau + white, stationary std ``std``; exact discretization
 beta_{k+1} = phi beta_k + std sqrt(1 - phi^2) xi_k with phi = exp(-Ts / tau_s). Starts at 0.
+
+Its coefficients are the process's own, ``sigma_GM`` = std (output units) and ``tau_GM`` = tau_s
+(s), not IEEE Std 952's bias instability B: B is the flicker (1/f) floor of the Allan deviation,
+sigma_A = sqrt(2 ln 2 / pi) B ~ 0.664 B over a range of tau, which one Gauss-Markov process only
+approximates near its peak. Its Allan variance (IEEE Std 952-1997, Annex C, exponentially
+correlated noise; El-Sheimy et al. 2008, with q_c = 2 sigma^2 / T):
+
+    sigma_A^2(tau) = (2 sigma^2 T / tau) [1 - (T / (2 tau)) (3 - 4 e^{-tau/T} + e^{-2 tau/T})],
+
+a rate random walk K^2 = 2 sigma^2 / T for tau << T, a white noise N^2 = 2 sigma^2 T for
+tau >> T, with its peak 0.617 sigma at tau = 1.89 T.
 """
 
 from __future__ import annotations
@@ -10,7 +21,15 @@ import numpy as np
 from scipy.signal import lfilter
 
 from ..schema import nonnegative
-from .base import Effect, FitSpec, _g, parse_rho_tau, rho_tau_equivalents, tau_of
+from .base import (
+    Coefficient,
+    Effect,
+    FitSpec,
+    _g,
+    parse_rho_tau,
+    rho_tau_equivalents,
+    tau_of,
+)
 
 
 class SensorBiasMarkov(Effect):
@@ -24,7 +43,7 @@ class SensorBiasMarkov(Effect):
     @classmethod
     def explain(cls, params, Ts, ctx=None):
         tau = tau_of(params, Ts)
-        one = (lambda v: v if v.size > 1 else v[0])      # noqa: E731  (per output when they differ)
+        one = (lambda v: v if v.size > 1 else v[0])
         # the Allan deviation of a first-order Gauss-Markov process peaks at 1.89 tau
         return (f"a flat excess below about {_g(one(1.0 / (2 * np.pi * tau)))} Hz that the plant does not "
                 f"shape, and an Allan deviation bump near tau = {_g(one(1.89 * tau))} s: a Gauss-Markov bias "
@@ -40,6 +59,11 @@ class SensorBiasMarkov(Effect):
         self.params["rho" if t.has("rho") else "tau_s"] = phi if t.has("rho") else tau
         self.phi = phi
         self.c = np.sqrt(1.0 - phi**2) * self.params["std"]
+
+    def coefficients(self):
+        ident = (lambda v: np.asarray(v, float))
+        return [Coefficient("sigma_GM", self.params["std"], "{u}", "std", ident),
+                Coefficient("tau_GM", tau_of(self.params, self.dims.Ts), "s", "tau_s", ident)]
 
     def n_normals(self):
         return self.dims.p

@@ -4,6 +4,16 @@ b_{k+1} = b_k + std sqrt(Ts) eta_k, eta_k ~ N(0, 1), so Q_b = std^2 Ts per sampl
 Var(b_k) = Var(b_0) + k Q_b (seed section 6.2); ``std`` is in output units / sqrt(s) (the rate
 random-walk coefficient K). ``initial_std`` (optional, default 0) is the std of b_0.
 Nonstationary: it is reported as ``bias_var_rate`` = std^2 per second, not in the steady state.
+
+``std`` is IEEE Std 952's K (rate random walk of a gyro, acceleration random walk of an
+accelerometer; Kalibr's ``*_random_walk``): the bias is the integral of white noise of two-sided
+PSD K^2, so its rate PSD is K^2 / (2 pi f)^2 and the Allan deviation climbs as
+
+    sigma_A(tau) = K sqrt(tau / 3),      K = std                 (IEEE Std 952-1997, Annex C;
+                                                                  El-Sheimy et al. 2008, table 1)
+
+read where the +1/2 slope line crosses tau = 3 s. Its unit is units/sqrt(s), the same as the
+units/s/sqrt(Hz) data sheets write (rad/s^2/sqrt(Hz) for a gyro in rad/s).
 """
 
 from __future__ import annotations
@@ -11,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..schema import nonnegative
-from .base import Effect, FitSpec, _g
+from .base import Coefficient, Effect, FitSpec, _g
 
 
 class SensorBiasWalk(Effect):
@@ -36,6 +46,9 @@ class SensorBiasWalk(Effect):
             self.params["initial_std"] = init
         self.init_std = np.zeros(self.dims.p) if init is None else init
         self.q_step = self.params["std"] * np.sqrt(self.dims.Ts)   # sqrt(Q_b)
+
+    def coefficients(self):
+        return [Coefficient("K", self.params["std"], "{u}/sqrt(s)", "std", lambda s: np.asarray(s, float))]
 
     def n_normals(self):
         return self.dims.p

@@ -22,6 +22,17 @@ and mu_k its deterministic part (the mean response, the tones),
 R_e(0) = Delta^2 / 12 (:func:`quantization_acf`). With a white dither of variance s^2, gamma(d >= 1)
 >= s^2, and the correlation left is below exp(-4 pi^2 s^2 / Delta^2): 0.2 at s = 0.2 Delta, 2e-3
 at s = 0.4 Delta.
+
+IEEE Std 952 terms: the step ``q`` = Delta itself (output units), and, where the error is white
+(the noise dithers it, above), the white-noise density it adds at the sample rate 1/Ts: its
+variance Delta^2 / 12 per sample is that of a white noise of density
+
+    N_q = Delta sqrt(Ts / 12),   sigma_A(tau) = N_q / sqrt(tau)  for tau = m Ts,
+
+which adds to the sensor's own N in quadrature (what a calibration tool that knows only white
+noise reads as N). IEEE 952's quantization coefficient Q (sigma_A(tau) = sqrt(3) Q / tau, IEEE Std
+952-1997, Annex C; El-Sheimy et al. 2008) is of a quantized angle (an integrated output), not of
+a quantized rate sample, and is not given.
 """
 
 from __future__ import annotations
@@ -32,7 +43,7 @@ import numpy as np
 
 from ...memo import Memo
 from ..schema import positive
-from .base import Effect, FitSpec, _g
+from .base import Coefficient, Effect, FitSpec, _g
 
 
 class SensorQuantization(Effect):
@@ -52,6 +63,12 @@ class SensorQuantization(Effect):
 
     def parse(self, t):
         self.params["step"] = t.vector("step", self.dims.p, check=positive, expect="steps > 0")
+
+    def coefficients(self):
+        rt = float(np.sqrt(self.dims.Ts / 12.0))
+        step = self.params["step"]
+        return [Coefficient("q", step, "{u}", "step", lambda v: np.asarray(v, float)),
+                Coefficient("N_q", step * rt, "{u}/sqrt(Hz)", "step", lambda v: np.asarray(v, float) * rt, white=True)]
 
     def apply(self, y):
         d = self.params["step"]
