@@ -260,3 +260,15 @@ def test_diagnose_json_gives_the_fitted_coefficients(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "IEEE Std 952 coefficients of the fitted model" in out
     assert re.search(r"gyro_x: .*N = [0-9.e-]+ \[[0-9.e-]+, [0-9.e-]+\] rad/s/sqrt\(Hz\)", out)
+
+
+def test_a_quantization_step_found_per_output_is_each_outputs_own():
+    """The diagnosis finds a quantization step exactly on the data's grid and reports the range of
+    the outputs' steps as its "interval" ([min, max]); each output's coefficient is its own step,
+    not that range (which for an IMU spans [gyro step, accel step])."""
+    m = parse_model(sensor_model("[sensor.quantization]\nstep = [0.001, 0.01]\n", names=("a", "b"), units=("V", "V")),
+                    "q")
+    c = model_coefficients(m, {"sensor.quantization": {"step": [0.001, 0.01]}})
+    assert c["a"]["q"]["interval"] == [0.001, 0.001] and c["b"]["q"]["interval"] == [0.01, 0.01]
+    rt = math.sqrt(TS / 12)
+    assert c["b"]["N_q"]["interval"] == pytest.approx([0.01 * rt, 0.01 * rt], rel=1e-15)

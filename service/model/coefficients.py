@@ -11,7 +11,8 @@ entries), mapped end to end through the coefficient's increasing relation to the
 diagnosis profiles one channel of a per-output parameter, the one whose value is the largest
 (:func:`service.diagnose.search.interval_tasks`): the interval is given for the outputs holding that
 largest value (all of them when the parameter is one value for every output) and is None for the
-others, and for every coefficient whose parameter the diagnosis did not fit.
+others, and for every coefficient whose parameter the diagnosis did not fit. A quantization step
+is found exactly on the data's grid: each output's interval is its own step.
 """
 
 from __future__ import annotations
@@ -29,15 +30,31 @@ def model_coefficients(model, intervals: dict | None = None) -> dict:
         fitted = (intervals or {}).get(eid) or {}
         for c in eff.coefficients():
             vals = np.broadcast_to(np.asarray(c.value, float), (model.p,))
-            iv = _mapped(c, fitted.get(c.param))
-            top = float(np.max(vals))
+            ivs = _intervals(eff, c, fitted.get(c.param), vals)
             for j, name in enumerate(model.output_names):
                 out[name][c.name] = {
                     "value": _num(vals[j]),
-                    "interval": iv if iv is not None and vals[j] == top else None,
+                    "interval": ivs[j],
                     "unit": c.unit.replace("{u}", model.output_units[j]),
                 }
     return out
+
+
+def _intervals(eff, c, iv, vals: np.ndarray) -> list:
+    """Each output's interval of coefficient ``c`` (values ``vals``) from the diagnosis' interval
+    ``iv`` of its parameter: the profiled output's (the largest value: ``c.of`` is increasing, so
+    the largest parameter's), None for the others. A parameter found exactly on the data's grid (a
+    quantization step, fit kind ``grid``) is each output's own value, [v, v]: the diagnosis gives
+    the range of the outputs' steps there, not an interval of one."""
+    p = vals.size
+    if iv is None:
+        return [None] * p
+    if type(eff).fit.kind == "grid" and c.param in eff.params:
+        own = np.broadcast_to(np.asarray(eff.params[c.param], float), (p,))
+        return [_mapped(c, [v, v]) for v in own]
+    mapped = _mapped(c, iv)
+    top = float(np.max(vals))
+    return [mapped if v == top else None for v in vals]
 
 
 def _mapped(c, iv) -> list | None:
