@@ -383,41 +383,14 @@ def test_noiselab_reads_its_own_bag_back(tmp_path):
     assert np.array_equal(truth.y, model.simulate(n, seed=5).x)
 
 
-# -- the JSON path encodes the next block in a forked child while it writes this one ---------------
-def test_json_mcap_bytes_are_the_same_forked_or_not(tmp_path, monkeypatch):
-    """The forked encoding runs in a subprocess of its own: a fork is only made from a process of
-    one thread, which a pytest-xdist worker is not (service.parallel.can_fork)."""
-    import subprocess
-    import sys
-
-    from service import parallel
-
+def test_json_mcap_payloads_are_the_wire_encoders_over_blocks(tmp_path):
     model = load_model("seed")
-    n = 70_000                                    # two blocks: the second is encoded while the first is written
-    script = (
-        "import json, sys\n"
-        "from service import one_blas_thread\n"
-        "one_blas_thread()\n"
-        "from service import parallel\n"
-        "from service.model import load_model\n"
-        "from service.nodes.simwrite import write_simulation\n"
-        "ok = parallel.can_fork()\n"
-        f"write_simulation(load_model('seed'), {n}, 3, sys.argv[1], start_time_ns={START})\n"
-        "print(json.dumps({'can_fork': ok, **parallel.FORKS}))\n")
-    cp = subprocess.run([sys.executable, "-c", script, str(tmp_path / "forked.mcap")], check=False, capture_output=True,
-                        text=True, cwd=Path(__file__).resolve().parents[1], timeout=600)
-    assert cp.returncode == 0, cp.stderr
-    forks = json.loads(cp.stdout.strip().splitlines()[-1])
-    assert forks["can_fork"] and forks["calls"] == 2 and forks["recomputed"] == 0, forks
-    monkeypatch.setattr(parallel, "ENABLED", False)
-    write_simulation(model, n, 3, tmp_path / "serial.mcap", start_time_ns=START)
-    forked = (tmp_path / "forked.mcap").read_bytes()
-    assert forked == (tmp_path / "serial.mcap").read_bytes()
-    # and the payloads are the wire encoder's, in order
+    n = 70_000                                    # two blocks of simulate_blocks
+    write_simulation(model, n, 3, tmp_path / "run.mcap", start_time_ns=START)
     rec = model.simulate(n, seed=3)
     t, _ = wire.sample_times(0, n, model.Ts)
     want = wire.encode_batch("measurement", 0, t, rec.y)
-    with open(tmp_path / "forked.mcap", "rb") as f:
+    with open(tmp_path / "run.mcap", "rb") as f:
         got = [m.data for _s, _c, m in make_reader(f).iter_messages(topics=["noiselab/seed/measurement"],
                                                                      log_time_order=False)]
     assert got == want

@@ -44,9 +44,9 @@ def _version() -> str:
 
 class Progress:
     """A progress bar on stderr for long runs (``tqdm``): shown only on a terminal, or when
-    ``enabled`` forces it; never on stdout, so ``--json`` output stays clean. The bar runs no
-    monitor thread (tqdm's ``monitor_interval = 0``): the writer forks while it shows
-    (:func:`service.parallel.can_fork` wants a single thread)."""
+    ``enabled`` forces it; never on stdout, so ``--json`` output stays clean. No bar is made when
+    it is not shown, and a shown one runs no monitor thread (tqdm's ``monitor_interval = 0``):
+    the process stays single-threaded, as :func:`service.parallel.can_fork` wants."""
 
     def __init__(self, total: int, label: str, enabled: bool | None = None):
         self.total, self.label = total, label
@@ -127,51 +127,18 @@ def _blocks(model, n: int, seed: int, start: int):
         k0 += blk.t.size
 
 
-def _encoded(model, n, seed, start, topics):
-    """``(k0, nb, publish_ns, payloads per kind)`` of consecutive blocks, JSON-encoded in the wire
-    contract (:func:`service.nodes.wire.encode_batch`). Encoding is the costliest step after the
-    writer's own (about a quarter of it: ``float.__repr__`` of every number), so while the caller
-    writes block b, block b + 1 is encoded in a forked child (:func:`service.parallel.fork_call`:
-    a second core, where one thread would hold the GIL); where no fork is possible it is encoded
-    here, when asked. Either way the bytes are the encoder's, and an error (a sample that is not
-    finite) is raised here, by the encoder, in order."""
-    from .. import parallel
-    from . import wire
-
-    def encode(k0, t, blk):
-        return [wire.encode_batch(kind, k0, t, arr, topic=topics[kind])
-                for kind, arr in (("truth", blk.x[0]), ("command", blk.u[0]), ("measurement", blk.y[0]))]
-
-    inflight = []                         # (k0, nb, publish_ns, task), in order; at most two
-    try:
-        for k0, t, pub, blk in _blocks(model, n, seed, start):
-            inflight.append((k0, t.size, pub, parallel.fork_call(lambda k0=k0, t=t, blk=blk: encode(k0, t, blk))))
-            if len(inflight) == 2:
-                k, nb, p, task = inflight.pop(0)
-                yield k, nb, p, task.result()
-        while inflight:
-            k, nb, p, task = inflight.pop(0)
-            yield k, nb, p, task.result()
-    finally:
-        for *_, task in inflight:         # the caller stopped early: a child still encoding is stopped
-            task.cancel()
-
-
 def _write_mcap(model, n, seed, out, force, meta, start, bar) -> dict[str, int]:
     from . import mcapio, wire
 
-    kinds = ("truth", "command", "measurement")
-    topics = {kind: wire.key(model.name, kind) for kind in kinds}
+    topics = {kind: wire.key(model.name, kind) for kind in ("truth", "command", "measurement")}
     out.parent.mkdir(parents=True, exist_ok=True)
     with mcapio.RecordingWriter(out, force=force, chunk_size=1 << 20, metadata=meta) as w:
-        blocks = _encoded(model, n, seed, start, topics)
-        try:
-            for k0, nb, pub, payloads in blocks:
-                w.write_interleaved([(topics[kind], kind, k0, pub, pub, p)
-                                     for kind, p in zip(kinds, payloads)])
-                bar.update(k0 + nb)
-        finally:
-            blocks.close()                # a child still encoding is stopped and reaped
+        for k0, t, pub, blk in _blocks(model, n, seed, start):
+            w.write_interleaved([(topics[kind], kind, k0, pub, pub,
+                                  wire.encode_batch(kind, k0, t, arr, topic=topics[kind]))
+                                 for kind, arr in (("truth", blk.x[0]), ("command", blk.u[0]),
+                                                   ("measurement", blk.y[0]))])
+            bar.update(k0 + blk.t.size)
         return w.counts
 
 
