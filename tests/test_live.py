@@ -383,6 +383,112 @@ def test_replay_paced_and_prefixed(spawn, tmp_path):
     assert not bare.by_key, f"published without the prefix: {sorted(bare.by_key)}"
 
 
+class SampleMeta:
+    """Subscriber callback: per key, every sample's (Zenoh encoding, attachment bytes or None)."""
+
+    def __init__(self):
+        self.cond = threading.Condition()
+        self.by_key: dict[str, list[tuple[str, bytes | None]]] = defaultdict(list)
+
+    def __call__(self, sample) -> None:
+        att = sample.attachment
+        with self.cond:
+            self.by_key[str(sample.key_expr)].append((str(sample.encoding), None if att is None else att.to_bytes()))
+            self.cond.notify_all()
+
+    def wait_total(self, total: int) -> None:
+        with self.cond:
+            ok = self.cond.wait_for(lambda: sum(len(v) for v in self.by_key.values()) >= total, T_EVENT)
+            counts = {k: len(v) for k, v in self.by_key.items()}
+        assert ok, f"timeout ({T_EVENT} s) waiting for {total} samples; received {counts}"
+
+
+def foreign_mcap(path) -> None:
+    """An MCAP file of no noiselab topic: a JSON channel with a schema, one of an encoding Zenoh has
+    no name for."""
+    from mcap.writer import Writer
+
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start(profile="", library="test")
+        sid = w.register_schema("lab.Temp", "jsonschema", b'{"type":"object"}')
+        temp = w.register_channel("/lab/temp", "json", sid)
+        raw = w.register_channel("/lab/raw", "x-custom", 0)
+        for k in range(5):
+            w.add_message(temp, log_time=k * 10**6, publish_time=k * 10**6, data=b'{"c":%d}' % k, sequence=k)
+            w.add_message(raw, log_time=k * 10**6, publish_time=k * 10**6, data=b"\x00\x01", sequence=k)
+        w.finish()
+
+
+def test_replay_puts_say_their_encoding_and_the_replays_own_start(separate_recording, tmp_path):
+    """What a generic Zenoh subscriber sees of a replay, as of a live emulator: a noiselab stream's
+    samples say application/json;<schema name>, and every data and health sample carries the
+    replay's own start {"start_time_ns": N}, N the wall clock of its first put (the recording's
+    samples begin at t = 0), not the recorded run's start; the end of stream says its encoding and
+    no start. A ROS bag's messages, republished as JSON, say application/json;<ROS type>; a foreign
+    MCAP channel says its message encoding and schema (JSON), or Zenoh's default for an encoding
+    Zenoh has no name for; none of these carries a start."""
+    from service.nodes.replay import run_replay
+    from service.nodes.simwrite import write_simulation
+
+    path, _, emu = separate_recording
+    bag = tmp_path / "bag"
+    write_simulation(load_model("seed"), 20, 1, bag, fmt="ros2")
+    other = tmp_path / "foreign.mcap"
+    foreign_mcap(other)
+    port = free_port()
+    runs = {}
+    with zenoh.open(session_config(listen=[ep(port)])) as sink, zenoh.open(session_config(connect=[ep(port)])) as src:
+        for name, p in (("noiselab", path), ("bag", bag), ("foreign", other)):
+            got = SampleMeta()
+            sub = sink.declare_subscriber("**", got)
+            before = time.time_ns()
+            summary = run_replay(src, str(p), speed=None, wait_subscribers=T_EVENT, log=sys.stderr)
+            after = time.time_ns()
+            got.wait_total(summary.messages)
+            sub.undeclare()
+            runs[name] = (got.by_key, summary, before, after)
+
+    got, summary, before, after = runs["noiselab"]
+    start = summary.starts["noiselab/fast"]
+    assert summary.starts == {"noiselab/fast": start} and before <= start <= after
+    assert start > emu["start_time_ns"]                 # the replay's start, not the recorded run's
+    for kind in (*wire.KINDS, wire.HEALTH, wire.END):
+        samples = got[wire.key("fast", kind)]
+        assert len(samples) == (1 if kind == wire.END else 5 if kind == wire.HEALTH else N_FAST), kind
+        assert {enc for enc, _ in samples} == {f"application/json;{wire.SCHEMA_NAMES[kind]}"}, kind
+        assert {att for _, att in samples} == ({None} if kind == wire.END else {wire.encode_anchor(start)}), kind
+
+    got, summary, _, _ = runs["bag"]
+    assert summary.starts == {} and set(got) == {"seed/truth", "seed/command", "seed/measurement"}
+    for key, samples in got.items():
+        assert samples == [("application/json;sensor_msgs/msg/JointState", None)] * 20, key
+
+    got, summary, _, _ = runs["foreign"]
+    assert summary.starts == {}
+    assert got == {"lab/temp": [("application/json;lab.Temp", None)] * 5, "lab/raw": [("zenoh/bytes", None)] * 5}
+
+
+def test_a_recorder_of_a_replay_writes_the_replays_time_base(separate_recording, fast_model, spawn, tmp_path):
+    """record --listen P, then replay --connect P of a live recording at speed 1: the new file's
+    start is the one the replay stated (its --json summary), not the recorded run's, and its
+    publish times are that start + round(t 1e9), each received after it was due, the payloads
+    those of the emulated run (check_recording)."""
+    path, _, emu = separate_recording
+    port = free_port()
+    out = tmp_path / "of-replay.mcap"
+    rec = spawn("record", "record", "--listen", ep(port), "--out", out, "--json")
+    rec.wait_line(READY_MARK)
+    rp = spawn("replay", "replay", path, "--connect", ep(port), "--wait-subscribers", "20", "--json")
+    assert rp.finish(60) == 0, rp.stderr_text()
+    assert waited_for_subscribers(rp), rp.stderr_text()
+    rec.wait_line(f"noiselab record: noiselab/fast ended (duration) after {N_FAST} samples: every message recorded")
+    assert rec.interrupt() == 0, rec.stderr_text()
+    start = rp.json()["starts"]["noiselab/fast"]
+    assert start != emu["start_time_ns"]
+    check_recording(out, fast_model, SEED_FAST, N_FAST, start_time_ns=start)
+
+
 # ---------------------------------------------------------------- 2. router + clients
 
 

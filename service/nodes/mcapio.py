@@ -812,9 +812,10 @@ def iter_messages(path: str | os.PathLike, topics: Iterable[str] | str | None = 
     yield from _scan(os.fspath(path), topics, report if report is not None else ScanReport())
 
 
-_KIND_RANK = {"truth": 0, "command": 1, "measurement": 2}
+_KIND_RANK = {"truth": 0, "command": 1, "measurement": 2, "end": 4}
 """Order of the topics of one sample when publish times tie: the emulator's (truth, command,
-measurement); other topics after them, by topic."""
+measurement); other topics after them, by topic; the end of stream last (its source sends it
+after everything else, the last health report of its final instant included)."""
 
 
 def _tie_rank(channels: dict[int, Channel]) -> dict[int, int]:

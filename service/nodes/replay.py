@@ -15,7 +15,15 @@ A ROS bag (rosbag2 directory, ``.mcap`` with the ``ros2`` profile or ``.db3``, R
 (nested messages as objects, so ``header.stamp`` is ``{"sec": ..., "nanosec": ...}``; arrays as
 lists; NaN and infinities as null) under the topic without its leading '/', in log-time order and
 paced by the bag's log time (the recorder's receive time, ns). Every message type is checked
-decodable before the first put. These are not noiselab streams: no join point is served for them."""
+decodable before the first put. These are not noiselab streams: no join point is served for them.
+
+What a subscriber sees besides the payload (wire contract, "Zenoh encoding" and "Attachment"):
+every put says its Zenoh encoding, a noiselab stream's ``application/json;<schema name>``
+(:func:`transport.declare_stream`), a bag's message ``application/json;<ROS type>``, another MCAP
+channel's from its message encoding and schema (:func:`_encoding`); and every sample of a noiselab
+source carries the start this replay states for it (:class:`_Anchors`): the replay is a source
+of its own, on today's wall clock, so a recorder of a replay writes publish_time = the replay's
+start + round(t 1e9) beside its receive times, as it does for a live emulator."""
 
 from __future__ import annotations
 
@@ -36,10 +44,77 @@ class ReplaySummary:
     topics: dict
     wall_s: float
     complete: bool
+    starts: dict        # device prefix (``noiselab/<name>``) -> start_time_ns this replay stated (the last)
 
     def as_dict(self) -> dict:
         return {"node": "replay", "path": self.path, "messages": self.messages, "topics": self.topics,
-                "wall_s": self.wall_s, "complete": self.complete}
+                "wall_s": self.wall_s, "complete": self.complete, "starts": self.starts}
+
+
+ZENOH_ENCODINGS = {"json": "application/json", "protobuf": "application/protobuf", "cbor": "application/cbor",
+                   "cdr": "application/cdr"}
+"""MCAP message encodings (the MCAP registry's names) and the Zenoh encodings that name them; a
+channel of any other encoding is put as Zenoh's default, ``zenoh/bytes``."""
+
+
+def _encoding(message_encoding: str, schema_name: str | None) -> str | None:
+    """The Zenoh encoding of a foreign channel's messages: ``<zenoh encoding>;<schema name>``
+    (the schema suffix as noiselab's own puts carry it), None when Zenoh has no name for it."""
+    enc = ZENOH_ENCODINGS.get(message_encoding)
+    if enc is None or not schema_name:
+        return enc
+    return f"{enc};{schema_name}"
+
+
+class _Anchors:
+    """The start (wall-clock Unix ns) this replay states for each noiselab source it republishes,
+    in the attachment of the source's samples (:func:`wire.encode_anchor`).
+
+    A source's sample of time ``t`` (s from the source's start) is due, paced, at wall clock W;
+    the source's start in the replay is W - t / speed, the wall clock at which its t = 0 falls
+    (as fast as possible: W, the time of the put, t / speed -> 0). A recorder of the replay then
+    writes publish_time = start + round(t 1e9): the replay's time base, at speed 1 each sample
+    due when it is put. The start is fixed at the source's first message, and again where one of
+    its streams begins again (its MCAP sequence goes back: a restarted source, which the reader
+    gives segment after segment); a payload without a readable ``t`` counts as t = 0."""
+
+    def __init__(self, speed: float | None):
+        self.speed = speed
+        self.starts: dict[str, int] = {}          # prefix -> start_time_ns
+        self.attachment: dict[str, bytes] = {}    # prefix -> its encoded anchor
+        self.last: dict[str, int] = {}            # key -> the MCAP sequence of its last message
+
+    def of(self, key: str, kind: str, sequence: int | None, data: bytes, due_wall_ns: int) -> bytes | None:
+        """The attachment of a message of noiselab stream ``key`` (of ``kind``) due at
+        ``due_wall_ns``; None for the end of stream (anchored by its source's data, as the
+        emulator sends it)."""
+        if kind == wire.END:
+            return None
+        prefix = key.rsplit("/", 1)[0]
+        last = self.last.get(key)
+        if sequence is not None:
+            self.last[key] = sequence
+        if prefix in self.attachment and not (last is not None and sequence is not None and sequence <= last):
+            return self.attachment[prefix]
+        t = _time_of(data)
+        rel = 0 if self.speed is None else round(t * 1e9 / self.speed)
+        start = min(max(0, due_wall_ns - rel), wire.START_MAX)
+        self.starts[prefix] = start
+        att = self.attachment[prefix] = wire.encode_anchor(start)
+        return att
+
+
+def _time_of(data: bytes) -> float:
+    """A payload's ``t`` (s, finite, >= 0; 0.0 when it has none: a replay does not judge payloads),
+    read with the bounded parser."""
+    try:
+        obj = wire.loads(data, "replay")
+    except ValueError:
+        return 0.0
+    t = obj.get("t") if isinstance(obj, dict) else None
+    if isinstance(t, bool) or not isinstance(t, (int, float)) or not (0.0 <= t < 2.0**62 / 1e9):
+        return 0.0
+    return float(t)
 
 
 def replay_topics(path: str) -> list[str]:
@@ -59,6 +134,14 @@ def _device_of(key: str) -> str | None:
     """The device name of a noiselab topic key, None for any other key."""
     try:
         return wire.parse_key(key)[0]
+    except wire.WireError:
+        return None
+
+
+def _kind_of(key: str) -> str | None:
+    """The kind of a noiselab topic key, None for any other key."""
+    try:
+        return wire.parse_key(key)[1]
     except wire.WireError:
         return None
 
@@ -83,33 +166,50 @@ def _seq_matches(data: bytes, sequence: int | None) -> bool:
 
 
 def _messages(path: str, report: mcapio.ScanReport):
-    """(topic, pacing time ns, MCAP sequence or None, payload) of every message in publish order:
-    an MCAP file's as recorded, paced by publish_time; a ROS bag's as JSON, paced by log time."""
+    """(topic, pacing time ns, MCAP sequence or None, payload, Zenoh encoding or None) of every
+    message in publish order: an MCAP file's as recorded, paced by publish_time, its channel's
+    encoding (:func:`_encoding`); a ROS bag's as JSON, paced by log time, ``application/json;<type>``."""
     if rosbag.bag_kind(path) is not None:
+        with rosbag.open_bag(path) as reader:
+            types = rosbag.topics(reader)
+        encodings = {topic: f"{wire.ZENOH_JSON};{msgtype}" if "/" in msgtype else wire.ZENOH_JSON
+                     for topic, msgtype in types.items()}         # a ROS type has a '/'; "several types" none
         for topic, log_ns, data in rosbag.iter_json(path):
-            yield topic, log_ns, None, data
+            yield topic, log_ns, None, data, encodings.get(topic, wire.ZENOH_JSON)
         return
-    for _, channel, message in mcapio.iter_time_ordered(path, report=report):
-        yield channel.topic, message.publish_time, message.sequence, message.data
+    encodings: dict[int, str | None] = {}
+    for schema, channel, message in mcapio.iter_time_ordered(path, report=report):
+        enc = encodings.get(channel.id, "")
+        if enc == "":
+            enc = encodings[channel.id] = _encoding(channel.message_encoding, schema.name if schema else None)
+        yield channel.topic, message.publish_time, message.sequence, message.data, enc
 
 
-def run_replay(session: "zenoh.Session", path: str, *, speed: float | None = 1.0, prefix: str | None = None,
+def run_replay(session: zenoh.Session, path: str, *, speed: float | None = 1.0, prefix: str | None = None,
                stop: threading.Event | None = None, wait_subscribers: float = 0.0,
                log=sys.stderr) -> ReplaySummary:
     """Publish every message of ``path``; ``speed`` None = as fast as possible."""
     stop = stop or threading.Event()
     report = mcapio.ScanReport()
-    pubs: dict[str, "zenoh.Publisher"] = {}
+    pubs: dict[str, zenoh.Publisher] = {}
+    kinds: dict[str, str | None] = {}     # topic -> its noiselab kind (its publisher says the encoding), or None
+    anchors = _Anchors(speed)
+    encodings: dict[str, zenoh.Encoding] = {}
     counts: dict[str, int] = {}
-    opts = dict(congestion_control=zenoh.CongestionControl.BLOCK)
+    opts = {"congestion_control": zenoh.CongestionControl.BLOCK}
 
     def publisher(topic: str):
+        """The topic's publisher: a noiselab stream's says its kind's encoding; another topic's
+        puts say theirs, each put (:func:`_messages`)."""
         pub = pubs.get(topic)
         if pub is None:
             key = topic.lstrip("/")
+            kind = _kind_of(key)
             if prefix:
                 key = f"{prefix.rstrip('/')}/{key}"
-            pub = pubs[topic] = session.declare_publisher(key, **opts)
+            pub = pubs[topic] = (session.declare_publisher(key, **opts) if kind is None
+                                 else transport.declare_stream(session, key, kind, **opts))
+            kinds[topic] = kind
         return pub
 
     # declare every publisher first, so a subscriber can match them all before the first put
@@ -125,24 +225,28 @@ def run_replay(session: "zenoh.Session", path: str, *, speed: float | None = 1.0
 
     joins = [transport.serve_join(session, name, first_seqs)
              for name in sorted({_device_of(str(p.key_expr)) for p in pubs.values()} - {None})]
-    if wait_subscribers > 0 and not transport.wait_matching(pubs.values(), wait_subscribers, stop, every=False):
-        if not stop.is_set():
-            print(f"noiselab replay: no subscriber matched within "
-                  f"{wait_subscribers:g} s: starting anyway", file=log, flush=True)
+    if wait_subscribers > 0 and not transport.wait_matching(pubs.values(), wait_subscribers, stop, every=False) \
+            and not stop.is_set():
+        print(f"noiselab replay: no subscriber matched within {wait_subscribers:g} s: starting anyway",
+              file=log, flush=True)
     t_wall0 = None
     pub0 = None
     n = 0
     start = time.monotonic()
-    for topic, at_ns, sequence, data in _messages(path, report):
+    for topic, at_ns, sequence, data, enc in _messages(path, report):
         if stop.is_set():
             break
         if speed is not None:
             if t_wall0 is None:
                 t_wall0, pub0 = time.monotonic_ns(), at_ns
+                clock0 = time.time_ns()           # the wall clock beside the monotonic pacing
             due = t_wall0 + int((at_ns - pub0) / speed)
+            due_wall = clock0 + (due - t_wall0)
             delay = due - time.monotonic_ns()
             if delay > 0:
                 time.sleep(delay / 1e9)
+        else:
+            due_wall = time.time_ns()
         pub = publisher(topic)
         key = str(pub.key_expr)
         if key in started:
@@ -152,7 +256,14 @@ def run_replay(session: "zenoh.Session", path: str, *, speed: float | None = 1.0
                 started[key] = sequence
         else:
             foreign.add(key)                 # no join point: not a counted stream, or its MCAP sequence is not its seq
-        pub.put(data)
+        if (kind := kinds[topic]) is not None:
+            pub.put(data, attachment=anchors.of(topic.lstrip("/"), kind, sequence, data, due_wall))
+        elif enc is None:
+            pub.put(data)
+        else:
+            if enc not in encodings:
+                encodings[enc] = zenoh.Encoding(enc)
+            pub.put(data, encoding=encodings[enc])
         counts[topic] = counts.get(topic, 0) + 1
         n += 1
     for q in joins:
@@ -160,4 +271,4 @@ def run_replay(session: "zenoh.Session", path: str, *, speed: float | None = 1.0
     if not report.complete:
         print(f"noiselab replay: {path}: {report.note}", file=log, flush=True)
     return ReplaySummary(path=str(path), messages=n, topics=counts, wall_s=time.monotonic() - start,
-                         complete=report.complete)
+                         complete=report.complete, starts=dict(anchors.starts))
