@@ -151,7 +151,8 @@ def _report_text(comps: list, width: int = REPORT_CHARS, max_lines: int = REPORT
             xl = last.view(rg.view, rg.output).x_label
         except KeyError:
             xl = ""
-        regs.append(f"  {names[rg.output]}: {rg.describe(view_unit(rg.view, xl))}")
+        who = "" if getattr(rg, "output_name", None) else f"{names[rg.output]}: "   # describe() names it
+        regs.append(f"  {who}{rg.describe(view_unit(rg.view, xl))}")
     if len(regs) > max_regions:
         regs = regs[:max_regions - 1] + [f"  (+{len(regs) - max_regions + 1} more regions in the .rrd report)"]
     lines += regs or ["  nowhere: every point is within its band"]

@@ -1124,6 +1124,8 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
             per_view[name] = float(np.mean(errs))
     error = model_error(views)
     regions = [rg for v in views for rg in regions_of(v)]
+    for rg in regions:
+        rg.output_name = model.output_names[rg.output]
     k = np.arange(n)[:, None]
     y_sd = np.sqrt(var_stat + walk0 + k * walk_rate)
     if qmo is not None:

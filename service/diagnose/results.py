@@ -66,9 +66,11 @@ class Region:
     points: int
     max_abs_z: float
     direction: str                 # "above" (data exceed the model) or "below"
+    output_name: str | None = None  # the model's name of the output ([outputs]), when known
 
     def describe(self, unit: str) -> str:
-        return (f"{self.view} (output {self.output}): {self.x_lo:.4g}..{self.x_hi:.4g} {unit}, data "
+        who = self.output_name or f"output {self.output}"
+        return (f"{self.view} ({who}): {self.x_lo:.4g}..{self.x_hi:.4g} {unit}, data "
                 f"{self.direction} the model, |z| up to {self.max_abs_z:.1f} over {self.points} points")
 
 
