@@ -356,19 +356,25 @@ def report_lines(cmp, series) -> list[str]:
     return lines
 
 
-def load_series(args, model, truth: bool = True, read=None):
+def load_series(args, model, truth: bool = True, read=None, steps=None):
     """``read``: the file's reading begun by :func:`_read_early` (or None). A command the analysis
     assumes (the recording has none: the model's own stands in) is said on stderr, whatever the
-    output format, besides the report's notes and its ``command`` field."""
+    output format, besides the report's notes and its ``command`` field. ``steps``: the
+    command's :class:`~service.progress.Steps`, told of the reading (its phase ends when the
+    next begins)."""
     from .diagnose import load as dload
 
     path = args.recording
     _check_recording(path)
+    if steps is not None:
+        steps(f"reading {Path(path).name}")
     series = dload.load_recording(path, spec=args.measurement, time_field=args.time, device=args.device,
                                   Ts=model.Ts, model=model, segment=args.segment, truth=truth,
                                   rec=None if read is None else read.result())
     note = dload.command_note(series)
     if note is not None:
+        if steps is not None:
+            steps.close()                   # the note on a line of its own, not inside a bar
         print(f"noiselab {args.command}: {note}", file=sys.stderr, flush=True)
     return series
 
@@ -492,33 +498,44 @@ def cmd_analyze(args) -> int:
 
 
 def _analyze_cmd(args, read) -> int:
+    from .progress import Steps, wanted
+
+    with Steps("noiselab analyze", wanted(args.progress, args.json)) as steps:
+        rep, lines = _analyze(args, read, steps)
+    _emit(args, rep, lines)
+    return 0
+
+
+def _analyze(args, read, steps) -> tuple[dict, list[str]]:
+    """The analysis of ``args.recording``, its phases shown on ``steps``: (report, lines)."""
     from .diagnose.compare import auto_burn, compare
 
     model = load_model(args.model)
     png = png_path(args)
     _check_out(args.rrd, args.force)
     _check_out(png, args.force)
-    series = load_series(args, model, truth=bool(args.rrd or png), read=read)
+    series = load_series(args, model, truth=bool(args.rrd or png), read=read, steps=steps)
     burn = auto_burn(series.starts_at_rest, series.u) if args.burn == "auto" else \
         int(round(float(args.burn) / model.Ts))
+    steps(f"comparing {series.y.shape[0]} samples with {Path(args.model).name}")
     cmp = compare(model, series.t, series.y, series.u, truth=series.truth, burn=burn,
                   level=series.starts_at_rest, free_start=not series.starts_at_rest)
     cmp.recording = series.source
     extra = {}
     if args.rrd:
         from viewers.rerun_log import log_comparisons
+        steps(f"writing {args.rrd}")
         with _writing(args.rrd):
             log_comparisons([cmp], args.rrd)
         extra["rrd"] = args.rrd
     if png:
         from viewers.summary_png import write_summary_png
+        steps(f"writing {png}")
         with _writing(png):
             write_summary_png([cmp], png)
         extra["png"] = png
     rep = analysis_report(cmp, series, extra)
-    lines = report_lines(cmp, series) + [f"wrote {extra[k]}" for k in ("rrd", "png") if k in extra]
-    _emit(args, rep, lines)
-    return 0
+    return rep, report_lines(cmp, series) + [f"wrote {extra[k]}" for k in ("rrd", "png") if k in extra]
 
 
 # -- diagnosis ----------------------------------------------------------------------------------------
@@ -527,6 +544,18 @@ def cmd_diagnose(args) -> int:
 
 
 def _diagnose_cmd(args, read) -> int:
+    from .progress import Steps, wanted
+
+    # --verbose logs the search on stderr line by line: no bar between its lines
+    show = False if args.verbose else wanted(args.progress, args.json)
+    with Steps("noiselab diagnose", show, unit=" fits") as steps:
+        rep, lines = _diagnose(args, read, steps)
+    _emit(args, rep, lines)
+    return 0
+
+
+def _diagnose(args, read, steps) -> tuple[dict, list[str]]:
+    """The diagnosis of ``args.recording``, its phases shown on ``steps``: (report, lines)."""
     from .diagnose.diagnose import diagnose
     from .diagnose.report import diagnosis_json, diagnosis_lines
 
@@ -534,10 +563,10 @@ def _diagnose_cmd(args, read) -> int:
     png = png_path(args)
     for out in (args.fit_out, args.rrd, png):
         _check_out(out, args.force)
-    series = load_series(args, model, truth=bool(args.rrd or png), read=read)
+    series = load_series(args, model, truth=bool(args.rrd or png), read=read, steps=steps)
     log = (lambda s: print(f"noiselab diagnose: {s}", file=sys.stderr)) if args.verbose else None
     rep = diagnose(model, series.t, series.y, series.u, at_rest=series.starts_at_rest,
-                   max_effects=args.max_effects, log=log)
+                   max_effects=args.max_effects, log=log, progress=steps if steps.enabled else None)
     extra = {}
     if args.fit_out:
         with _writing(args.fit_out):
@@ -550,16 +579,17 @@ def _diagnose_cmd(args, read) -> int:
             c.truth = series.truth
     if args.rrd:
         from viewers.rerun_log import log_comparisons
+        steps(f"writing {args.rrd}")
         with _writing(args.rrd):
             log_comparisons(comps, args.rrd)
         extra["rrd"] = args.rrd
     if png:
         from viewers.summary_png import write_summary_png
+        steps(f"writing {png}")
         with _writing(png):
             write_summary_png(comps, png)
         extra["png"] = png
-    _emit(args, diagnosis_json(rep, series, extra), diagnosis_lines(rep, series, extra))
-    return 0
+    return diagnosis_json(rep, series, extra), diagnosis_lines(rep, series, extra)
 
 
 def cmd_demo(args) -> int:
@@ -678,6 +708,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="seconds to skip at the start ('auto': the model's transient when the stream starts at rest)")
     sa.add_argument("--force", action="store_true", help="overwrite existing output files")
     sa.add_argument("--json", action="store_true", help="machine-readable report")
+    sa.add_argument("--progress", action="store_true",
+                    help="show the progress on stderr even when it is not a terminal (never with --json)")
     sa.add_argument("--live", action="store_true", help="analyse a live Zenoh stream instead of a file")
     sa.add_argument("--window", type=seconds_arg(), default=60.0, metavar="S",
                     help="live: rolling window in seconds (default 60)")
@@ -709,6 +741,8 @@ def build_parser() -> argparse.ArgumentParser:
     sd.add_argument("--force", action="store_true", help="overwrite existing output files")
     sd.add_argument("--verbose", action="store_true", help="log the search on stderr")
     sd.add_argument("--json", action="store_true", help="machine-readable report")
+    sd.add_argument("--progress", action="store_true",
+                    help="show the progress on stderr even when it is not a terminal (never with --json or --verbose)")
     sd.set_defaults(func=cmd_diagnose)
 
     sm = sub.add_parser("demo", help="the seed lesson live (Zenoh, MCAP), diagnosed against the lesson's own model")
@@ -722,6 +756,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="add at most K effects (default 3)")
     sm.add_argument("--force", action="store_true", help="overwrite existing demo files")
     sm.add_argument("--json", action="store_true", help="machine-readable summary")
+    sm.add_argument("--progress", action="store_true",
+                    help="show the progress on stderr even when it is not a terminal (never with --json)")
     sm.set_defaults(func=cmd_demo)
 
     sn = sub.add_parser("run", help="emulator and recorder as separate processes on loopback")

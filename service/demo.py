@@ -81,7 +81,10 @@ def _variance_story(models: list, y: np.ndarray, u: np.ndarray, Ts: float) -> li
 
 
 def run_demo(out_dir: Path, *, duration: float, speed: float, seed: int, force: bool,
-             max_effects: int = 3, log=sys.stderr) -> tuple[dict, list[str]]:
+             max_effects: int = 3, log=sys.stderr, progress=None) -> tuple[dict, list[str]]:
+    """The demo (the module docstring); ``progress``: a :class:`service.progress.Steps` shown
+    beside the narrative lines (the live run's time, the reading, each phase of the diagnosis
+    with its fits counted, the files), or None."""
     from .cli import _writing        # each file written: a full disk is one line naming it
     from .diagnose.diagnose import diagnose
     from .diagnose.load import load_noiselab
@@ -96,17 +99,24 @@ def run_demo(out_dir: Path, *, duration: float, speed: float, seed: int, force: 
                 raise DemoError(f"{p}: exists (use --force to overwrite)")
     truth, nominal = load_model("seed"), load_model("seed-nominal")
 
+    steps = progress if progress is not None and progress.enabled else None
+    phase = steps if steps is not None else (lambda label, done=0, total=None: None)
+
     def say(s):
+        if steps is not None:
+            steps.close()                     # a narrative line on a line of its own, not inside a bar
         print(f"noiselab demo: {s}", file=log, flush=True)
 
     say(f"1/3 live: emulating {truth.name} (Ts = {truth.Ts:g} s) for {duration:g} s of samples at {speed:g}x real "
         f"time over Zenoh on 127.0.0.1, recording to {outs['recording']}, live analysis against seed-nominal ...")
+    phase("live run")
     live = run_pipeline("seed", truth.name, duration=duration, seed=seed, out_dir=out_dir, force=force,
                         analyze=True, speed=speed, analyze_model="seed-nominal", window=120.0, out_name="demo-seed")
+    phase(f"reading {outs['recording'].name}")
     series = load_noiselab(str(outs["recording"]), truth=True, Ts=truth.Ts, model=nominal)
     y, u = series.y, series.u
     say(f"2/3 diagnosing {y.shape[0]} samples against seed-nominal ...")
-    rep = diagnose(nominal, series.t, y, u, at_rest=series.starts_at_rest, max_effects=max_effects)
+    rep = diagnose(nominal, series.t, y, u, at_rest=series.starts_at_rest, max_effects=max_effects, progress=steps)
     with _writing(str(outs["fitted"])):
         outs["fitted"].write_text(rep["fitted_model"])
     comps = rep["comparisons"]
@@ -114,6 +124,7 @@ def run_demo(out_dir: Path, *, duration: float, speed: float, seed: int, force: 
         c.truth = series.truth
     from viewers.rerun_log import log_comparisons
     from viewers.summary_png import write_summary_png
+    phase(f"writing {outs['rrd'].name} and {outs['png'].name}")
     with _writing(str(outs["rrd"])):
         log_comparisons(comps, str(outs["rrd"]))
     with _writing(str(outs["png"])):
@@ -139,6 +150,8 @@ def run_demo(out_dir: Path, *, duration: float, speed: float, seed: int, force: 
     }
     with _writing(str(outs["summary"])):
         outs["summary"].write_text(json.dumps(summary))
+    if steps is not None:
+        steps.close()
     return summary, _lines(summary, rep)
 
 
@@ -186,8 +199,11 @@ def _lines(s: dict, rep: dict) -> list[str]:
 
 
 def cmd_demo(args) -> int:
-    summary, lines = run_demo(Path(args.out), duration=args.duration, speed=args.speed, seed=args.seed,
-                              force=args.force, max_effects=args.max_effects)
+    from .progress import Steps, wanted
+
+    with Steps("noiselab demo", wanted(args.progress, args.json), unit=" fits") as steps:
+        summary, lines = run_demo(Path(args.out), duration=args.duration, speed=args.speed, seed=args.seed,
+                                  force=args.force, max_effects=args.max_effects, progress=steps)
     if args.json:
         print(json.dumps(summary), flush=True)
     else:

@@ -18,6 +18,7 @@
 from __future__ import annotations
 
 import math
+import threading
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 
@@ -375,13 +376,59 @@ def _report_params(eid: str, params: dict, Ts: float) -> dict:
     return out
 
 
+class _Counted:
+    """The search's maps counted for a progress report: ``progress(label, done, total)`` (e.g.
+    :class:`service.progress.Steps`) hears, under the current :meth:`phase`'s label, every fit
+    the phase's maps finish out of the fits they were given. The maps' items done in this process
+    are counted as they finish (from worker threads too); a forked child's, when its results come
+    back at the map's end."""
+
+    def __init__(self, S, progress):
+        self.progress = progress
+        self.label, self.done, self.total = "", 0, 0
+        self._lock = threading.Lock()
+        self._map = S._map
+        S._map = self.map                   # the search's own maps are counted too
+
+    def phase(self, label: str, total: int | None = None) -> None:
+        with self._lock:
+            self.label, self.done, self.total = label, 0, 0
+        self.progress(label, 0, total)
+
+    def _tick(self, n: int, grow: int = 0) -> None:
+        with self._lock:
+            self.done += n
+            self.total += grow
+            label, done, total = self.label, self.done, self.total
+        self.progress(label, done, total)
+
+    def map(self, fn, items: list, cost=None) -> list:
+        def counted(x):
+            out = fn(x)
+            self._tick(1)
+            return out
+
+        with self._lock:
+            start = self.done
+        self._tick(0, len(items))
+        out = self._map(counted, items, cost=cost)
+        with self._lock:
+            missing = start + len(items) - self.done
+        if missing > 0:                       # the forked child's items, whose ticks stayed there
+            self._tick(missing)
+        return out
+
+
 def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MAX_EFFECTS, log=None,
-             compare_burn="auto") -> dict:
+             compare_burn="auto", progress=None) -> dict:
     """Diagnose samples y (N, p) at t (N,) with the recorded command u (N, m) against ``model``.
 
     ``at_rest``: the record starts at rest at sample 0 (noiselab streams from seq 0). Returns
     the JSON-ready report (DESIGN.md fields ``error_before``, ``error_after``, ``missing``; see
     the README) plus ``model`` (the fitted model object) and ``before``/``after`` comparisons.
+    ``progress``: None, or ``progress(label, done, total)`` told each phase of the search (its
+    label: the starting fit, ``step i/K: candidates``, the exchanges, the intervals) and the fits
+    it has finished of those it was given (:class:`_Counted`); called from worker threads too.
     """
     say = log or (lambda s: None)
     t0 = time.perf_counter()
@@ -391,6 +438,7 @@ def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MA
     burn = auto_burn(at_rest, u) if compare_burn == "auto" else compare_burn
     data = Data(y, u, model.Ts, at_rest, k0)
     S = Search(model, data, log=say)
+    count = _Counted(S, progress) if progress is not None else None
     # the comparisons (before, after each step, after all) run beside the fits on long records: as
     # one more item of the next candidate map when the maps fork a second process (parallel.can_fork:
     # only while this process runs a single thread; a fork there gains more than threads, 33 s -> 25
@@ -408,7 +456,7 @@ def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MA
     try:
         before = _later(bg, lambda: _compare(S, model, t, y, u, burn, revision=0))
         try:
-            return _diagnose(model, t, y, u, S, data, before, burn, say, bg, max_effects, t0)
+            return _diagnose(model, t, y, u, S, data, before, burn, say, bg, max_effects, t0, count)
         except Exception:
             # what the comparison found wrong with the input comes first (as when it ran first)
             exc = before.exception()
@@ -444,12 +492,15 @@ def _same_model(a, b) -> bool:
     return repr(da) == repr(db)
 
 
-def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0) -> dict:
+def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0, count=None) -> dict:
+    phase = count.phase if count is not None else (lambda label, total=None: None)
+    phase("fitting the model's free parameters")
     cur = S.start()
     steps, accepted, first, comps, step_models = [], [], None, [None], [model]
     start, step_cands = cur, []
     pending = []                       # (step index, future comparison) not yet collected
-    for _ in range(max_effects):
+    for i in range(max_effects):
+        phase(f"step {i + 1}/{max_effects}: candidates")
         cands = S.candidates(cur)
         if first is None:
             first = cands
@@ -459,6 +510,7 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0)
         best = cands[0]
         step_cands.append(cands)
         # a leader's fit is already the joint thorough refit: not repeated
+        phase(f"step {i + 1}/{max_effects}: refitting with {best.effect}")
         new = best.fit if best.full else S.refit_all(best.fit, thorough=True)
         pending.append((len(steps), _later(bg, lambda m=new.model, rev=len(comps):
                                             _compare(S, m, t, y, u, burn, revision=rev))))
@@ -468,6 +520,7 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0)
         step_models.append(new.model)
         say(f"step {len(steps)}: {best.mode} {best.effect} (Delta BIC {best.score:.1f})")
         cur = new
+    phase("comparing the models with the data")
     before = before_f.result()
     comps[0] = before
     say(f"model error before: {before.error:.3g}")
@@ -477,6 +530,7 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0)
         comps[i + 1] = cmp
         steps[i]["error"] = float(cmp.error)
         say(f"step {i + 1}: model error {cmp.error:.3g}")
+    phase("checking exchanges and replacements")
     cur, swapped = _exchange(S, cur, accepted, step_cands, say)
     if swapped:      # the steps again, in order, with the exchanged effects
         steps, comps, step_models = [], [before], [model]
@@ -498,6 +552,7 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0)
     missing = []
     # the profile-likelihood intervals of the effects found, concurrently on long records
     tasks = [(i, key, f) for i, c in enumerate(accepted) for key, f in interval_tasks(S.H, cur, c.effect)]
+    phase("profile intervals")
     res = S._map(lambda task: task[2](), tasks)
     ivs = [merge_intervals([(key, r) for (i, key, _), r in zip(tasks, res) if i == k]) for k in range(len(accepted))]
     for c, iv_c in zip(accepted, ivs):
@@ -532,6 +587,7 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0)
             "evidence": evidence,
             "alternatives": alts,
         })
+    phase("comparing the fitted model with the data")
     after = after_f.result() if accepted else before
     if accepted:
         after.model_name = f"fitted ({len(accepted)} added)"
