@@ -161,7 +161,8 @@ def cmd_simulate(args) -> int:
     else:
         _check_out(str(out), args.force)
     t0 = time.perf_counter()
-    rep = write_simulation(model, n, args.seed, out, force=args.force, progress=args.progress or None,
+    from .progress import wanted
+    rep = write_simulation(model, n, args.seed, out, force=args.force, progress=wanted(args.progress, args.json),
                            fmt=args.format)
     dt = time.perf_counter() - t0
     rep["seconds"] = dt
@@ -593,8 +594,13 @@ def _diagnose(args, read, steps) -> tuple[dict, list[str]]:
 
 
 def cmd_demo(args) -> int:
-    from .demo import cmd_demo as run
     _check_out_dir(args.out)
+    if args.story == "imu":
+        from .demo_imu import cmd_imu_demo
+        return cmd_imu_demo(args)
+    from .demo import cmd_demo as run
+    if args.duration is None:
+        args.duration = 1200.0
     return run(args)
 
 
@@ -745,9 +751,14 @@ def build_parser() -> argparse.ArgumentParser:
                     help="show the progress on stderr even when it is not a terminal (never with --json or --verbose)")
     sd.set_defaults(func=cmd_diagnose)
 
-    sm = sub.add_parser("demo", help="the seed lesson live (Zenoh, MCAP), diagnosed against the lesson's own model")
-    sm.add_argument("--duration", type=seconds_arg(), default=1200.0,
-                    help="seconds of samples (default 1200: the bias walk needs ~20 min of data to show)")
+    sm = sub.add_parser("demo", help="a story live (Zenoh, MCAP), diagnosed: the seed lesson against its own "
+                                     "model, or an IMU against its white noise (demo imu)")
+    sm.add_argument("story", nargs="?", choices=("seed", "imu"), default="seed",
+                    help="seed (default): the seed lesson against seed-nominal; imu: a 6-axis IMU at rest against "
+                         "imu-nominal, its IEEE 952 coefficients and Kalibr's imu.yaml")
+    sm.add_argument("--duration", type=seconds_arg(), default=None,
+                    help="seconds of samples (default: seed 1200, as the bias walk needs ~20 min of data to show; "
+                         "imu 600)")
     sm.add_argument("--speed", type=speed_arg(), default=20.0, metavar="X",
                     help="emulate X times faster than real time (default 20)")
     sm.add_argument("--seed", type=_seed, default=1, help="random seed (default 1)")
