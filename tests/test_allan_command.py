@@ -330,3 +330,6 @@ def test_ros2_bag(tmp_path, capsys):
     assert code == 0, err
     rep = json.loads(out)
     assert list(rep["outputs"]) == ["angular_velocity.z"] and rep["Ts"] == pytest.approx(0.005, rel=1e-9)
+    # ... in the unit the message type fixes (REP 103: an Imu's angular velocity is in rad/s)
+    o = rep["outputs"]["angular_velocity.z"]
+    assert o["unit"] == "rad/s" and o["readings"]["N"]["unit"] == "rad/s/sqrt(Hz)"

@@ -17,8 +17,9 @@ TOPIC:FIELD[,FIELD...]`` of a foreign one):
 
 The data are taken as recorded (no mean response removed: a sensor at rest); the model's curve is
 that of its noise, so a model with a command says so in a note. Units are the model's ``[outputs]``
-units when a model is given; otherwise the output is named by its field and the field name stands
-for the unit. Ts is the model's, else the median step of the recording's times.
+units when a model is given; otherwise the output is named by its field, in the unit its ROS message
+type fixes (REP 103, :data:`service.nodes.rosbag.FIELD_UNITS`) or else the field name standing for
+the unit. Ts is the model's, else the median step of the recording's times.
 
 Output: the table on stdout; ``--json`` the same as one JSON document (keys below, stable);
 ``--csv FILE`` one row per output and tau; ``--png FILE`` the log-log figure
@@ -115,8 +116,10 @@ def _load(args, model):
             raise BadInput(f"--model {args.model}: the model has {model.p} output(s), the recording "
                            f"{p_data} ({', '.join(fields)})")
         return series, list(model.output_names), list(model.output_units), model.Ts
-    # no model: a foreign field stands for its own unit; a noiselab output is y<j> in "units"
-    units = list(fields) if series.names else [DEFAULT_UNIT] * p_data
+    # no model: a ROS field's unit where its message type fixes it (REP 103: an Imu's angular_velocity
+    # is in rad/s); else a foreign field stands for its own unit; a noiselab output is y<j> in "units"
+    known = series.units or [None] * p_data
+    units = [k or f for k, f in zip(known, fields)] if series.names else [DEFAULT_UNIT] * p_data
     return series, fields, units, series.Ts
 
 

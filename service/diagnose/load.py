@@ -68,6 +68,7 @@ class Series:
     starts_at_rest: bool = False   # a noiselab stream from seq 0 (the emulator starts at rest)
     command: dict | None = None    # the command analysed (command_used), None when no model was given
     names: list | None = None      # a foreign recording's field per column of y (``.*`` expanded)
+    units: list | None = None      # their units where the message type fixes them (ROS: REP 103), else None
     Ts: float | None = None        # s: the period the timing was checked against (the model's, or the median step)
 
 
@@ -347,7 +348,9 @@ def load_foreign(path: str, spec: str, time_field: str | None, Ts: float | None 
         else:                                     # a numeric --time field: s, or ns by the name's _ns
             ns = time_field.endswith("_ns")
             raw = _time_array(got.time, ns, f"{path}: {what}", time_field)
-        return _foreign_series(path, spec, what, got.names, got.values, raw, ns, Ts, model, got.notes)
+        series = _foreign_series(path, spec, what, got.names, got.values, raw, ns, Ts, model, got.notes)
+        series.units = got.units
+        return series
     return _load_json(path, spec, topic, paths, tpath, Ts, model)
 
 

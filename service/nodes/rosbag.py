@@ -54,6 +54,21 @@ MCAP_MAGIC = b"\x89MCAP0\r\n"
 TIME_TYPES = ("builtin_interfaces/msg/Time", "builtin_interfaces/msg/Duration")
 NUMERIC = frozenset({"byte", "char", "int8", "uint8", "int16", "uint16", "int32", "uint32", "int64", "uint64",
                      "float32", "float64"})
+FIELD_UNITS = {
+    ("sensor_msgs/msg/Imu", "angular_velocity"): "rad/s",
+    ("sensor_msgs/msg/Imu", "linear_acceleration"): "m/s^2",
+    ("sensor_msgs/msg/Imu", "orientation"): "1",
+    ("sensor_msgs/msg/MagneticField", "magnetic_field"): "T",
+    ("sensor_msgs/msg/Temperature", "temperature"): "degC",
+    ("sensor_msgs/msg/FluidPressure", "fluid_pressure"): "Pa",
+    ("sensor_msgs/msg/Range", "range"): "m",
+    ("geometry_msgs/msg/TwistStamped", "twist.linear"): "m/s",
+    ("geometry_msgs/msg/TwistStamped", "twist.angular"): "rad/s",
+}
+"""The units of standard messages' fields that their definitions fix (REP 103: SI units, rad/s
+and m/s^2 for an IMU; the .msg files' comments for the others): (message type, field path
+prefix) -> unit. A field not listed (a JointState's position is rad or m by joint) has none."""
+
 _SUFFIX = {"rosbag2 MCAP file": ".mcap", "rosbag2 SQLite3 file": ".db3", "ROS 1 bag": ".bag"}
 
 
@@ -345,6 +360,20 @@ class RosFields:
     time_ns: bool
     time_source: str
     notes: list = field(default_factory=list)
+
+    @property
+    def units(self) -> list[str | None]:
+        """Each column's unit where the message definition fixes it (:data:`FIELD_UNITS`), else None."""
+        return [field_unit(self.msgtype, name) for name in self.names]
+
+
+def field_unit(msgtype: str, path: str) -> str | None:
+    """The unit of the field ``path`` (as written: ``angular_velocity.x``) of a ``msgtype`` message,
+    when :data:`FIELD_UNITS` knows it."""
+    for (mt, prefix), unit in FIELD_UNITS.items():
+        if mt == msgtype and (path == prefix or path.startswith(prefix + ".") or path.startswith(prefix + "[")):
+            return unit
+    return None
 
 
 def read_fields(path, topic: str, fields: Sequence[tuple[str, tuple]],
