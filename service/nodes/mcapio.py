@@ -35,6 +35,7 @@ import operator
 import os
 import stat
 import struct
+import zlib
 from contextlib import contextmanager
 from collections import defaultdict
 from collections.abc import Iterable, Iterator, Sequence
@@ -42,9 +43,12 @@ from dataclasses import dataclass, field
 from importlib.metadata import PackageNotFoundError, version
 
 import numpy as np
+from mcap.data_stream import RecordBuilder
 from mcap.exceptions import McapError
+from mcap.opcode import Opcode
 from mcap.reader import SeekingReader
-from mcap.records import Channel, Header, Message, Metadata, Schema
+from mcap.records import (Channel, Chunk, ChunkIndex, DataEnd, Footer, Header, Message, Metadata,
+                          MetadataIndex, Schema, Statistics, SummaryOffset)
 from mcap.stream_reader import StreamReader
 from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 
@@ -267,6 +271,228 @@ class _Output:
 # ------------------------------------------------------------------------------ writer
 
 
+class _BlockWriter:
+    """An MCAP writer (https://mcap.dev/spec) that takes a whole block of messages per call.
+
+    It writes the very file ``mcap.writer.Writer`` (default options) writes for the same calls,
+    byte for byte: the same records, the same chunking rule (a chunk is closed after the message
+    that takes its uncompressed records past ``chunk_size``; schemas and channels go into the
+    chunk in progress), the same message indexes, summary groups, statistics and CRCs
+    (tests/test_mcap_block_writer.py compares the two). What differs is the cost:
+    ``Writer.add_message`` builds each Message record field by field in Python calls (as costly
+    as simulating and encoding the message), whereas :meth:`add_messages` packs a block's
+    record headers (opcode 0x05, record length, channel_id u16, sequence u32,
+    log_time u64, publish_time u64) in one numpy array, joins them with the payloads in one
+    ``bytes.join`` and builds each chunk's MessageIndex records (0x07: channel_id u16, then
+    (log_time u64, offset u64) pairs) from arrays. The rarer records are mcap's own classes.
+    """
+
+    _HEAD = np.dtype([("op", "u1"), ("length", "<u8"), ("channel", "<u2"), ("sequence", "<u4"),
+                      ("log", "<u8"), ("pub", "<u8")])
+    """A Message record up to its data: 31 bytes (a packed structured dtype has no padding)."""
+    _HEAD_SIZE = _HEAD.itemsize
+    _PACK_HEAD = struct.Struct("<BQHIQQ")
+    """The same header for one message."""
+
+    def __init__(self, stream, *, chunk_size: int, compression: str, profile: str, library: str):
+        self._f = stream
+        self._limit = chunk_size
+        self._compression = "" if compression == "none" else compression
+        self._rb = RecordBuilder()
+        self._schemas: list[Schema] = []
+        self._channels: list[Channel] = []
+        self._chunk_indexes: list[ChunkIndex] = []
+        self._metadata_indexes: list[MetadataIndex] = []
+        self._stats = Statistics(attachment_count=0, channel_count=0, channel_message_counts={},
+                                 chunk_count=0, message_count=0, message_end_time=0,
+                                 message_start_time=0, metadata_count=0, schema_count=0)
+        # the chunk in progress: its records, and its messages' channel ids, log times, offsets
+        self._records: list[bytes] = []
+        self._fill = 0
+        self._cid: list[int] = []
+        self._log: list[int] = []
+        self._off: list[int] = []
+        self._f.write(MAGIC)
+        Header(profile=profile, library=library).write(self._rb)
+        self._emit()
+
+    def _emit(self) -> None:
+        self._f.write(self._rb.end())
+
+    def _to_chunk(self, record) -> None:
+        rb = RecordBuilder()
+        record.write(rb)
+        data = rb.end()
+        self._records.append(data)
+        self._fill += len(data)
+        if self._fill > self._limit:
+            self._finish_chunk()
+
+    def register_schema(self, name: str, encoding: str, data: bytes) -> int:
+        schema = Schema(id=len(self._schemas) + 1, name=name, encoding=encoding, data=data)
+        self._schemas.append(schema)
+        self._stats.schema_count += 1
+        self._to_chunk(schema)
+        return schema.id
+
+    def register_channel(self, topic: str, message_encoding: str, schema_id: int,
+                         metadata: dict[str, str]) -> int:
+        channel = Channel(id=len(self._channels) + 1, topic=topic, message_encoding=message_encoding,
+                          schema_id=schema_id, metadata=metadata)
+        self._channels.append(channel)
+        self._stats.channel_count += 1
+        self._to_chunk(channel)
+        return channel.id
+
+    def add_metadata(self, name: str, data: dict[str, str]) -> None:
+        offset = self._f.tell()
+        Metadata(name=name, metadata=data).write(self._rb)
+        self._metadata_indexes.append(MetadataIndex(offset=offset, length=self._rb.count, name=name))
+        self._stats.metadata_count += 1
+        self._emit()
+
+    def add_message(self, channel: int, log: int, pub: int, sequence: int, data: bytes) -> None:
+        """Append one message (a live recorder's): :meth:`add_messages` without its numpy setup,
+        which costs more than one message."""
+        st = self._stats
+        st.message_start_time = log if st.message_count == 0 else min(st.message_start_time, log)
+        st.message_end_time = max(st.message_end_time, log)
+        st.message_count += 1
+        st.channel_message_counts[channel] = st.channel_message_counts.get(channel, 0) + 1
+        self._cid.append(channel)
+        self._log.append(log)
+        self._off.append(self._fill)
+        self._records += (self._PACK_HEAD.pack(0x05, self._HEAD_SIZE - 9 + len(data), channel, sequence,
+                                               log, pub), data)
+        self._fill += self._HEAD_SIZE + len(data)
+        if self._fill > self._limit:
+            self._finish_chunk()
+
+    def add_messages(self, channel, log, pub, sequence, payloads: Sequence[bytes]) -> None:
+        """Append ``len(payloads)`` messages in this order; ``channel``, ``log``, ``pub`` (ns)
+        and ``sequence`` are arrays (or sequences) of one value per message, already checked."""
+        n = len(payloads)
+        if n == 0:
+            return
+        log = np.asarray(log, np.uint64)
+        channel = np.asarray(channel, np.uint16)
+        size = np.fromiter(map(len, payloads), np.int64, n) + self._HEAD_SIZE
+        head = np.empty(n, self._HEAD)
+        head["op"] = 0x05
+        head["length"] = size - 9                       # a record's length excludes opcode and length
+        head["channel"] = channel
+        head["sequence"] = sequence
+        head["log"] = log
+        head["pub"] = pub
+        heads = head.tobytes()
+        at = range(0, n * self._HEAD_SIZE + 1, self._HEAD_SIZE)
+        pieces = [b""] * (2 * n)
+        pieces[0::2] = map(heads.__getitem__, map(slice, at[:-1], at[1:]))
+        pieces[1::2] = payloads
+        self._count(channel, log)
+        end = np.cumsum(size)
+        start = end - size
+        i = 0
+        while i < n:
+            # the chunk closes after the first message whose end passes the limit
+            j = int(np.searchsorted(end, self._limit - self._fill + start[i], side="right"))
+            k = min(j + 1, n)
+            self._records.append(b"".join(pieces[2 * i: 2 * k]))
+            self._cid += channel[i:k].tolist()
+            self._log += log[i:k].tolist()
+            self._off += (start[i:k] - start[i] + self._fill).tolist()
+            self._fill += int(end[k - 1] - start[i])
+            i = k
+            if j < n:
+                self._finish_chunk()
+
+    def _count(self, channel: np.ndarray, log: np.ndarray) -> None:
+        """Statistics of a block: message counts per channel (keyed in order of first message, as
+        Writer's), first and last log_time."""
+        st = self._stats
+        st.message_start_time = int(log.min()) if st.message_count == 0 \
+            else min(st.message_start_time, int(log.min()))
+        st.message_end_time = max(st.message_end_time, int(log.max()))
+        st.message_count += log.size
+        ids, first, counts = np.unique(channel, return_index=True, return_counts=True)
+        for i in np.argsort(first, kind="stable").tolist():
+            cid = int(ids[i])
+            st.channel_message_counts[cid] = st.channel_message_counts.get(cid, 0) + int(counts[i])
+
+    def _finish_chunk(self) -> None:
+        if not self._cid:                       # schemas and channels alone wait for a message
+            return
+        data = b"".join(self._records)
+        if self._compression == "zstd":
+            packed = _zstd.compress(data)
+        elif self._compression == "lz4":
+            packed = _lz4.compress(data)
+        else:
+            packed = data
+        cids = np.array(self._cid, np.uint16)
+        log = np.array(self._log, np.uint64)
+        off = np.array(self._off, np.uint64)
+        chunk = Chunk(compression=self._compression, data=packed, message_start_time=int(log.min()),
+                      message_end_time=int(log.max()), uncompressed_crc=zlib.crc32(data),
+                      uncompressed_size=len(data))
+        chunk_start = self._f.tell()
+        chunk.write(self._rb)
+        chunk_length = self._rb.count
+        self._emit()
+        index_start = pos = chunk_start + chunk_length
+        ids, first = np.unique(cids, return_index=True)
+        offsets, records = {}, []
+        for cid in ids[np.argsort(first)].tolist():     # channels in order of first message
+            mine = cids == cid
+            pairs = np.column_stack((log[mine], off[mine])).astype("<u8").tobytes()
+            records.append(struct.pack("<BQHI", 0x07, 6 + len(pairs), cid, len(pairs)) + pairs)
+            offsets[cid] = pos
+            pos += len(records[-1])
+        self._f.write(b"".join(records))
+        self._chunk_indexes.append(ChunkIndex(
+            message_start_time=chunk.message_start_time, message_end_time=chunk.message_end_time,
+            chunk_start_offset=chunk_start, chunk_length=chunk_length, message_index_offsets=offsets,
+            message_index_length=pos - index_start, compression=chunk.compression,
+            compressed_size=len(packed), uncompressed_size=len(data)))
+        self._stats.chunk_count += 1
+        self._records, self._fill, self._cid, self._log, self._off = [], 0, [], [], []
+
+    def flush(self) -> None:
+        """Close the chunk in progress (if it holds a message) and flush the stream."""
+        self._finish_chunk()
+        self._f.flush()
+
+    def finish(self) -> None:
+        """The last chunk, DataEnd, the summary (schemas, channels, statistics, chunk indexes,
+        attachment and metadata indexes, each group's SummaryOffset) and the footer, whose CRC
+        covers the summary and the footer's own fields up to it."""
+        self._finish_chunk()
+        DataEnd(data_section_crc=0).write(self._rb)
+        self._emit()
+        summary_start = self._f.tell()
+        sb = RecordBuilder()
+        groups = []
+        for opcode, records in ((Opcode.SCHEMA, self._schemas), (Opcode.CHANNEL, self._channels),
+                                (Opcode.STATISTICS, [self._stats]),
+                                (Opcode.CHUNK_INDEX, self._chunk_indexes), (Opcode.ATTACHMENT_INDEX, []),
+                                (Opcode.METADATA_INDEX, self._metadata_indexes)):
+            at = sb.count
+            for r in records:
+                r.write(sb)
+            groups.append(SummaryOffset(group_opcode=opcode, group_start=summary_start + at,
+                                        group_length=sb.count - at))
+        offsets_start = summary_start + sb.count
+        for g in groups:
+            g.write(sb)
+        summary = sb.end()
+        crc = zlib.crc32(struct.pack("<BQQQ", Opcode.FOOTER, 20, summary_start, offsets_start),
+                         zlib.crc32(summary))
+        self._f.write(summary)
+        Footer(summary_start=summary_start, summary_offset_start=offsets_start, summary_crc=crc).write(self._rb)
+        self._emit()
+        self._f.write(MAGIC)
+
+
 class RecordingWriter:
     """Write noiselab streams to a new MCAP file; a context manager that always finishes it.
 
@@ -316,9 +542,8 @@ class RecordingWriter:
         self._file = self._out.file
         try:
             with self._io():
-                self._writer = Writer(self._file, chunk_size=chunk_size,
-                                      compression=_COMPRESSION_TYPES[compression])
-                self._writer.start(profile="", library=_library())
+                self._writer = _BlockWriter(self._file, chunk_size=chunk_size, compression=compression,
+                                            profile="", library=_library())
         except BaseException:
             if not self._closed:
                 self._closed = True
@@ -437,8 +662,8 @@ class RecordingWriter:
         log_time_ns = _check_u64(log_time_ns, "log_time_ns")
         publish_time_ns = _check_u64(publish_time_ns, "publish_time_ns")
         with self._io():
-            self._writer.add_message(channel_id=channel_id, log_time=log_time_ns, data=bytes(payload),
-                                     publish_time=publish_time_ns, sequence=seq % SEQUENCE_MODULUS)
+            self._writer.add_message(channel_id, log_time_ns, publish_time_ns, seq % SEQUENCE_MODULUS,
+                                     bytes(payload))
         self._counts[topic.lstrip("/")] += 1
 
     def write_batch(self, topic: str, kind: str, seq0: int, publish_ns: np.ndarray,
@@ -448,25 +673,7 @@ class RecordingWriter:
         ``publish_ns`` and ``log_ns`` are integer arrays (N,) in ns (int64 or uint64);
         ``payloads`` N bytes objects (e.g. from :func:`wire.encode_batch`).
         """
-        channel_id = self.channel(topic, kind)
-        seq0 = _check_u64(seq0, "seq0")
-        pub = np.asarray(publish_ns)
-        log = np.asarray(log_ns)
-        n = len(payloads)
-        for arr, what in ((pub, "publish_ns"), (log, "log_ns")):
-            if arr.shape != (n,) or arr.dtype.kind not in "iu":
-                raise McapIoError(f"{topic}: {what} must be an integer array of shape ({n},), "
-                                  f"got {arr.dtype} {arr.shape}")
-            if n and arr.dtype.kind == "i" and arr.min() < 0:
-                raise McapIoError(f"{topic}: {what} has negative times")
-        if not all(type(p) is bytes for p in payloads):
-            raise McapIoError(f"{topic}: payloads must all be bytes")
-        add = self._writer.add_message
-        with self._io():
-            for i, (p, lg, data) in enumerate(zip(pub.tolist(), log.tolist(), payloads)):
-                add(channel_id=channel_id, log_time=lg, data=data, publish_time=p,
-                    sequence=(seq0 + i) % SEQUENCE_MODULUS)
-        self._counts[topic.lstrip("/")] += n
+        self.write_interleaved([(topic, kind, seq0, publish_ns, log_ns, payloads)])
 
     def write_interleaved(self, streams: Sequence[tuple[str, str, int, np.ndarray, np.ndarray,
                                                         Sequence[bytes]]]) -> None:
@@ -480,24 +687,26 @@ class RecordingWriter:
         if not streams:
             return
         n = len(streams[0][5])
-        cols = []
-        for topic, kind, seq0, publish_ns, log_ns, payloads in streams:
-            if len(payloads) != n:
-                raise McapIoError(f"{topic}: {len(payloads)} payloads where the other streams have {n}")
-            cid = self.channel(topic, kind)
+        k = len(streams)
+        cids, seqs, pubs, logs = [], [], [], []
+        payloads = [b""] * (n * k)
+        for j, (topic, kind, seq0, publish_ns, log_ns, data) in enumerate(streams):
+            if len(data) != n:
+                raise McapIoError(f"{topic}: {len(data)} payloads where the other streams have {n}")
+            cids.append(self.channel(topic, kind))
             seq0 = _check_u64(seq0, "seq0")
             pub, log = self._check_times(topic, publish_ns, log_ns, n)
-            if not all(type(p) is bytes for p in payloads):
+            if not all(type(p) is bytes for p in data):
                 raise McapIoError(f"{topic}: payloads must all be bytes")
-            seqs = [(seq0 + i) % SEQUENCE_MODULUS for i in range(n)] if seq0 + n > SEQUENCE_MODULUS \
-                else range(seq0, seq0 + n)
-            cols.append((cid, list(zip(pub.tolist(), log.tolist(), payloads, seqs))))
-        add = self._writer.add_message
-        cids = [c for c, _ in cols]
+            seqs.append((np.arange(n, dtype=np.uint64) + np.uint64(seq0 % SEQUENCE_MODULUS))
+                        % np.uint64(SEQUENCE_MODULUS))
+            pubs.append(pub.astype(np.uint64))      # int64 and uint64 side by side would stack as float
+            logs.append(log.astype(np.uint64))
+            payloads[j::k] = data
+        # sample by sample: row i of each (n, k) array, read in C order, is message i of every stream
         with self._io():
-            for row in zip(*[rows for _, rows in cols]):
-                for cid, (p, lg, data, sq) in zip(cids, row):
-                    add(channel_id=cid, log_time=lg, data=data, publish_time=p, sequence=sq)
+            self._writer.add_messages(np.tile(np.asarray(cids, np.uint16), n), np.column_stack(logs).ravel(),
+                                      np.column_stack(pubs).ravel(), np.column_stack(seqs).ravel(), payloads)
         for topic, *_ in streams:
             self._counts[topic.lstrip("/")] += n
 
@@ -529,11 +738,8 @@ class RecordingWriter:
         worsens compression. ``fsync=True`` also asks the OS to put it on disk.
         """
         self._check_open()
-        flush = getattr(self._writer, "flush", None)
-        if flush is None:  # pragma: no cover - older mcap releases lack it
-            raise McapIoError("this mcap version cannot flush a chunk early; upgrade mcap")
         with self._io():
-            flush()
+            self._writer.flush()
             if fsync:
                 os.fsync(self._file.fileno())
 
@@ -1307,8 +1513,6 @@ are kilobytes to megabytes; a damaged size must not make the reader allocate it.
 
 def _chunk_records(f, ci, path: str) -> bytes:
     """The decompressed, CRC-checked records of the chunk that ``ci`` (a ChunkIndex) points to."""
-    import zlib
-
     buf = _read_span(f, ci.chunk_start_offset, ci.chunk_length)
     try:
         if buf is None:
