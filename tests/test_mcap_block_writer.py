@@ -187,3 +187,16 @@ def test_simulate_writes_the_single_message_encoders_payloads_readable_by_every_
         np.testing.assert_array_equal(td.values, values)
         np.testing.assert_array_equal(td.seq, np.arange(n))
         np.testing.assert_array_equal(td.publish_ns, stamp)
+
+
+def test_a_ros2_bag_holds_the_samples_interleaved_as_they_are_published(tmp_path):
+    """simulate --format ros2 over two simulated blocks: in file order, truth, command and
+    measurement of sample k (log_time = its anchored stamp), then of k + 1."""
+    model = load_model("seed")
+    n, start = 66_000, 1_700_000_000_000_000_007
+    write_simulation(model, n, 2, tmp_path / "bag", fmt="ros2", start_time_ns=start, progress=False)
+    t, _ = wire.sample_times(0, n, model.Ts)
+    stamp = (start + np.rint(t * 1e9).astype(np.int64)).tolist()
+    with open(tmp_path / "bag" / "bag.mcap", "rb") as f:
+        got = [(ch.topic, m.log_time) for _s, ch, m in make_reader(f).iter_messages(log_time_order=False)]
+    assert got == [(f"/seed/{kind}", s) for s in stamp for kind in ("truth", "command", "measurement")]

@@ -52,7 +52,9 @@ replaced only with ``force``, and then only if it is a file, an empty directory 
 
 from __future__ import annotations
 
+import collections
 import contextlib
+import itertools
 import os
 import re
 import shutil
@@ -334,20 +336,19 @@ class BagWriter:
         the (N, dim) block of each kind (``truth`` x, ``command`` u, ``measurement`` y)."""
         stamp_ns = np.asarray(stamp_ns, np.int64)
         sec, nanosec = np.divmod(stamp_ns, np.int64(1_000_000_000))
-        rows = []
-        for t in self.topics:
+        k = len(self.topics)
+        datas = [b""] * (stamp_ns.size * k)     # sample by sample: message i of every topic in turn
+        for j, t in enumerate(self.topics):
             arr = np.asarray(arrays[t.kind], np.float64)
             _check_finite(t, k0, arr)
             msgs = t.layout.encode(sec, nanosec, **{f: arr[:, cols] for f, cols in t.fields.items()})
-            size = msgs.shape[1]
-            mv = memoryview(msgs.reshape(-1))
-            rows.append([mv[i:i + size] for i in range(0, mv.nbytes, size)])
-        write = self._writer.write
-        conns = [t.conn for t in self.topics]
+            blob, size = msgs.tobytes(), msgs.shape[1]
+            at = range(0, len(blob) + 1, size)
+            datas[j::k] = map(blob.__getitem__, map(slice, at[:-1], at[1:]))
+        conns = itertools.islice(itertools.cycle([t.conn for t in self.topics]), len(datas))
         try:
-            for ts, *msgs in zip(stamp_ns.tolist(), *rows):
-                for conn, data in zip(conns, msgs):
-                    write(conn, ts, data)
+            # the writer's calls from C (map), not from a Python loop body
+            collections.deque(map(self._writer.write, conns, np.repeat(stamp_ns, k).tolist(), datas), maxlen=0)
         except OSError as e:
             raise BadInput(f"{self.out}: cannot write it ({e.strerror or e}); {self.out} is as it was") from None
         for t in self.topics:
