@@ -5,7 +5,7 @@ Run on demand, not by pytest (``pyproject.toml`` ignores ``tests/bench``)::
     .venv/bin/python tests/bench/bench_simulate.py            # full run, ~2-3 min
     .venv/bin/python tests/bench/bench_simulate.py --write    # ... and update RESULTS.md
     .venv/bin/python tests/bench/bench_simulate.py --quick    # smoke test, a few seconds
-    .venv/bin/python tests/bench/bench_simulate.py --profile  # + cProfile of batch and step
+    .venv/bin/python tests/bench/bench_simulate.py --profile  # + cProfile of the parts run
     .venv/bin/python tests/bench/bench_simulate.py --blas-threads 1 --only batch trials --write
 
 What is measured (every ratio is taken against its peer *in the same run*):
@@ -634,7 +634,8 @@ def main(argv: list[str] | None = None) -> int:
     print(table(res))
     print(f"\nload average at end: {res['load_end']}; wall {res['wall']:.0f} s")
     if args.profile:
-        print(profile(10**5 if q else 10**6, steps))
+        if parts & {"batch", "step"}:
+            print(profile(10**5 if q else 10**6, steps))
         if "write" in parts:
             print(profile_write(write_n))
     if args.json:
