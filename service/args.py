@@ -1,7 +1,11 @@
-"""Bounded numeric command-line arguments: every number a flag takes is read by one of these
-(argparse ``type=``), so nan, inf, a negative count or a duration no timer can wait is a one-line
-usage error (exit 2). Shared by :mod:`service.cli` and the nodes that add their own flags
-(:func:`service.nodes.transport.add_transport_args`), which must not import the command line.
+"""Command-line arguments shared by the command line and the nodes, standard library only (the
+command line builds its parser from them without loading a command's libraries).
+
+Bounded numbers: every number a flag takes is read by one of these (argparse ``type=``), so nan,
+inf, a negative count or a duration no timer can wait is a one-line usage error (exit 2).
+
+The transport flags (:func:`add_transport_args`) of every node that opens a Zenoh session; what
+they mean is :func:`service.nodes.transport.build_config`'s.
 """
 
 from __future__ import annotations
@@ -19,6 +23,10 @@ a day) stays under :data:`SECONDS_MAX`; a million times real time is no pace at 
 and ``replay --fast`` run as fast as they can)."""
 COUNT_MAX = 1000
 """The largest count a flag takes (``--max-effects``: the catalogue has 13 effects; ``--wait-peers``)."""
+DEFAULT_PORT = 7447
+"""Zenoh's registered TCP port."""
+DEFAULT_ENDPOINT = f"tcp/127.0.0.1:{DEFAULT_PORT}"
+"""Where a source listens and a sink connects when no flag or config file says otherwise."""
 
 
 def bounded(lo, hi, *, lo_open: bool = False, integer: bool = False, what: str = "a number"):
@@ -51,3 +59,17 @@ def speed_arg():
 def count_arg(lo: int = 1):
     """An integer from ``lo`` to :data:`COUNT_MAX`."""
     return bounded(lo, COUNT_MAX, integer=True, what="an integer")
+
+
+def add_transport_args(parser: argparse.ArgumentParser) -> None:
+    """The Zenoh flags of a node (emulate, record, replay, router, analyze --live)."""
+    g = parser.add_argument_group("transport (Zenoh)")
+    g.add_argument("--connect", action="append", metavar="ENDPOINT",
+                   help=f"endpoint to connect to, e.g. {DEFAULT_ENDPOINT} (repeatable)")
+    g.add_argument("--listen", action="append", metavar="ENDPOINT",
+                   help="endpoint to listen on, e.g. tcp/127.0.0.1:7448 (repeatable)")
+    g.add_argument("--config", metavar="FILE", help="Zenoh JSON5 configuration file")
+    g.add_argument("--mode", choices=("peer", "client"), default=None,
+                   help="Zenoh session mode (default peer; a router is always 'router')")
+    g.add_argument("--connect-timeout", type=seconds_arg(zero=True), default=5.0, metavar="S",
+                   help="seconds to reach --connect endpoints before giving up (default 5)")

@@ -7,7 +7,6 @@ Exit codes (DESIGN.md): 0 success, 2 bad input (one line on stderr naming what i
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import os
 import sys
@@ -15,25 +14,31 @@ import time
 from pathlib import Path
 
 from . import one_blas_thread
+from .args import (
+    SECONDS_MAX,
+    add_transport_args,
+    bounded,
+    count_arg,
+    seconds_arg,
+    speed_arg,
+)
+from .errors import BadInput
+from .model import ModelError
+from .outfiles import check_out, check_out_dir, make_dir, png_path, writing
+from .signals import stop_on_signals
 
-one_blas_thread()
-
-import numpy as np  # noqa: E402  (after the thread count: BLAS reads it when numpy loads)
-
-from .args import SECONDS_MAX, bounded, count_arg, seconds_arg, speed_arg  # noqa: E402
-from .errors import BadInput  # noqa: E402
-from .model import ModelError  # noqa: E402
+one_blas_thread()          # before any command imports numpy: BLAS reads the thread count when numpy loads
 
 
 def load_model(spec):
-    from .model import load_model as _load   # scipy is loaded here, only by commands that need it
+    """The model of ``spec`` (a file or a built-in scenario); the model package (scipy) is loaded
+    here, by the commands that need it, not to read the flags."""
+    from .model import load_model as _load
+
     return _load(spec)
 
+
 __version__ = "0.1.0"
-
-
-class UsageError(BadInput):
-    """Bad command-line input; the message is one line."""
 
 
 class _Lazy(Exception):
@@ -46,9 +51,12 @@ def _loaded(module: str, name: str):
 
 
 def _bad_input_types():
-    from .nodes.mcapio import McapIoError, RecordingExistsError
-    from .nodes.transport import TransportError
-    from .nodes.wire import WireError
+    """The error classes the CLI prints as one line with exit 2. A class whose module no command
+    imported cannot have been raised, and is not imported here to be caught (:class:`_Lazy`)."""
+    McapIoError = _loaded("service.nodes.mcapio", "McapIoError")
+    RecordingExistsError = _loaded("service.nodes.mcapio", "RecordingExistsError")
+    TransportError = _loaded("service.nodes.transport", "TransportError")
+    WireError = _loaded("service.nodes.wire", "WireError")
     AnalysisError = _loaded("service.diagnose.results", "AnalysisError")
     DemoError = _loaded("service.demo", "DemoError")
     StatsError = _loaded("service.stats.errors", "StatsError")
@@ -72,11 +80,15 @@ beyond the recording's segments is refused where they are known (the loader name
 # -- predict ------------------------------------------------------------------------------------
 def _vec(v):
     """Per output, JSON-ready: NaN (no value at that output, e.g. where the plant integrates) as null."""
+    import numpy as np
+
     return None if v is None else [float(x) if np.isfinite(x) else None for x in np.atleast_1d(v)]
 
 
 def predict_report(model) -> dict:
     """The scriptable prediction (DESIGN.md, ``noiselab predict --json``)."""
+    import numpy as np
+
     pr = model.predictor()
     st = pr.steady_state()
     modifiers = {}
@@ -149,17 +161,17 @@ def cmd_simulate(args) -> int:
     model = load_model(args.model)
     n = int(round(args.duration / model.Ts))
     if n < 1:
-        raise UsageError(f"--duration {args.duration:g} s is shorter than one sample (Ts = {model.Ts:g} s)")
+        raise BadInput(f"--duration {args.duration:g} s is shorter than one sample (Ts = {model.Ts:g} s)")
     from .nodes.simwrite import write_simulation
 
     ros2 = args.format == "ros2"
     out = Path(args.out) if args.out else Path("recordings") / (f"{model.name}-seed{args.seed}" + ("" if ros2 else ".mcap"))
     if ros2:                       # a bag is a directory: the writer checks what is there (only a bag is replaced)
         if out.exists() and not args.force:
-            raise UsageError(f"{out}: already exists (use --force to overwrite)")
-        _make_dir(str(out), out.parent)
+            raise BadInput(f"{out}: already exists (use --force to overwrite)")
+        make_dir(str(out), out.parent)
     else:
-        _check_out(str(out), args.force)
+        check_out(str(out), args.force)
     t0 = time.perf_counter()
     from .progress import wanted
     rep = write_simulation(model, n, args.seed, out, force=args.force, progress=wanted(args.progress, args.json),
@@ -176,21 +188,6 @@ def cmd_simulate(args) -> int:
 
 
 # -- live pipeline -----------------------------------------------------------------------------------
-def _stop_on_signals():
-    """SIGINT/SIGTERM set the returned event (nodes finish cleanly instead of dying)."""
-    import signal
-    import threading
-
-    stop = threading.Event()
-
-    def handler(signum, frame):
-        stop.set()
-
-    signal.signal(signal.SIGINT, handler)
-    signal.signal(signal.SIGTERM, handler)
-    return stop
-
-
 def _emit(args, summary: dict, lines: list[str]) -> None:
     if args.json:
         print(json.dumps(summary), flush=True)
@@ -204,7 +201,7 @@ def cmd_emulate(args) -> int:
     from .nodes.emulator import run_emulator
 
     model = load_model(args.model)
-    stop = _stop_on_signals()
+    stop = stop_on_signals()
     with transport.open_session(args, "source") as session:
         ends = transport.endpoints_of(args, "source")
         print(f"noiselab emulate: {model.name} at Ts = {model.Ts:g} s on noiselab/{model.name}/* "
@@ -226,8 +223,8 @@ def cmd_record(args) -> int:
 
     transport.check_key_expr(args.key)
     out = Path(args.out)
-    _check_out(args.out, args.force)
-    stop = _stop_on_signals()
+    check_out(args.out, args.force)
+    stop = stop_on_signals()
     import threading
     ready = threading.Event()
     writing: list[str] = []
@@ -273,7 +270,7 @@ def cmd_replay(args) -> int:
     replay_topics(args.recording)            # a file that is not MCAP fails here, before any I/O
     if args.prefix:
         transport.check_key_expr(args.prefix)
-    stop = _stop_on_signals()
+    stop = stop_on_signals()
     with transport.open_session(args, "source") as session:
         s = run_replay(session, args.recording, speed=None if args.fast else args.speed, prefix=args.prefix,
                        stop=stop, wait_subscribers=args.wait_subscribers)
@@ -284,7 +281,7 @@ def cmd_replay(args) -> int:
 def cmd_router(args) -> int:
     from .nodes import transport
 
-    stop = _stop_on_signals()
+    stop = stop_on_signals()
     with transport.open_session(args, "router"):            # open while it routes
         ends = transport.endpoints_of(args, "router")
         print(f"noiselab router: listening on {', '.join(ends['listen']) or 'the config file endpoints'}",
@@ -293,27 +290,11 @@ def cmd_router(args) -> int:
     return 0
 
 
-def pipeline_lines(emu: dict, rec: dict) -> list[str]:
-    """Per-topic message counts and gaps, and the loop's timing, of a `run`."""
-    lines = []
-    for topic, b in sorted((rec.get("topics") or {}).items()):
-        gaps = "no gaps" if not b["gaps"] and not b["missing_at_start"] else \
-            f"{b['missing']} missing in {len(b['gaps'])} gaps, first seq {b['first_seq']}"
-        lines.append(f"  {topic}: {b['count']} messages, {gaps}")
-    if emu:
-        lat = emu["lateness_us"]
-        speed = f", {emu['speed']:g}x real time" if emu.get("speed", 1) != 1 else ""
-        lines.append(f"loop: {emu['samples']} samples at Ts = {emu['Ts']:g} s{speed} ({emu['wall_s']:.1f} s wall), "
-                     f"lateness p50 {lat['p50']:.0f} us, p99 {lat['p99']:.0f} us, max {lat['max']:.0f} us, "
-                     f"{emu['overruns']} overruns")
-    return lines
-
-
 def cmd_run(args) -> int:
-    from .nodes.runner import run_pipeline
+    from .nodes.runner import pipeline_lines, run_pipeline
 
     model = load_model(args.model)              # bad input fails here, before any process starts
-    _check_out_dir(args.out)
+    check_out_dir(args.out)
     rep = run_pipeline(args.model, model.name, duration=args.duration, seed=args.seed, out_dir=Path(args.out),
                        force=args.force, analyze=not args.no_analyze, speed=args.speed)
     emu, rec = rep["emulator"] or {}, rep["recorder"] or {}
@@ -331,6 +312,8 @@ def cmd_run(args) -> int:
 # -- analysis -----------------------------------------------------------------------------------------
 def analysis_report(cmp, series, extra: dict | None = None) -> dict:
     """The scriptable analysis result (``noiselab analyze --json``)."""
+    import numpy as np
+
     views = {}
     for v in cmp.views:
         views.setdefault(v.name, []).append({"output": v.output, "error": v.error, "points": int(v.x.size),
@@ -391,7 +374,7 @@ def _read_early(args, truth: bool):
         return None
     try:
         _check_recording(args.recording)
-    except UsageError:
+    except BadInput:
         return None
     from .nodes.rosbag import bag_kind
     if bag_kind(args.recording) is not None:
@@ -420,73 +403,9 @@ def _check_recording(path: str):
     if p.is_dir():
         if (p / "metadata.yaml").is_file():
             return
-        raise UsageError(f"{path}: is a directory, not an MCAP recording or a rosbag2 bag directory (no metadata.yaml)")
+        raise BadInput(f"{path}: is a directory, not an MCAP recording or a rosbag2 bag directory (no metadata.yaml)")
     if not p.is_file():
-        raise UsageError(f"{path}: no such file")
-
-
-def png_path(args) -> str | None:
-    """The summary PNG: ``--png``, else beside the ``--rrd`` (None without either); an .rrd path
-    with no file name (``/``, ``.``) is a usage error, not a traceback."""
-    png = getattr(args, "png", None)
-    if png or not args.rrd:
-        return png or None
-    try:
-        return str(Path(args.rrd).with_suffix(".png"))
-    except ValueError:
-        raise UsageError(f"{args.rrd}: is a directory; give a file name") from None
-
-
-def _make_dir(path: str, d: Path) -> None:
-    """Make directory ``d`` (and its parents) for the output ``path``: a file in the way, or a
-    directory that cannot be made, is a usage error naming it, before any work."""
-    blocker = next((q for q in (d, *d.parents) if q.exists()), None)
-    if blocker is not None and not blocker.is_dir():
-        where = "is a file" if blocker == Path(path) else f"{blocker} is a file"
-        raise UsageError(f"{path}: {where}, not a directory")
-    try:
-        d.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise UsageError(f"{path}: cannot make its directory {d} ({e.strerror or e})") from None
-
-
-def _check_out_dir(path: str) -> None:
-    """An output directory (``run``, ``demo``), made now if missing."""
-    _make_dir(path, Path(path))
-
-
-def _check_out(path: str | None, force: bool):
-    """An output path, checked before any work: a directory in its place, a parent that cannot be
-    made, an existing file (without --force) or a file that cannot be created there (``/proc``, a
-    read-only file system: tried by creating and removing it) is a usage error now, not after the
-    run. A missing parent directory is made, as `simulate`, `record` and `recover` make theirs."""
-    if not path:
-        return
-    p = Path(path)
-    if p.is_dir():
-        raise UsageError(f"{path}: is a directory; give a file name")
-    _make_dir(path, p.parent)
-    if p.exists() and not force:
-        raise UsageError(f"{path}: already exists (use --force to overwrite)")
-    try:
-        if p.exists():
-            os.close(os.open(p, os.O_WRONLY | os.O_APPEND | os.O_NONBLOCK))   # opened, not changed
-        else:
-            os.close(os.open(p, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644))
-            os.unlink(p)
-    except OSError as e:
-        raise UsageError(f"{path}: cannot write it ({e.strerror or e})") from None
-
-
-@contextlib.contextmanager
-def _writing(path: str):
-    """Writing the output ``path`` (an .rrd, a PNG, a fitted model): an OS error (disk full, ...) is
-    a usage error naming the path and the error. (The .rrd's bytes are written by Python too,
-    :func:`viewers.rerun_log.log_comparisons`, so its errors are OSErrors.)"""
-    try:
-        yield
-    except OSError as e:
-        raise UsageError(f"{path}: cannot write it ({e.strerror or e})") from None
+        raise BadInput(f"{path}: no such file")
 
 
 def cmd_analyze(args) -> int:
@@ -494,7 +413,7 @@ def cmd_analyze(args) -> int:
         from .nodes.analyzer import cmd_analyze_live
         return cmd_analyze_live(args)
     if not args.recording:
-        raise UsageError("give a RECORDING.mcap (or --live)")
+        raise BadInput("give a RECORDING.mcap (or --live)")
     return _reading_early(args, _analyze_cmd)
 
 
@@ -513,8 +432,8 @@ def _analyze(args, read, steps) -> tuple[dict, list[str]]:
 
     model = load_model(args.model)
     png = png_path(args)
-    _check_out(args.rrd, args.force)
-    _check_out(png, args.force)
+    check_out(args.rrd, args.force)
+    check_out(png, args.force)
     series = load_series(args, model, truth=bool(args.rrd or png), read=read, steps=steps)
     burn = auto_burn(series.starts_at_rest, series.u) if args.burn == "auto" else \
         int(round(float(args.burn) / model.Ts))
@@ -526,13 +445,13 @@ def _analyze(args, read, steps) -> tuple[dict, list[str]]:
     if args.rrd:
         from viewers.rerun_log import log_comparisons
         steps(f"writing {args.rrd}")
-        with _writing(args.rrd):
+        with writing(args.rrd):
             log_comparisons([cmp], args.rrd)
         extra["rrd"] = args.rrd
     if png:
         from viewers.summary_png import write_summary_png
         steps(f"writing {png}")
-        with _writing(png):
+        with writing(png):
             write_summary_png([cmp], png)
         extra["png"] = png
     rep = analysis_report(cmp, series, extra)
@@ -563,14 +482,14 @@ def _diagnose(args, read, steps) -> tuple[dict, list[str]]:
     model = load_model(args.model)
     png = png_path(args)
     for out in (args.fit_out, args.rrd, png):
-        _check_out(out, args.force)
+        check_out(out, args.force)
     series = load_series(args, model, truth=bool(args.rrd or png), read=read, steps=steps)
     log = (lambda s: print(f"noiselab diagnose: {s}", file=sys.stderr)) if args.verbose else None
     rep = diagnose(model, series.t, series.y, series.u, at_rest=series.starts_at_rest,
                    max_effects=args.max_effects, log=log, progress=steps if steps.enabled else None)
     extra = {}
     if args.fit_out:
-        with _writing(args.fit_out):
+        with writing(args.fit_out):
             Path(args.fit_out).write_text(rep["fitted_model"])
         extra["fit_out"] = args.fit_out
     comps = rep["comparisons"]
@@ -581,20 +500,20 @@ def _diagnose(args, read, steps) -> tuple[dict, list[str]]:
     if args.rrd:
         from viewers.rerun_log import log_comparisons
         steps(f"writing {args.rrd}")
-        with _writing(args.rrd):
+        with writing(args.rrd):
             log_comparisons(comps, args.rrd)
         extra["rrd"] = args.rrd
     if png:
         from viewers.summary_png import write_summary_png
         steps(f"writing {png}")
-        with _writing(png):
+        with writing(png):
             write_summary_png(comps, png)
         extra["png"] = png
     return diagnosis_json(rep, series, extra), diagnosis_lines(rep, series, extra)
 
 
 def cmd_demo(args) -> int:
-    _check_out_dir(args.out)
+    check_out_dir(args.out)
     if args.story == "imu":
         from .demo_imu import cmd_imu_demo
         return cmd_imu_demo(args)
@@ -639,8 +558,6 @@ def build_parser() -> argparse.ArgumentParser:
     ss.add_argument("--progress", action="store_true", help="show the progress bar even when not on a terminal")
     ss.add_argument("--json", action="store_true", help="machine-readable summary")
     ss.set_defaults(func=cmd_simulate)
-
-    from .nodes.transport import add_transport_args
 
     se = sub.add_parser("emulate", help="real-time emulator: publish truth, command, measurement over Zenoh")
     se.add_argument("model", help="model file (TOML) or built-in scenario name")
@@ -827,7 +744,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    # `python -m service.cli` runs this file as __main__: the command runs in service.cli itself, so
-    # that the UsageError a node raises (`from ..cli import UsageError`) is the one main() catches
-    from service.cli import main as _main
-    sys.exit(_main())
+    sys.exit(main())

@@ -85,12 +85,12 @@ def run_demo(out_dir: Path, *, duration: float, speed: float, seed: int, force: 
     """The demo (the module docstring); ``progress``: a :class:`service.progress.Steps` shown
     beside the narrative lines (the live run's time, the reading, each phase of the diagnosis
     with its fits counted, the files), or None."""
-    from .cli import _writing        # each file written: a full disk is one line naming it
     from .diagnose.diagnose import diagnose
     from .diagnose.load import load_noiselab
     from .diagnose.report import diagnosis_json
     from .model import load_model
     from .nodes.runner import run_pipeline
+    from .outfiles import writing
 
     outs = outputs(out_dir)
     if not force:
@@ -117,7 +117,7 @@ def run_demo(out_dir: Path, *, duration: float, speed: float, seed: int, force: 
     y, u = series.y, series.u
     say(f"2/3 diagnosing {y.shape[0]} samples against seed-nominal ...")
     rep = diagnose(nominal, series.t, y, u, at_rest=series.starts_at_rest, max_effects=max_effects, progress=steps)
-    with _writing(str(outs["fitted"])):
+    with writing(str(outs["fitted"])):          # each file written: a full disk is one line naming it
         outs["fitted"].write_text(rep["fitted_model"])
     comps = rep["comparisons"]
     for c in comps:
@@ -125,9 +125,9 @@ def run_demo(out_dir: Path, *, duration: float, speed: float, seed: int, force: 
     from viewers.rerun_log import log_comparisons
     from viewers.summary_png import write_summary_png
     phase(f"writing {outs['rrd'].name} and {outs['png'].name}")
-    with _writing(str(outs["rrd"])):
+    with writing(str(outs["rrd"])):
         log_comparisons(comps, str(outs["rrd"]))
-    with _writing(str(outs["png"])):
+    with writing(str(outs["png"])):
         write_summary_png(comps, str(outs["png"]))
     say("3/3 the variance story ...")
     lesson = _lesson_check(nominal, y, u)
@@ -148,7 +148,7 @@ def run_demo(out_dir: Path, *, duration: float, speed: float, seed: int, force: 
         "diagnosis": diagnosis_json(rep, series),
         "files": {k: str(v) for k, v in outs.items()},
     }
-    with _writing(str(outs["summary"])):
+    with writing(str(outs["summary"])):
         outs["summary"].write_text(json.dumps(summary))
     if steps is not None:
         steps.close()
@@ -159,7 +159,7 @@ def _lines(s: dict, rep: dict) -> list[str]:
     L = []
     emu, rec, an = s["live"]["emulator"], s["live"]["recorder"], s["live"]["analysis"]
     L.append("== 1. live: seed lesson emulated, published over Zenoh (127.0.0.1), recorded to MCAP ==")
-    from .cli import pipeline_lines
+    from .nodes.runner import pipeline_lines
     L.append(f"recording: {s['recording']}")
     L += pipeline_lines(emu, rec)
     if an and an.get("error") is not None:

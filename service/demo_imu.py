@@ -40,7 +40,6 @@ def outputs(out_dir: Path) -> dict:
 
 def run_imu_demo(out_dir: Path, *, duration: float, speed: float, seed: int, force: bool,
                  max_effects: int = 3, log=sys.stderr) -> tuple[dict, list[str]]:
-    from .cli import _writing
     from .commands.export import kalibr_values, kalibr_yaml
     from .demo import DemoError
     from .diagnose.diagnose import diagnose
@@ -49,6 +48,7 @@ def run_imu_demo(out_dir: Path, *, duration: float, speed: float, seed: int, for
     from .model import load_model, parse_model
     from .model.coefficients import model_coefficients
     from .nodes.runner import run_pipeline
+    from .outfiles import writing
 
     outs = outputs(out_dir)
     if not force:
@@ -70,21 +70,21 @@ def run_imu_demo(out_dir: Path, *, duration: float, speed: float, seed: int, for
     say(f"2/3 diagnosing {series.y.shape[0]} samples x {series.y.shape[1]} axes against {NOMINAL} ...")
     rep = diagnose(nominal, series.t, series.y, series.u, at_rest=series.starts_at_rest, max_effects=max_effects)
     fitted = parse_model(rep["fitted_model"], str(outs["fitted"]))
-    with _writing(str(outs["fitted"])):
+    with writing(str(outs["fitted"])):
         outs["fitted"].write_text(rep["fitted_model"])
     comps = rep["comparisons"]
     for c in comps:
         c.recording = series.source
     from viewers.rerun_log import log_comparisons
     from viewers.summary_png import write_summary_png
-    with _writing(str(outs["rrd"])):
+    with writing(str(outs["rrd"])):
         log_comparisons(comps, str(outs["rrd"]))
-    with _writing(str(outs["png"])):
+    with writing(str(outs["png"])):
         write_summary_png(comps, str(outs["png"]))
 
     say("3/3 coefficients and Kalibr's imu.yaml ...")
     kal_fit, kal_true = kalibr_values(fitted), kalibr_values(truth)
-    with _writing(str(outs["kalibr"])):
+    with writing(str(outs["kalibr"])):
         outs["kalibr"].write_text(kalibr_yaml(kal_fit, rostopic="/imu0", model=fitted))
     diag = diagnosis_json(rep, series)
     summary = {
@@ -95,7 +95,7 @@ def run_imu_demo(out_dir: Path, *, duration: float, speed: float, seed: int, for
         "kalibr": {"fitted": _kalibr_numbers(kal_fit), "true": _kalibr_numbers(kal_true)},
         "files": {k: str(v) for k, v in outs.items()},
     }
-    with _writing(str(outs["summary"])):
+    with writing(str(outs["summary"])):
         outs["summary"].write_text(json.dumps(summary))
     return summary, _lines(summary, rep)
 
@@ -105,7 +105,7 @@ def _kalibr_numbers(v: dict) -> dict:
 
 
 def _lines(s: dict, rep: dict) -> list[str]:
-    from .cli import pipeline_lines
+    from .nodes.runner import pipeline_lines
 
     emu, rec, an = (s["live"].get(k) or {} for k in ("emulator", "recorder", "analysis"))
     L = [("== 1. live: a 6-axis IMU at rest (ADIS16448, EuRoC calibration) emulated over Zenoh (127.0.0.1), "

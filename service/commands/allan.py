@@ -37,13 +37,11 @@ from __future__ import annotations
 import csv
 import io
 import json
-import os
+import math
 from pathlib import Path
 
-import numpy as np
-
 from ..errors import BadInput
-from ..model.outputs import DEFAULT_UNIT
+from ..outfiles import check_out, write_replacing
 
 CONF = 0.683  # Stable32's "Confidence Factor": one-sigma intervals
 READING_UNITS = {"N": "{u}/sqrt(Hz)", "K": "{u}/sqrt(s)", "B": "{u}"}
@@ -71,39 +69,11 @@ def register(sub) -> None:
     p.set_defaults(func=cmd_allan)
 
 
-# -- output files ---------------------------------------------------------------------------------
-def _check_out(path: str | None, force: bool) -> None:
-    """An output path, before any work: a directory in its place, or an existing file without
-    ``--force``, is bad input; a missing parent directory is made."""
-    if not path:
-        return
-    p = Path(path)
-    if p.is_dir():
-        raise BadInput(f"{path}: is a directory; give a file name")
-    if p.exists() and not force:
-        raise BadInput(f"{path}: already exists (use --force to overwrite)")
-    try:
-        p.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise BadInput(f"{path}: cannot make its directory ({e.strerror or e})") from None
-
-
-def _write(path: str, data: bytes) -> None:
-    """``data`` into ``path`` through a temporary beside it, renamed over it when complete (an
-    existing file is replaced whole or not at all); an OS error names the file, one line."""
-    tmp = Path(f"{path}.partial")
-    try:
-        tmp.write_bytes(data)
-        os.replace(tmp, path)
-    except OSError as e:
-        tmp.unlink(missing_ok=True)
-        raise BadInput(f"{path}: cannot write it ({e.strerror or e})") from None
-
-
 # -- reading --------------------------------------------------------------------------------------
 def _load(args, model):
     """(series, output names, units, Ts) of the recording, through the one loader."""
     from ..diagnose.load import load_recording
+    from ..model.outputs import DEFAULT_UNIT
 
     if args.measurement and args.device:
         raise BadInput("--device names a device of a noiselab recording; with --measurement give the topic")
@@ -126,7 +96,7 @@ def _load(args, model):
 # -- the report -------------------------------------------------------------------------------------
 def _num(v) -> float | None:
     v = float(v)
-    return v if np.isfinite(v) else None
+    return v if math.isfinite(v) else None
 
 
 def _reading_json(rd, unit: str) -> dict:
@@ -138,6 +108,8 @@ def _reading_json(rd, unit: str) -> dict:
 
 def allan_report(series, names, units, Ts: float, model=None, model_label: str | None = None) -> dict:
     """The report (module docstring's JSON) of ``series`` (``y`` (N, p) rate data at ``Ts``)."""
+    import numpy as np
+
     from ..stats.allan import NOISE_NAMES, ieee952_readings, oadev
     from ..stats.errors import StatsError
 
@@ -236,7 +208,7 @@ def csv_text(rep: dict) -> str:
 
 def cmd_allan(args) -> int:
     for out in (args.csv, args.png):
-        _check_out(out, args.force)
+        check_out(out, args.force)
     if args.csv and args.png and Path(args.csv).resolve() == Path(args.png).resolve():
         raise BadInput(f"--csv and --png name the same file {args.csv}")
     model = None
@@ -247,11 +219,11 @@ def cmd_allan(args) -> int:
     rep = allan_report(series, names, units, Ts, model, None if model is None else f"{model.name} ({model.source})")
     written = []
     if args.csv:
-        _write(args.csv, csv_text(rep).encode())
+        write_replacing(args.csv, csv_text(rep))
         written.append(args.csv)
     if args.png:
         from viewers.allan_png import allan_png_bytes
-        _write(args.png, allan_png_bytes(rep))
+        write_replacing(args.png, allan_png_bytes(rep))
         written.append(args.png)
     if args.json:
         rep["written"] = written

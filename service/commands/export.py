@@ -22,21 +22,19 @@ Any other unit is refused in one line, as is a model that lacks one of the four 
 (Kalibr needs all four), an output name the model does not have, or an output in both lists.
 
 The file: an existing one is replaced only with ``--force``; it is written beside the target as
-``FILE.partial`` and renamed over it when complete (``os.replace``), so a failed write leaves any
-old file as it was. The YAML is plain (six scalars and comments); floats always carry a '.' and
+``FILE.partial`` and renamed over it when complete (:func:`service.outfiles.write_replacing`), so
+a failed write leaves any old file as it was. The YAML is plain (six scalars and comments); floats always carry a '.' and
 an exponent sign, so YAML 1.1 readers (PyYAML, which Kalibr uses) read them as floats.
 """
 
 from __future__ import annotations
 
 import math
-import os
 import re
 from pathlib import Path
 
-import numpy as np
-
 from ..errors import BadInput
+from ..outfiles import check_out, write_replacing
 
 STANDARD_GRAVITY = 9.80665   # m/s^2 (ISO 80000-3; CGPM 1901)
 
@@ -49,7 +47,6 @@ SENSORS = (   # (Kalibr's prefix, default output-name prefix, flag, units accept
 )
 
 ROSTOPIC_RE = re.compile(r"^/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$")
-PARTIAL_SUFFIX = ".partial"
 
 
 def register(sub) -> None:
@@ -71,11 +68,11 @@ def cmd_export(args) -> int:
     if not ROSTOPIC_RE.fullmatch(args.rostopic):
         raise BadInput(f"--rostopic {args.rostopic!r}: expected a ROS topic name (letters, digits, '_' and '/')")
     out = Path(args.kalibr)
-    _check_target(out, args.force)
+    check_out(out, args.force)
     model = load_model(args.model)
     values = kalibr_values(model, gyro=_names(args.gyro, "--gyro"), accel=_names(args.accel, "--accel"))
     text = kalibr_yaml(values, rostopic=args.rostopic, model=model)
-    _write(out, text)
+    write_replacing(out, text)
     print(f"wrote {out}: Kalibr imu.yaml of model {model.name} (gyroscope {', '.join(values['gyroscope_outputs'])}; "
           f"accelerometer {', '.join(values['accelerometer_outputs'])}; the largest of the axes)")
     return 0
@@ -93,6 +90,8 @@ def _names(text: str | None, flag: str) -> list[str] | None:
 def kalibr_values(model, gyro: list[str] | None = None, accel: list[str] | None = None) -> dict:
     """The six numbers of Kalibr's imu.yaml from ``model`` (module docstring), plus the outputs
     used (``gyroscope_outputs``, ``accelerometer_outputs``). BadInput names what is wrong."""
+    import numpy as np
+
     from ..model.coefficients import coefficient_values, white_density
 
     names = list(model.output_names)
@@ -166,26 +165,3 @@ def yaml_float(v: float) -> str:
     if "." not in mant:
         mant += ".0"
     return f"{mant}e{exp}" if exp else mant
-
-
-def _check_target(out: Path, force: bool) -> None:
-    if out.is_dir():
-        raise BadInput(f"{out}: is a directory; give a file name")
-    if out.exists() and not force:
-        raise BadInput(f"{out}: already exists (use --force to overwrite)")
-
-
-def _write(out: Path, text: str) -> None:
-    """``text`` to ``out`` through ``out.partial`` and a rename (module docstring)."""
-    part = out.with_name(out.name + PARTIAL_SUFFIX)
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        with open(part, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(part, out)
-    except OSError as e:
-        try:
-            part.unlink()
-        except OSError:
-            pass
-        raise BadInput(f"{out}: cannot write it ({e.strerror or e})") from None

@@ -45,9 +45,11 @@ from pathlib import Path
 import numpy as np
 
 from ..diagnose.compare import AnalysisError, compare, transient_samples
+from ..errors import BadInput
 from ..model import ModelError, load_model
+from ..outfiles import check_out, png_path, writing
+from ..signals import stop_on_signals
 from . import mcapio, seqgate, transport, wire
-
 
 READY_MARK = "noiselab analyze: live on"
 HISTORY_MAX = 8192         # error-history entries kept (then thinned: ~2 h at 2 Hz before the first thinning)
@@ -386,12 +388,11 @@ def run_live(session, model_spec: str, *, device: str | None, window_s: float, u
             from viewers.rerun_log import log_comparisons
             from viewers.summary_png import write_summary_png
 
-            from ..cli import _writing               # a full disk: one line naming the file, as offline
             comps = [an.latest[r] for r in sorted(an.latest)]
-            with _writing(rrd):
+            with writing(rrd):                  # a full disk: one line naming the file, as offline
                 log_comparisons(comps, rrd, history=an.history)
             png = png or str(Path(rrd).with_suffix(".png"))
-            with _writing(png):
+            with writing(png):
                 write_summary_png(comps, png)
             out["rrd"], out["png"] = rrd, png
     return out
@@ -400,14 +401,12 @@ def run_live(session, model_spec: str, *, device: str | None, window_s: float, u
 def cmd_analyze_live(args) -> int:
     import json
 
-    from ..cli import UsageError, _check_out, _stop_on_signals, png_path
-
     if args.recording:
-        raise UsageError("--live analyses a Zenoh stream: give no RECORDING")
+        raise BadInput("--live analyses a Zenoh stream: give no RECORDING")
     if args.rrd:                          # checked before the run, the PNG beside it too
-        _check_out(args.rrd, args.force)
-        _check_out(png_path(args), args.force)
-    stop = _stop_on_signals()
+        check_out(args.rrd, args.force)
+        check_out(png_path(args), args.force)
+    stop = stop_on_signals()
     with transport.open_session(args, "sink") as session:
         rep = run_live(session, args.model, device=args.device, window_s=args.window, update_s=args.update,
                        duration=args.duration, stop=stop, rrd=args.rrd, quiet=args.json,

@@ -166,3 +166,20 @@ def run_pipeline(model_spec: str, model_name: str, *, duration: float, seed: int
     return {"recording": str(out), "emulator": _last_json(emu.stdout.splitlines()),
             "recorder": _last_json(rec.out), "analysis": _last_json(an.out) if an is not None else None,
             "endpoint": rec_ep, "emulator_log": emu.stderr.strip().splitlines()}
+
+
+def pipeline_lines(emu: dict, rec: dict) -> list[str]:
+    """Per-topic message counts and gaps (the recorder's summary ``rec``), and the loop's timing
+    (the emulator's ``emu``), of a :func:`run_pipeline` report: the lines `run` and `demo` print."""
+    lines = []
+    for topic, b in sorted((rec.get("topics") or {}).items()):
+        gaps = "no gaps" if not b["gaps"] and not b["missing_at_start"] else \
+            f"{b['missing']} missing in {len(b['gaps'])} gaps, first seq {b['first_seq']}"
+        lines.append(f"  {topic}: {b['count']} messages, {gaps}")
+    if emu:
+        lat = emu["lateness_us"]
+        speed = f", {emu['speed']:g}x real time" if emu.get("speed", 1) != 1 else ""
+        lines.append(f"loop: {emu['samples']} samples at Ts = {emu['Ts']:g} s{speed} ({emu['wall_s']:.1f} s wall), "
+                     f"lateness p50 {lat['p50']:.0f} us, p99 {lat['p99']:.0f} us, max {lat['max']:.0f} us, "
+                     f"{emu['overruns']} overruns")
+    return lines

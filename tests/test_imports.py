@@ -1,0 +1,151 @@
+"""The package's import structure: a graph without cycles, the command line at its top, and a
+command line that starts without the heavy libraries.
+
+The graph is read from the source (``ast``), not from an interpreter's ``sys.modules``: every
+``import`` and ``from ... import`` of every module of ``service`` and ``viewers``, at the top level
+and inside functions alike. An import inside a function still ties the two modules together (it
+runs whenever the function does); deferring it hides a cycle from the interpreter, not from a
+reader. An edge goes to the module named (``from pkg import sub`` to ``pkg.sub`` when ``sub`` is a
+module, else to ``pkg``, whose ``__init__`` holds the name).
+
+The start-up check runs in a fresh interpreter, so no other test's imports count, and asserts on
+the modules loaded, not on time (no test depends on the machine's speed).
+"""
+
+from __future__ import annotations
+
+import ast
+import functools
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("service", "viewers")
+# modules below the command line: none of them imports it (the CLI imports them)
+BELOW_CLI = ("service.nodes", "service.diagnose", "service.model", "service.stats", "service.commands", "viewers")
+# third-party libraries a command loads when it runs, never to read its flags
+HEAVY = ("numpy", "scipy", "zenoh", "mcap", "rerun", "matplotlib", "rosbags")
+
+
+def _modules() -> dict[str, Path]:
+    """Dotted module name -> source file, for every module of the packages."""
+    mods = {}
+    for pkg in PACKAGES:
+        for path in sorted((ROOT / pkg).rglob("*.py")):
+            parts = path.relative_to(ROOT).with_suffix("").parts
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            mods[".".join(parts)] = path
+    return mods
+
+
+def _resolve(node: ast.ImportFrom, module: str, is_pkg: bool) -> str:
+    """The absolute name of ``from <node.module> import ...`` written in ``module``."""
+    if not node.level:
+        return node.module or ""
+    base = module.split(".") if is_pkg else module.split(".")[:-1]
+    base = base[:len(base) - (node.level - 1)]
+    return ".".join(base + ([node.module] if node.module else []))
+
+
+@functools.cache
+def import_graph() -> dict[str, set[str]]:
+    """module -> the package modules it imports (module docstring); read once, not to be changed."""
+    mods = _modules()
+    graph: dict[str, set[str]] = {m: set() for m in mods}
+    for mod, path in mods.items():
+        is_pkg = path.name == "__init__.py"
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))):
+            targets = []
+            if isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                base = _resolve(node, mod, is_pkg)
+                targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in mods else base for a in node.names]
+            for t in targets:
+                while t and t not in mods:          # `import a.b.c` of a name inside a module: its module
+                    t = t.rpartition(".")[0]
+                if t and t != mod:
+                    graph[mod].add(t)
+    return graph
+
+
+def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One cycle of ``graph`` as a list of modules (first == last), or None (depth-first search)."""
+    state: dict[str, int] = {}               # 1: on the current path, 2: done
+    path: list[str] = []
+
+    def visit(m: str) -> list[str] | None:
+        state[m] = 1
+        path.append(m)
+        for n in sorted(graph[m]):
+            if state.get(n) == 1:
+                return path[path.index(n):] + [n]
+            if n not in state:
+                found = visit(n)
+                if found:
+                    return found
+        state[m] = 2
+        path.pop()
+        return None
+
+    for m in sorted(graph):
+        if m not in state:
+            found = visit(m)
+            if found:
+                return found
+    return None
+
+
+def test_the_graph_sees_imports_inside_functions():
+    """The walk finds a deferred import (the CLI imports the runner inside a command function)."""
+    graph = import_graph()
+    assert "service.nodes.runner" in graph["service.cli"]
+    assert "service.errors" in graph["service.commands.allan"]
+
+
+def test_the_package_has_no_import_cycle():
+    cycle = find_cycle(import_graph())
+    assert cycle is None, "import cycle: " + " -> ".join(cycle)
+
+
+def test_nothing_below_the_command_line_imports_it():
+    graph = import_graph()
+    offenders = sorted(m for m, deps in graph.items()
+                       if m.startswith(BELOW_CLI) and any(d == "service.cli" for d in deps))
+    assert offenders == [], offenders
+
+
+def test_the_command_line_builds_its_parser_without_the_heavy_libraries():
+    """``noiselab --help`` and the parsing of any command's flags: the CLI and every command
+    module (``service.commands``, registered at parser-build time) import what a command needs
+    when it runs, so reading the flags loads none of the numeric, transport, file-format or
+    plotting libraries."""
+    code = ("import json, sys\n"
+            "import service.cli\n"
+            "service.cli.build_parser()\n"
+            f"heavy = {HEAVY!r}\n"
+            "print(json.dumps(sorted({m.split('.')[0] for m in sys.modules} & set(heavy))))\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120,
+                       check=False)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert json.loads(r.stdout.strip().splitlines()[-1]) == []
+
+
+def test_help_prints_without_the_heavy_libraries():
+    """``noiselab --help`` as a user runs it (the module entry point): the usage, exit 0, and no
+    heavy library loaded by the time the interpreter exits."""
+    code = ("import atexit, json, sys\n"
+            f"heavy = {HEAVY!r}\n"
+            "atexit.register(lambda: sys.stderr.write('LOADED ' + json.dumps(sorted({m.split('.')[0] for m in "
+            "sys.modules} & set(heavy))) + '\\n'))\n"
+            "sys.argv = ['noiselab', '--help']\n"
+            "from service.cli import main\n"
+            "sys.exit(main())\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120,
+                       check=False)
+    assert r.returncode == 0 and r.stdout.startswith("usage: noiselab"), (r.returncode, r.stdout[:500], r.stderr[-2000:])
+    loaded = [line for line in r.stderr.splitlines() if line.startswith("LOADED ")]
+    assert loaded and json.loads(loaded[-1][len("LOADED "):]) == [], r.stderr[-2000:]
