@@ -369,6 +369,15 @@ def _report_intervals(eid: str, iv: dict, Ts: float) -> dict:
     return out
 
 
+def _report_intervals_per_output(eid: str, per: dict, Ts: float) -> dict:
+    """Each output's intervals of the parameters fitted per output ({name: [[lo, hi] or None, one
+    per output]}: :func:`.search.interval_tasks`), and the same for the equivalent spellings, as
+    :func:`_report_intervals` gives them for one interval."""
+    n = max((len(v) for v in per.values()), default=0)
+    each = [_report_intervals(eid, {k: v[j] for k, v in per.items() if v[j] is not None}, Ts) for j in range(n)]
+    return {k: [e.get(k) for e in each] for k in dict.fromkeys(k for e in each for k in e)}
+
+
 def _report_params(eid: str, params: dict, Ts: float) -> dict:
     out = dict(params)
     for k, v in CATALOGUE[eid].equivalents(params, Ts).items():
@@ -555,10 +564,11 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0,
     phase("profile intervals")
     res = S._map(lambda task: task[2](), tasks)
     ivs = [merge_intervals([(key, r) for (i, key, _), r in zip(tasks, res) if i == k]) for k in range(len(accepted))]
-    for c, iv_c in zip(accepted, ivs):
+    for c, (iv_c, per_c) in zip(accepted, ivs):
         eff = cur.model.effects.get(c.effect)
         params = eff.param_dict()
         iv = _report_intervals(c.effect, iv_c, model.Ts)
+        iv_per = _report_intervals_per_output(c.effect, per_c, model.Ts)
         band = _band(cur, c.effect, data)
         alts = [{"effect": a.effect, "mode": a.mode, "score": float(a.score),
                  "params": _report_params(a.effect, a.fit.model.effects[a.effect].param_dict(), model.Ts)}
@@ -581,6 +591,8 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0,
             "effect": c.effect,
             "params": _report_params(c.effect, params, model.Ts),
             "interval": {k: [float(a) for a in v] for k, v in iv.items()},
+            "intervals_per_output": {k: [None if x is None else [float(a) for a in x] for x in v]
+                                     for k, v in iv_per.items()},
             "score": float(c.score),
             "mode": c.mode,
             "accepted_by": "error" if c.by_error else "bic",

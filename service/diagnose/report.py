@@ -1,4 +1,20 @@
-"""The diagnosis as JSON (``noiselab diagnose --json``) and as text."""
+"""The diagnosis as JSON (``noiselab diagnose --json``) and as text.
+
+Each ``missing`` entry gives its fitted parameters' 95 % profile-likelihood intervals twice:
+
+* ``interval``: {parameter: [lo, hi]}, one interval per parameter (and per equivalent spelling).
+  For a parameter fitted one value per output it is the interval of the output whose value is the
+  largest (as for one fitted per input: an actuator noise's of several inputs);
+* ``intervals_per_output``: {parameter: [[lo, hi] or null, one per output, in the model's output
+  order]} for the parameters fitted one value per output (a sensor noise's std, a scale factor,
+  a tone's amplitude, a quantization step, on a model of several outputs): each output's own
+  interval, from the profile over that output's value with every other free value re-optimized
+  (:func:`.search.interval_tasks`); {} when no parameter is fitted per output (one output, or one
+  value for all of them).
+
+``coefficients`` (:func:`service.model.coefficients.model_coefficients`) takes each output's
+coefficient interval from its own interval.
+"""
 
 from __future__ import annotations
 
@@ -45,8 +61,10 @@ def diagnosis_json(rep: dict, series=None, extra: dict | None = None) -> dict:
 def fitted_coefficients(rep: dict) -> dict:
     """The IEEE Std 952 coefficients of the diagnosis' fitted model (``rep["model"]``: the input
     model with the effects found added or refitted), with the profile intervals of the parameters
-    the diagnosis fitted (:func:`service.model.coefficients.model_coefficients`)."""
-    return model_coefficients(rep["model"], {m["effect"]: m.get("interval") or {} for m in rep["missing"]})
+    the diagnosis fitted, each output's own where it has one
+    (:func:`service.model.coefficients.model_coefficients`)."""
+    return model_coefficients(rep["model"], {m["effect"]: m.get("interval") or {} for m in rep["missing"]},
+                              {m["effect"]: m.get("intervals_per_output") or {} for m in rep["missing"]})
 
 
 def coefficient_lines(coeffs: dict) -> list[str]:
@@ -90,8 +108,7 @@ def diagnosis_lines(rep: dict, series=None, extra: dict | None = None) -> list[s
     else:
         lines.append("missing, most likely first (Delta BIC; model error after adding it):")
         for i, (m, st) in enumerate(zip(rep["missing"], rep["steps"]), 1):
-            ps = ", ".join(_with_interval(k, v, m["interval"][k]) if k in m["interval"] else f"{k} = {_fmt(v)}"
-                           for k, v in m["params"].items() if k in _file_keys(rep, m))
+            ps = ", ".join(_param_text(k, v, m) for k, v in m["params"].items() if k in _file_keys(rep, m))
             what = m["mode"].replace("replace:", "in place of ")
             lines.append(f"  {i}. [{m['effect']}] {what}: {ps}   (Delta BIC {fmt_score(m['score'])}; "
                          f"error {st['error']:.3g})")
@@ -119,10 +136,22 @@ def _fmt(v, digits: int = 4) -> str:
     return f"{float(v):.{digits}g}"
 
 
-def _with_interval(k: str, v, iv) -> str:
-    """``k = v [lo, hi]`` with as many digits (4 to 10) as it takes to tell lo, v and hi apart (a
-    tone's frequency interval is a few parts in 10^6 wide); where v sits on an end, lo and hi."""
+def _param_text(k: str, v, m: dict) -> str:
+    """A fitted parameter with its interval: ``k = v [lo, hi]``; fitted per output,
+    ``k = [v0 [lo0, hi0], v1 [lo1, hi1], ...]``, each output's value beside its own interval (a
+    value that is its own interval, a quantization step found on the data's grid, alone)."""
+    per = (m.get("intervals_per_output") or {}).get(k)
+    if isinstance(v, list) and per is not None and len(per) == len(v):
+        return f"{k} = [" + ", ".join(_fmt(x) if iv is None or iv[0] == iv[1] else _with_interval(None, x, iv)
+                                      for x, iv in zip(v, per)) + "]"
+    return _with_interval(k, v, m["interval"][k]) if k in m["interval"] else f"{k} = {_fmt(v)}"
+
+
+def _with_interval(k: str | None, v, iv) -> str:
+    """``k = v [lo, hi]`` (k None: ``v [lo, hi]``) with as many digits (4 to 10) as it takes to
+    tell lo, v and hi apart (a tone's frequency interval is a few parts in 10^6 wide); where v sits
+    on an end, lo and hi."""
     lo, hi = iv
     texts = [(_fmt(lo, d), _fmt(v, d), _fmt(hi, d)) for d in range(4, 11)]
     a, b, c = next((t for t in texts if len(set(t)) == 3), next((t for t in texts if t[0] != t[2]), texts[0]))
-    return f"{k} = {b} [{a}, {c}]"
+    return (f"{k} = " if k is not None else "") + f"{b} [{a}, {c}]"

@@ -58,6 +58,7 @@ import hashlib
 import math
 import os
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 import scipy.fft as sfft
@@ -740,27 +741,57 @@ class Inner:
         return best
 
     def profile(self, a: int, v_hat: np.ndarray, l_hat: float, chi2: float = CHI2_95):
-        """95 % profile interval of v_a (others re-optimized): 2 Delta l <= ``chi2``."""
+        """95 % profile interval of v_a (the others re-optimized from ``v_hat``): 2 Delta l <=
+        ``chi2``. Each end is bracketed in ln v_a from the estimate, the first step two standard
+        errors of ln v_a by the expected information (its inverse's diagonal), the step doubled
+        until the profile falls below its threshold, then found by :func:`_crossing` (regula falsi
+        on the squared distance from the estimate: 3-4 fits where a bisection to the same 0.02 in l
+        took about 30). The lower end is 0 where the profile at 0 stays above the threshold (a
+        variance the data do not bound away from 0); the upper stops at 1e4 v_hat (above: the data
+        do not bound it). A variance fitted at 0: the lower end 0, the upper searched up by
+        decades from 1e-6 of the variance that would carry all the data's power."""
         target = l_hat - chi2 / 2
 
         def prof(va):
             return self.optimize(v_hat, fixed={a: va})[1]
 
-        def edge(inside, outside):
-            if prof(outside) > target:
-                return outside
-            for _ in range(30):
-                mid = math.sqrt(inside * outside) if inside > 0 and outside > 0 else 0.5 * (inside + outside)
-                if prof(mid) > target:
-                    inside = mid
-                else:
-                    outside = mid
-            return 0.5 * (inside + outside)
+        vh = float(v_hat[a])
+        if not vh > 0:
+            inside, l_in, outside = 0.0, l_hat, float(self.vref[a]) * 1e-6
+            for _ in range(16):
+                l_out = prof(outside)
+                if not l_out > target or outside >= self.hi[a]:
+                    break
+                inside, l_in, outside = outside, l_out, outside * 10.0
+            if l_out > target:
+                return 0.0, outside
+            return 0.0, _crossing(prof, inside, l_in, outside, l_out, target, log=inside > 0)
+        try:
+            se = math.sqrt(max(float(np.linalg.pinv(self._info(v_hat))[a, a]), 0.0)) / vh
+        except (np.linalg.LinAlgError, ValueError):
+            se = math.nan
+        first = min(max(2.0 * se, 0.01), 2.0) if math.isfinite(se) else 0.5
+        far = math.log(1e4)
 
-        vh = max(v_hat[a], 1e-300)
-        lo = edge(vh, 0.0)
-        hi = edge(vh, vh * 1e4)
-        return lo, hi
+        def edge(direction):
+            inside, l_in, d = vh, l_hat, first
+            for _ in range(40):
+                if d >= far:
+                    # as far as the search goes: 0 below (a variance of none), 1e4 v_hat above
+                    outside = 0.0 if direction < 0 else vh * 1e4
+                    l_out = prof(outside)
+                    if l_out > target:
+                        return outside
+                    return _crossing(prof, inside, l_in, outside, l_out, target, log=direction > 0,
+                                     peak=vh if direction > 0 else None)
+                outside = vh * math.exp(direction * d)
+                l_out = prof(outside)
+                if l_out < target:
+                    return _crossing(prof, inside, l_in, outside, l_out, target, peak=vh)
+                inside, l_in, d = outside, l_out, 2.0 * d
+            return inside
+
+        return edge(-1), edge(1)
 
 
 # -- the jitter's modulation term ---------------------------------------------------------------------------
@@ -1024,6 +1055,13 @@ def _unit_scale(spec, Ts):
     return Ts / 10 if spec.unit_scale == "Ts/10" else float(spec.unit_scale)
 
 
+def _scale_ref(eid: str, sname: str, Ts: float) -> float:
+    """The value of ``eid``'s scale ``sname`` at which the inner problem's variance is 1 (its
+    catalogue unit; a psd's is 1), unless the model is nonlinear and the scale is not 0
+    (:meth:`Hypotheses.inner_fit`: then its value)."""
+    return _unit_scale(CATALOGUE[eid].fit, Ts) if sname != "psd" else 1.0
+
+
 @dataclass
 class Fit:
     model: object
@@ -1156,8 +1194,7 @@ class Hypotheses:
         for e, sname, power, j in scales:
             vals = np.atleast_1d(np.asarray(model.effects[e].params[sname], float))
             val = float(np.max(vals) if j is None else np.broadcast_to(vals, (n_channels(model, e),))[j])
-            unit = _unit_scale(CATALOGUE[e].fit, d.Ts) if sname != "psd" else 1.0
-            ref = val if (nonlin and val > 0) else unit
+            ref = val if (nonlin and val > 0) else _scale_ref(e, sname, d.Ts)
             cur.append(val)
             refs.append(ref)
         canon = _set_scales(canon, scales, refs, model)
@@ -2105,17 +2142,55 @@ class Search:
 
 
 # -- intervals ----------------------------------------------------------------------------------------------
-def merge_intervals(done: list) -> dict:
-    """{name: interval} from :func:`interval_tasks`' (key, result) pairs."""
+class ChannelKey(NamedTuple):
+    """An interval task's key (:func:`interval_tasks`) for one output's value of a parameter fitted
+    per output: ``side`` 0 or 1 (its lower or upper end, each its own profile search) or None (its
+    whole interval); ``ch`` the output, ``n`` how many outputs the parameter has, ``main``: the
+    output whose interval is also the parameter's one interval (the largest value's)."""
+
+    name: str
+    side: int | None
+    ch: int
+    n: int
+    main: bool
+
+
+def merge_intervals(done: list) -> tuple[dict, dict]:
+    """({name: interval}, {name: [each output's interval or None]}) from :func:`interval_tasks`'
+    (key, result) pairs. The second holds the parameters fitted per output (:class:`ChannelKey`);
+    the first, every parameter, one of those as its ``main`` output's interval."""
     out: dict = {}
+    per: dict = {}
+    main: dict = {}
     for key, res in done:
-        if key is None:
-            out.update(res)
+        if key is None:                              # (intervals, per output) of several parameters
+            out.update(res[0])
+            per.update(res[1])
+        elif isinstance(key, ChannelKey):
+            ivs = per.setdefault(key.name, [None] * key.n)
+            if key.side is None:
+                ivs[key.ch] = res
+            else:
+                if ivs[key.ch] is None:
+                    ivs[key.ch] = [None, None]
+                ivs[key.ch][key.side] = res
+            if key.main:
+                main[key.name] = key.ch
         elif isinstance(key, tuple):                 # (name, 0 | 1): one end
             out.setdefault(key[0], [None, None])[key[1]] = res
         else:
             out[key] = res
-    return out
+    for name, j in main.items():
+        out[name] = per[name][j]
+    return out, per
+
+
+def per_output(model, eid: str) -> bool:
+    """Whether ``eid``'s per-channel values are one per output (a sensor effect of a model of
+    several outputs), so that each output's interval is profiled (:func:`interval_tasks`); an
+    actuator's or process noise's channels are its inputs, and their interval stays the largest
+    channel's."""
+    return CATALOGUE[eid].stage == "sensor" and model.p > 1
 
 
 def interval_tasks(H: Hypotheses, fit: Fit, eid: str) -> list:
@@ -2124,54 +2199,89 @@ def interval_tasks(H: Hypotheses, fit: Fit, eid: str) -> list:
     Gauss-Markov std and its tau trade off against each other), as independent (key, thunk) pairs
     to run concurrently (:func:`merge_intervals` assembles them). key: a parameter
     name (its interval), (name, 0 or 1) (its lower or upper end: each end is its own profile
-    search), or None (a dict of several)."""
+    search), a :class:`ChannelKey` (one output's interval or end, for a parameter fitted per output),
+    or None (intervals and per-output intervals of several parameters).
+
+    A parameter fitted one value per output (:func:`per_output`: a sensor noise's variance, a
+    scale factor's value per output) gets each output's own interval: the profile over that
+    output's value alone, every other free value (the other outputs' too) re-optimized at each
+    point, as for the one parameter of a single output. Its one interval (the ``name`` key) is the
+    output's whose value is the largest, as for a parameter fitted per input."""
     eff = fit.model.effects.get(eid)
     if eff is None:
         return []
     spec = CATALOGUE[eid].fit
+    p = fit.model.p
     if spec.kind == "line":
         return [(None, lambda: _tone_intervals(H, fit))]
     if spec.kind == "grid":
+        # found exactly on the data's grid: each output's step is its own interval; the one interval
+        # is the range of the outputs' steps
         step = eff.param_dict()["step"]
         iv = [step, step] if not isinstance(step, list) else [min(step), max(step)]
-        return [("step", lambda: iv)]
+        own = np.broadcast_to(np.asarray(eff.params["step"], float), (p,))
+        per = {"step": [[float(v), float(v)] for v in own]} if isinstance(step, list) else {}
+        return [(None, lambda: ({"step": iv}, per))]
     shaped = [sh for sh in spec.shape if sh[0] in fit.free.get(eid, [])]
     out = []
     if eid in fit.scale_ids:
         name, power = _scale_name(eff)
-        val = float(np.max(np.asarray(eff.params[name], float)))
-        if shaped:
-            for side in (0, 1):
-                out.append(((name, side), lambda side=side: _profile_scale_shaped(H, fit, eid, name, val, 2 * side - 1)))
-        else:
-            def scale_iv():
-                # the largest channel's (per channel: the variance of the one whose value is largest)
-                a = fit.scale_ids.index(eid)
-                if fit.scale_ch and fit.scale_ch[a] is not None:
-                    vals = np.atleast_1d(np.asarray(eff.params[name], float))
-                    j = int(np.argmax(np.broadcast_to(vals, (n_channels(fit.model, eid),))))
-                    a = next(i for i, (e, c) in enumerate(zip(fit.scale_ids, fit.scale_ch)) if e == eid and c == j)
-                lo, hi = fit.inner.profile(a, fit.v, fit.loglik - _extra(H, fit), _scale_chi2(H, fit, eid, a))
-                vhat = max(fit.v[a], 1e-300)
-                return [val * (lo / vhat) ** (1 / power), val * (hi / vhat) ** (1 / power)]
-            out.append((name, scale_iv))
+        vals = np.broadcast_to(np.asarray(eff.params[name], float), (n_channels(fit.model, eid),))
+        top = int(np.argmax(vals))
+        chans = sorted({c for e, c in zip(fit.scale_ids, fit.scale_ch) if e == eid and c is not None})
+        each = chans if chans and per_output(fit.model, eid) else [top] if chans else [None]
+        for j in each:
+            val = float(np.max(vals) if j is None else vals[j])
+            if shaped:
+                tasks = [(side, lambda side=side, j=j, val=val:
+                          _profile_scale_shaped(H, fit, eid, name, val, 2 * side - 1, j)) for side in (0, 1)]
+            else:
+                tasks = [(None, lambda j=j, val=val: _profile_scale(H, fit, eid, name, power, val, j))]
+            for side, task in tasks:
+                if len(each) > 1:
+                    key = ChannelKey(name, side, j, p, j == top)
+                else:
+                    key = name if side is None else (name, side)
+                out.append((key, task))
     for sh in shaped:
-        # one value per channel (:data:`PER_CHANNEL`): the interval is the largest channel's (in
-        # magnitude), as a noise's of several channels is
+        # one value per channel (:data:`PER_CHANNEL`): each output's own interval; a per-input
+        # one's, the largest channel's (in magnitude), as a noise's of several inputs is
         ch = None
+        chans = [None]
         if PER_CHANNEL in fit.free.get(eid, ()) and shape_channels(fit.model, eid) > 1:
             v = _shape_values(eff, sh[0], H.data.Ts)
             ch = int(np.argmax(np.abs(v))) if v is not None and v.size > 1 else None
-        for side in (0, 1):
-            out.append(((sh[0], side), lambda sh=sh, side=side, ch=ch: _profile_outer(H, fit, eid, sh, 2 * side - 1, ch)))
+            chans = list(range(shape_channels(fit.model, eid))) if per_output(fit.model, eid) else [ch]
+        for j in chans:
+            for side in (0, 1):
+                key = ChannelKey(sh[0], side, j, len(chans), j == ch) if len(chans) > 1 else (sh[0], side)
+                out.append((key, lambda sh=sh, side=side, j=j: _profile_outer(H, fit, eid, sh, 2 * side - 1, j)))
     return out
 
 
-def _tone_intervals(H: Hypotheses, fit: Fit) -> dict:
+def _profile_scale(H: Hypotheses, fit: Fit, eid: str, name: str, power: int, val: float, j: int | None) -> list:
+    """The 95 % profile interval of an effect's scale whose variance is one of the inner problem's
+    (no searched parameter: :meth:`Inner.profile`, the other variances re-optimized at each value):
+    channel ``j``'s (value ``val``), or (None) the one factor over its channels. The scale is
+    ref v^(1 / power) (:meth:`Hypotheses.inner_fit`), so the variance's ends map to
+    val (v_end / v_hat)^(1 / power); at v_hat = 0 (none of it fitted) through the reference."""
+    a = fit.scale_ids.index(eid) if j is None else \
+        next(i for i, (e, c) in enumerate(zip(fit.scale_ids, fit.scale_ch)) if e == eid and c == j)
+    lo, hi = fit.inner.profile(a, fit.v, fit.loglik - _extra(H, fit), _scale_chi2(H, fit, eid, a))
+    vhat = float(fit.v[a])
+    if vhat > 0 and val > 0:
+        return [val * (lo / vhat) ** (1 / power), val * (hi / vhat) ** (1 / power)]
+    ref = _scale_ref(eid, name, H.data.Ts)
+    return [ref * lo ** (1 / power), ref * hi ** (1 / power)]
+
+
+def _tone_intervals(H: Hypotheses, fit: Fit) -> tuple[dict, dict]:
     """Least-squares amplitude (Var = 2 S / N) and the Cramer-Rao bound of the frequency
     (Var(w) = 12 / (eta N^3) with eta = A^2 / (2 S), i.e. 24 S / (A^2 N^3): Kay 1993 eq. 3.41), S
     the residual's per-sample spectral density next to the line (the 40 bins on each side, the
-    line's own +-3 bins left out)."""
+    line's own +-3 bins left out). ({name: interval}, {name: per output}) as
+    :func:`merge_intervals` takes them: the amplitude is each output's own (several outputs), the
+    one frequency's interval and the amplitude's one interval are the largest amplitude's."""
     d = H.data
     tone = fit.model.effects["sensor.tone"]
     amp = np.broadcast_to(tone.params["amplitude"], (d.p,)).astype(float)
@@ -2192,19 +2302,21 @@ def _tone_intervals(H: Hypotheses, fit: Fit) -> dict:
         lo_f.append(freq[j] - 1.96 * sf)
         hi_f.append(freq[j] + 1.96 * sf)
     k = int(np.argmax(amp))
-    return {"amplitude": [lo_a[k], hi_a[k]], "frequency_hz": [lo_f[k], hi_f[k]]}
+    per = {"amplitude": [[a, b] for a, b in zip(lo_a, hi_a)]} if d.p > 1 else {}
+    return {"amplitude": [lo_a[k], hi_a[k]], "frequency_hz": [lo_f[k], hi_f[k]]}, per
 
 
-def _profile_scale_shaped(H: Hypotheses, fit: Fit, eid: str, name: str, val: float, direction: int) -> float:
-    """The lower (``direction`` -1) or upper (+1) end of the profile interval of an effect's scale,
-    its searched parameters refitted at every value. A scale per channel (:func:`n_channels`): the
-    largest channel's alone, the other channels' variances re-optimized with the searched parameters
-    (scaled along with it, their data counted as evidence on it)."""
+def _profile_scale_shaped(H: Hypotheses, fit: Fit, eid: str, name: str, val: float, direction: int,
+                          j: int | None = None) -> float:
+    """The lower (``direction`` -1) or upper (+1) end of the profile interval of an effect's scale
+    (value ``val``), its searched parameters refitted at every value. A scale per channel
+    (:func:`n_channels`): channel ``j``'s alone, the other channels' variances re-optimized with the
+    searched parameters (their data counted as evidence on them); ``j`` None: the one factor over
+    the channels (the others scaled along with it)."""
     free = dict(fit.free)
     nc = n_channels(fit.model, eid)
     vec = np.broadcast_to(np.asarray(fit.model.effects[eid].params[name], float), (nc,)).copy()
-    per_channel = nc > 1 and COMMON not in fit.free[eid]
-    j = int(np.argmax(vec))
+    per_channel = j is not None
     chi2 = CHI2_95
     if _behind_nonlinearity(fit.model, eid):
         # the variance's sandwich factor where its gain switches (the shape held), for the

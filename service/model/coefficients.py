@@ -6,13 +6,16 @@ by output name, with the unit written in the output's unit (``model.output_units
 
     {output name: {coefficient name: {"value": v, "interval": [lo, hi] or None, "unit": text}}}
 
-Intervals: a fitted parameter's 95 % profile-likelihood interval (the diagnosis' ``missing``
-entries), mapped end to end through the coefficient's increasing relation to the parameter. The
-diagnosis profiles one channel of a per-output parameter, the one whose value is the largest
-(:func:`service.diagnose.search.interval_tasks`): the interval is given for the outputs holding that
-largest value (all of them when the parameter is one value for every output) and is None for the
-others, and for every coefficient whose parameter the diagnosis did not fit. A quantization step
-is found exactly on the data's grid: each output's interval is its own step.
+Intervals: a fitted parameter's 95 % profile-likelihood interval, mapped end to end through the
+coefficient's increasing relation to the parameter. A parameter fitted one value per output (a
+sensor noise's std of a model of several outputs) has each output's own interval, from the
+profile over that output's value (the diagnosis' ``missing[i].intervals_per_output``:
+:func:`service.diagnose.search.interval_tasks`), and each output's coefficient gets its own. A
+parameter fitted as one value (or one factor) for every output has one interval (``missing[i].
+interval``), given to every output holding the largest value (all of them when the value is one);
+without the per-output intervals, only those outputs get one. None for every coefficient whose
+parameter the diagnosis did not fit. A quantization step is found exactly on the data's grid:
+each output's interval is its own step.
 """
 
 from __future__ import annotations
@@ -22,15 +25,20 @@ import math
 import numpy as np
 
 
-def model_coefficients(model, intervals: dict | None = None) -> dict:
+def model_coefficients(model, intervals: dict | None = None, per_output: dict | None = None) -> dict:
     """The coefficients of ``model``'s effects per output (module docstring). ``intervals``:
-    {effect id: {parameter: [lo, hi]}} of the fitted parameters (catalogue spellings)."""
+    {effect id: {parameter: [lo, hi]}} of the fitted parameters (catalogue spellings);
+    ``per_output``: {effect id: {parameter: [[lo, hi] or None, one per output]}} of those fitted
+    per output."""
     out: dict = {name: {} for name in model.output_names}
     for eid, eff in model.effects.items():
         fitted = (intervals or {}).get(eid) or {}
+        each = (per_output or {}).get(eid) or {}
         for c in eff.coefficients():
             vals = np.broadcast_to(np.asarray(c.value, float), (model.p,))
-            ivs = _intervals(eff, c, fitted.get(c.param), vals)
+            own = each.get(c.param)
+            ivs = [_mapped(c, iv) for iv in own] if own is not None and len(own) == model.p else \
+                _intervals(eff, c, fitted.get(c.param), vals)
             for j, name in enumerate(model.output_names):
                 out[name][c.name] = {
                     "value": _num(vals[j]),
@@ -41,11 +49,12 @@ def model_coefficients(model, intervals: dict | None = None) -> dict:
 
 
 def _intervals(eff, c, iv, vals: np.ndarray) -> list:
-    """Each output's interval of coefficient ``c`` (values ``vals``) from the diagnosis' interval
-    ``iv`` of its parameter: the profiled output's (the largest value: ``c.of`` is increasing, so
-    the largest parameter's), None for the others. A parameter found exactly on the data's grid (a
-    quantization step, fit kind ``grid``) is each output's own value, [v, v]: the diagnosis gives
-    the range of the outputs' steps there, not an interval of one."""
+    """Each output's interval of coefficient ``c`` (values ``vals``) from the diagnosis' one
+    interval ``iv`` of its parameter: the outputs' holding the largest value (the one it is of:
+    ``c.of`` is increasing, so the largest parameter's), None for the others. A parameter found
+    exactly on the data's grid (a quantization step, fit kind ``grid``) is each output's own
+    value, [v, v]: the diagnosis gives the range of the outputs' steps there, not an interval of
+    one."""
     p = vals.size
     if iv is None:
         return [None] * p
