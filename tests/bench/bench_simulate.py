@@ -84,7 +84,7 @@ from service.model.effects import CATALOGUE
 from service.model.model import load_model, parse_model
 
 RESULTS = HERE / "RESULTS.md"
-SECTION = "## Simulation (issue 2)"
+SECTION = "## Simulation"
 BLAS_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 
