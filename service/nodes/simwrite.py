@@ -22,11 +22,12 @@ the seed, so the run is reproduced from the file alone.
 
 from __future__ import annotations
 
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+from ..progress import Progress
 
 FORMATS = ("mcap", "ros2")
 """``simulate --format`` values: noiselab's JSON MCAP recording, or a rosbag2 bag."""
@@ -40,39 +41,6 @@ def _version() -> str:
         return version("noiselab")
     except PackageNotFoundError:
         return "unknown"
-
-
-class Progress:
-    """A progress bar on stderr for long runs (``tqdm``): shown only on a terminal, or when
-    ``enabled`` forces it; never on stdout, so ``--json`` output stays clean. No bar is made when
-    it is not shown, and a shown one runs no monitor thread (tqdm's ``monitor_interval = 0``):
-    the process stays single-threaded, as :func:`service.parallel.can_fork` wants."""
-
-    def __init__(self, total: int, label: str, enabled: bool | None = None):
-        self.total, self.label = total, label
-        self.enabled = sys.stderr.isatty() if enabled is None else bool(enabled)
-        self.done = 0
-        self._bar = None
-        if self.enabled:
-            from tqdm import tqdm
-
-            class Bar(tqdm):
-                monitor_interval = 0
-
-            self._bar = Bar(total=total, desc=label, unit=" samples", unit_scale=True, file=sys.stderr,
-                            mininterval=0.2, dynamic_ncols=True, leave=True)
-
-    def update(self, done: int) -> None:
-        """``done`` samples are written so far (an absolute count)."""
-        if self._bar is not None and done > self.done:
-            self._bar.update(done - self.done)
-        self.done = max(self.done, done)
-        if done >= self.total:
-            self.close()
-
-    def close(self) -> None:
-        if self._bar is not None:
-            self._bar.close()
 
 
 def run_metadata(model, n: int, seed: int, start_time_ns: int, fmt: str) -> dict[str, str]:
