@@ -23,30 +23,14 @@ from pathlib import Path
 
 import zenoh
 
+from ..args import DEFAULT_ENDPOINT, DEFAULT_PORT, add_transport_args  # noqa: F401  (the flags: stdlib only)
 from . import mcapio, wire
 
-DEFAULT_PORT = 7447
-DEFAULT_ENDPOINT = f"tcp/127.0.0.1:{DEFAULT_PORT}"
 ROLES = ("source", "sink", "router")
 
 
 class TransportError(ValueError):
     """A Zenoh endpoint, key expression or config that does not work (one-line message)."""
-
-
-def add_transport_args(parser: argparse.ArgumentParser) -> None:
-    from ..args import seconds_arg           # the command line's numeric flags, checked in one place
-
-    g = parser.add_argument_group("transport (Zenoh)")
-    g.add_argument("--connect", action="append", metavar="ENDPOINT",
-                   help=f"endpoint to connect to, e.g. {DEFAULT_ENDPOINT} (repeatable)")
-    g.add_argument("--listen", action="append", metavar="ENDPOINT",
-                   help="endpoint to listen on, e.g. tcp/127.0.0.1:7448 (repeatable)")
-    g.add_argument("--config", metavar="FILE", help="Zenoh JSON5 configuration file")
-    g.add_argument("--mode", choices=("peer", "client"), default=None,
-                   help="Zenoh session mode (default peer; a router is always 'router')")
-    g.add_argument("--connect-timeout", type=seconds_arg(zero=True), default=5.0, metavar="S",
-                   help="seconds to reach --connect endpoints before giving up (default 5)")
 
 
 def _one_line(exc: Exception) -> str:
