@@ -14,8 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from service.diagnose.data import Data, quantization_grid
 from service.diagnose.diagnose import diagnose
-from service.diagnose.search import THRESHOLD, Data, Search, quantization_grid
+from service.diagnose.search import Search
+from service.diagnose.thresholds import THRESHOLD
 from service.model import load_model, parse_model
 from service.model.effects import CATALOGUE
 from service.model.model import scenario_names
@@ -160,7 +162,8 @@ def test_nested_choice_statistic_is_half_chi2_0_half_chi2_1():
     2.71 (+3 binomial sd)."""
     from scipy import stats
 
-    from service.diagnose.search import CHIBAR2_95, Hypotheses
+    from service.diagnose.hypotheses import Hypotheses
+    from service.diagnose.thresholds import CHIBAR2_95
 
     model = parse_model("name = \"w\"\n[sampling]\nTs = 0.01\n[plant]\nA = [[-2.0]]\nB = [[2.0]]\n"
                         "C = [[1.0]]\n[actuator.white]\nstd = 0.5\n[sensor.white]\nstd = 0.05\n")
@@ -189,7 +192,8 @@ def test_a_drift_slower_than_the_plant_is_reported_as_a_sensor_bias():
     slower than SLOW_DRIFT plant time constants is reported as the sensor bias when both are
     near-tied additions (the better supported of it and the walk, its long-tau limit); the AR(1) stays the
     alternative."""
-    from service.diagnose.search import SLOW_DRIFT, TIE, plant_time_constant
+    from service.diagnose.search import plant_time_constant
+    from service.diagnose.thresholds import SLOW_DRIFT, TIE
 
     base = ("name = \"d\"\n[sampling]\nTs = 0.01\n[plant]\nA = [[-10.0]]\nB = [[10.0]]\nC = [[1.0]]\n"
             "[command]\nkind = \"sine\"\namplitude = 1.0\nfrequency_hz = 0.5\n"
@@ -214,7 +218,9 @@ def test_lr_spread_is_the_spread_of_the_likelihood_ratio_over_records():
     A's spectrum) against 4000 Monte Carlo periodograms: one output with groups of 1 and 8 bins
     (a group's mean of n exponential ordinates, G = n), and two outputs (X ~ CN(0, E_A) per bin,
     I = X X^H). The sd of a sample sd is sd / sqrt(2 R): 1.1 % here; tolerance 5 %."""
-    from service.diagnose.search import Fit, Inner, lr_spread
+    from service.diagnose.hypotheses import Fit
+    from service.diagnose.inner import Inner
+    from service.diagnose.sandwich import lr_spread
 
     rng = np.random.default_rng(3)
     R, nb = 4000, 60
@@ -348,7 +354,8 @@ def test_the_sandwich_factor_of_a_noise_behind_a_switching_saturation_is_its_mon
     near the edge of what the data identify, the factor read 2.9 against 1.8: the sensor's
     variance, its cross-term in H^-1, carries a slow record-wide pattern the blocks miss.) The same
     plant with the limit at 2 never clips: not gated, no factor."""
-    from service.diagnose.search import Hypotheses, gated, godambe_factor
+    from service.diagnose.hypotheses import Hypotheses
+    from service.diagnose.sandwich import gated, godambe_factor
 
     text = ("name = \"g\"\n[sampling]\nTs = 0.01\n[plant]\nA = [[-2.0]]\nB = [[2.0]]\nC = [[1.0]]\n[command]\n"
             "kind = \"sine\"\namplitude = 1.0\nfrequency_hz = 0.2\n[actuator.white]\nstd = 0.1\n"
@@ -383,7 +390,7 @@ def test_a_noise_behind_a_saturation_that_clips_the_whole_record_is_held_not_run
     each printing a RuntimeWarning; sensor and process noise are fitted as before."""
     import warnings
 
-    from service.diagnose.search import Hypotheses
+    from service.diagnose.hypotheses import Hypotheses
 
     model = parse_model("name = \"clip\"\n[sampling]\nTs = 0.01\n[plant]\nA = [[0.0, 1.0], [-16.0, -2.0]]\n"
                         "B = [[0.0], [16.0]]\nC = [[1.0, 0.0]]\nL = [[0.0], [4.0]]\n[command]\nkind = \"prbs\"\n"
@@ -531,7 +538,7 @@ def test_a_tone_must_stand_out_from_the_data_around_it():
     and from the data's own spectrum around it. A missing walk (flat in the differenced residual,
     where the model's noises rise as f^2 from DC) lifts the lowest bins far over the model, but
     they are no line; a line at bin 400 is one. Periodograms drawn as E_true Exp(1), seeded."""
-    from service.diagnose.search import tone_peaks
+    from service.diagnose.tones import tone_peaks
 
     rng = np.random.default_rng(7)
     nf, M, Ts = 20_000, 40_000, 0.01
@@ -652,7 +659,7 @@ def test_a_gauss_markov_bias_beats_a_walk_when_its_likelihood_ratio_test_passes(
     test of 1/tau > 0. The rule for an exact tie (identical spectra: the signal chain's order)
     took it, and the walk came first in the chain. A tie of two fits of different sizes is not
     that: the test decides, and here it passes."""
-    from service.diagnose.search import CHIBAR2_95
+    from service.diagnose.thresholds import CHIBAR2_95
 
     truth = parse_model("name = \"c\"\n[sampling]\nTs = 0.005\n[plant]\nm = 2.0495\nc = 15.7568\nk = 409.7569\n"
                         "[command]\nkind = \"none\"\n[process.white]\nstd = 22.3\n[sensor.white]\nstd = 0.006171\n"
@@ -694,7 +701,7 @@ def test_a_slow_drift_stays_the_sensor_bias_when_the_ar1_leads_within_its_spread
     truth that lead ranged from -4.9 to +2.2 (mean -2.1): a coin flip, which lr_spread measures
     (about 2 here). The AR(1) must now beat the bias by DISTINCT_Z of those spreads, in the step's
     ranking and in the exchange pass."""
-    from service.diagnose.search import DISTINCT_Z, TIE
+    from service.diagnose.thresholds import DISTINCT_Z, TIE
 
     truth = parse_model("name = \"c\"\n[sampling]\nTs = 0.02\n[plant]\nm = 0.4225\nc = 6.8061\nk = 130.3085\n"
                         "[command]\nkind = \"none\"\n[process.white]\nstd = 8.322\n[sensor.white]\nstd = 0.01154\n"
@@ -777,7 +784,8 @@ def test_a_local_refit_follows_a_shape_parameter_beyond_its_first_bracket():
     can have to move further. Started 10x below, the local refit of a Gauss-Markov tau (120 s of
     the pair's truth) must reach the maximum the coarse grid finds (before: stuck at 0.16 s, the
     log-likelihood 280 lower)."""
-    from service.diagnose.search import Hypotheses, _set
+    from service.diagnose.edits import _set
+    from service.diagnose.hypotheses import Hypotheses
     eid = "sensor.bias_markov"
     truth = load_model(f"hidden/{eid}")
     rec = truth.simulate(int(round(120 / truth.Ts)), seed=7)
@@ -1105,7 +1113,8 @@ def test_a_quantizers_slope_modulation_is_not_a_jitter():
     without jitter its slope is within 3 standard errors of 0 (without the prediction it read
     jitters of about 1.1 ms, reported on 2 of 3 such records); with a 1.5 ms jitter it is std_s^2
     within 3 standard errors; and the diagnosis of the record without jitter reports nothing."""
-    from service.diagnose.search import Hypotheses, Modulation
+    from service.diagnose.hypotheses import Hypotheses
+    from service.diagnose.modulation import Modulation
     nominal = parse_model(_QJ_DOC, "nominal")
     jittered = parse_model(_QJ_DOC + "[sensor.jitter]\nstd_s = 0.0015\n", "jitter")
     out = {}
@@ -1232,7 +1241,7 @@ def test_a_profile_the_data_do_not_bound_ends_at_zero_or_the_largest_value_tried
     gives a finite end between."""
     from types import SimpleNamespace
 
-    from service.diagnose import search as S
+    from service.diagnose import intervals as S
     doc = ('name = "two"\n[sampling]\nTs = 0.01\n[plant]\nA = [[-1.0, 0.0], [0.0, -2.0]]\n'
            'B = [[1.0, 0.0], [0.0, 1.0]]\nC = [[1.0, 1.0]]\n[actuator.ar1]\nstd = [0.3, 0.05]\ntau_s = 0.2\n')
     fit = SimpleNamespace(free={"actuator.ar1": ["std", "tau_s"]}, loglik=0.0, model=parse_model(doc, "two"))
@@ -1264,7 +1273,7 @@ def test_a_profile_crossing_from_the_estimate_lands_on_a_quadratic_profiles_end_
     estimate: a profile quadratic in ln x (or in x) is a straight line there, so the first fit lands
     on 2 Delta l = 3.84 (the bisection of the shape parameters took 12 fits, regula falsi on ln x
     4-5); without the peak, the plain regula falsi needs more than one."""
-    from service.diagnose import search as S
+    from service.diagnose import intervals as S
 
     for log, z, back in ((True, math.log, math.exp), (False, (lambda v: v), (lambda v: v))):
         x_hat, sd = 0.3, 0.05
@@ -1291,7 +1300,7 @@ def test_an_exact_add_refit_tie_goes_to_the_addition_whichever_candidate_leads()
     On this record an AR(1) leads both in the choice score, by its second parameter's near-level
     likelihood ratio; the tie rule (the user's value kept, the effect added) must still apply.
     Before, the tie was looked for beside the leader only, and the refit was reported."""
-    from service.diagnose.search import EXACT_TIE
+    from service.diagnose.thresholds import EXACT_TIE
     base = ("name = \"m2\"\n[sampling]\nTs = 0.01\n[plant]\n"
             "A = [[0, 1, 0, 0], [-6, -0.6, 2, 0.3], [0, 0, 0, 1], [2, 0.3, -2, -0.3]]\n"
             "B = [[0], [1], [0], [0]]\nC = [[1, 0, 0, 0]]\n"
@@ -1315,7 +1324,7 @@ def test_the_leaders_exact_add_refit_tie_goes_before_the_mode_order():
     a replacement of the actuator noise by a near-white AR(1) sits within the near-tie margin, and
     the mode order alone would take it. The leader's tie comes first: the process noise is added
     (the first version of the chosen-candidate rule reported the AR(1))."""
-    from service.diagnose.search import TIE
+    from service.diagnose.thresholds import TIE
     case = make_case(8)
     truth, nominal = parse_model(case.truth, "truth"), parse_model(case.nominal, "nominal")
     assert "process.white" not in nominal.effects and "actuator.white" in nominal.effects

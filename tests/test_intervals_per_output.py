@@ -21,16 +21,13 @@ import numpy as np
 import pytest
 
 from service.cli import main
+from service.diagnose.data import Data
 from service.diagnose.diagnose import diagnose
+from service.diagnose.hypotheses import Hypotheses
+from service.diagnose.inner import Inner
+from service.diagnose.intervals import ChannelKey, merge_intervals
 from service.diagnose.report import diagnosis_lines
-from service.diagnose.search import (
-    CHI2_95,
-    ChannelKey,
-    Data,
-    Hypotheses,
-    Inner,
-    merge_intervals,
-)
+from service.diagnose.thresholds import CHI2_95
 from service.model import parse_model
 
 TS = 0.01

@@ -20,7 +20,8 @@ import pytest
 
 from service import parallel
 from service.diagnose import whittle as W
-from service.diagnose.search import Data, Search
+from service.diagnose.data import Data
+from service.diagnose.search import Search
 from service.memo import Memo
 from service.model import load_model
 

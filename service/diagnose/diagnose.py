@@ -5,7 +5,7 @@
 2. Rank: every effect of the catalogue is fitted as a candidate (added when absent, refitted when
    present with a wrong value, AR(1) in place of white actuator noise) and scored by Delta BIC
    (:mod:`.search`).
-3. Add the best candidate when its Delta BIC exceeds :data:`.search.THRESHOLD`, refit everything
+3. Add the best candidate when its Delta BIC exceeds :data:`.thresholds.THRESHOLD`, refit everything
    freed so far jointly, and repeat while something significant remains (``max_effects``). When
    nothing passes that threshold but the model error still exceeds :data:`ERROR_OK` (the views
    see the model fail), the best candidate is added if its likelihood-ratio test passes at 1 %
@@ -28,8 +28,11 @@ from .. import parallel
 from ..model.effects import CATALOGUE
 from ..model.effects.base import _g
 from .compare import auto_burn, check_samples, compare, transient_samples
+from .data import Data
+from .intervals import interval_tasks, merge_intervals
 from .results import fmt_score
-from .search import THRESHOLD, Data, Search, interval_tasks, merge_intervals
+from .search import Search
+from .thresholds import THRESHOLD
 
 MAX_EFFECTS = 3
 ERROR_OK = 1.5            # a model error the views call explained
@@ -64,7 +67,7 @@ def _prefer_replacements(S, cur, accepted, say):
     white actuator noise): with every effect now in, drop the replaceable effect when the data
     support the smaller model as well (Delta BIC within the tie margin; same free parameters)."""
     from ..model import ModelError
-    from .search import TIE
+    from .thresholds import TIE
 
     for c in accepted:
         if c.mode != "add":
@@ -105,7 +108,9 @@ def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
     import math
 
     from ..model import ModelError
-    from .search import CHIBAR2_95, DRIFT_BIASES, EXACT_RANK, TIE, Fit, exact_tie
+    from .hypotheses import Fit
+    from .search import DRIFT_BIASES, EXACT_RANK, exact_tie
+    from .thresholds import CHIBAR2_95, TIE
 
     swapped = False
     log_n = math.log(S.data.n_bic)
@@ -330,7 +335,7 @@ def _by_error(S, cur, accepted, steps, comps, step_models, max_effects, t, y, u,
 def _replay(S, start, final, accepted):
     """The fits after each step, in order, each effect at its final parameters then refitted with
     those before it."""
-    from .search import Fit
+    from .hypotheses import Fit
 
     cur, out = start, []
     for c in accepted:
@@ -371,7 +376,7 @@ def _report_intervals(eid: str, iv: dict, Ts: float) -> dict:
 
 def _report_intervals_per_output(eid: str, per: dict, Ts: float) -> dict:
     """Each output's intervals of the parameters fitted per output ({name: [[lo, hi] or None, one
-    per output]}: :func:`.search.interval_tasks`), and the same for the equivalent spellings, as
+    per output]}: :func:`.intervals.interval_tasks`), and the same for the equivalent spellings, as
     :func:`_report_intervals` gives them for one interval."""
     n = max((len(v) for v in per.values()), default=0)
     each = [_report_intervals(eid, {k: v[j] for k, v in per.items() if v[j] is not None}, Ts) for j in range(n)]
