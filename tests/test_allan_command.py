@@ -14,6 +14,7 @@ import math
 
 import numpy as np
 import pytest
+from conftest import assert_bad, cli_in_process
 from test_analysis import _raw_json_mcap
 from test_stats_allan import BOUNDS_RTOL, half_unit, ocxo_y, read_stable32
 
@@ -36,19 +37,13 @@ def gyro_toml(white_std: float, walk_std: float | None, p: int = 1) -> str:
             f'[command]\nkind = "none"\n[sensor.white]\nstd = {white_std!r}\n{walk}')
 
 
+
+
+
+
 def run(capsys, *argv) -> tuple[int, str, str]:
-    code = main(["allan", *map(str, argv)])
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def assert_bad(result, *words):
-    code, out, err = result
-    assert code == 2, (code, out, err)
-    assert err.count("\n") == 1 and err.startswith("noiselab: "), err
-    assert "Traceback" not in err
-    for w in words:
-        assert w in err, (w, err)
+    """``noiselab allan ARGV`` in this process."""
+    return cli_in_process(capsys, "allan", *argv)
 
 
 @pytest.fixture(scope="module")

@@ -33,7 +33,10 @@ import pytest
 from hypothesis import HealthCheck, assume, example, given, settings
 from hypothesis import strategies as st
 
-from service.cli import build_parser, main, predict_report
+from conftest import assert_bad
+from conftest import cli_in_process as cli
+
+from service.cli import build_parser, predict_report
 from service.model import ModelError, dumps_toml, load_model, parse_model, scenario_names
 from service.model.effects import CATALOGUE
 from service.model.model import TS_MAX, TS_MIN, _from_data, scenario_text
@@ -62,26 +65,8 @@ def edited(text: str, sets: dict, drops: tuple = ()) -> str:
     return dumps_toml(d)
 
 
-def cli(capsys, *argv) -> tuple[int, str, str]:
-    """``noiselab ARGV`` in this process: (exit code, stdout, stderr). argparse's own errors exit
-    through SystemExit; anything else raised is a traceback and fails the test."""
-    try:
-        rc = main([str(a) for a in argv])
-    except SystemExit as exc:
-        rc = exc.code
-    out, err = capsys.readouterr()
-    return rc, out, err
 
 
-def assert_bad(result, *parts: str) -> str:
-    """Exit 2 and one line on stderr, ``noiselab: ...``, holding every one of ``parts``."""
-    rc, out, err = result
-    assert rc == 2, (rc, out, err[-3000:])
-    lines = err.splitlines()
-    assert len(lines) == 1 and err.endswith("\n") and lines[0].startswith("noiselab: "), err[-3000:]
-    for part in parts:
-        assert part in lines[0], (part, lines[0])
-    return lines[0]
 
 
 # -- 1. model files ---------------------------------------------------------------------------------

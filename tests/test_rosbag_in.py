@@ -27,6 +27,9 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from ruamel.yaml import YAML
 
+from conftest import assert_bad
+from conftest import cli_in_process as cli
+
 from service.cli import main
 from service.diagnose import load
 from service.nodes import rosbag
@@ -108,25 +111,8 @@ def storage_file(bag: Path) -> Path:
     return f
 
 
-def cli(capsys, *argv) -> tuple[int, str, str]:
-    """``noiselab ARGV`` in this process: (exit code, stdout, stderr)."""
-    try:
-        rc = main([str(a) for a in argv])
-    except SystemExit as exc:
-        rc = exc.code
-    out, err = capsys.readouterr()
-    return rc, out, err
 
 
-def assert_bad(result, *parts: str) -> str:
-    """Exit 2 and one line on stderr, ``noiselab: ...``, holding every one of ``parts``."""
-    rc, out, err = result
-    assert rc == 2, (rc, out, err[-3000:])
-    lines = err.splitlines()
-    assert len(lines) == 1 and lines[0].startswith("noiselab: ") and "Traceback" not in err, err[-3000:]
-    for part in parts:
-        assert part in lines[0], (part, lines[0])
-    return lines[0]
 
 
 @pytest.fixture(scope="module")
