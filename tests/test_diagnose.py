@@ -325,7 +325,7 @@ def test_an_ar1_actuator_noise_behind_a_saturation_the_chirp_reaches_is_found_an
 
     The clipped noise is cyclostationary (its power follows the chirp): its periodogram spreads
     more than the stationary Whittle likelihood assumes, and the std's profile interval is widened
-    by its sandwich factor (:func:`search.godambe_factor`, as the jitter's). Without it seed 3's
+    by its sandwich factor (:func:`sandwich.godambe_factor`, as the jitter's). Without it seed 3's
     interval was (0.0506, 0.0563), and over seeds 20-39 16 of 20 held 0.05 (mean square z 1.50);
     with it seed 3's is (0.0497, 0.0556) and 18 of 20 hold it (mean square z 1.16)."""
     truth = parse_model(AR1_SAT, "ar1sat")

@@ -72,9 +72,9 @@ PER_OUTPUT = ("sensor.white", "sensor.bias_walk", "sensor.bias_markov")   # one 
 PER_INPUT = ("actuator.white", "actuator.ar1", "process.white")            # ... per (noise) input
 COMMON = "common"     # among an effect's free names: one factor over its channels (the file's proportions)
 PER_CHANNEL = "per_channel"   # among a mean effect's free names: its searched parameters one per channel
-# the mean effects offered one value per channel: not the lag, whose per-input time constants took
-# the amplitude loss of a saturation beside it (two-input case 16: lags 0.36 and 0.87 s and a
-# Gauss-Markov bias in place of the planted lag 0.49 s and limit 0.57, error 6.5)
+# the mean effects offered one value per channel: not the lag, whose per-input time constants can
+# take up the amplitude loss of a saturation beside it (two lags and a Gauss-Markov bias fitted in
+# place of one lag and a limit, on a two-input plant)
 PER_CHANNEL_MEAN = ("actuator.saturation", "actuator.deadzone", "sensor.scale_factor")
 
 

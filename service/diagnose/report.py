@@ -9,7 +9,7 @@ Each ``missing`` entry gives its fitted parameters' 95 % profile-likelihood inte
   order]} for the parameters fitted one value per output (a sensor noise's std, a scale factor,
   a tone's amplitude, a quantization step, on a model of several outputs): each output's own
   interval, from the profile over that output's value with every other free value re-optimized
-  (:func:`.search.interval_tasks`); {} when no parameter is fitted per output (one output, or one
+  (:func:`.intervals.interval_tasks`); {} when no parameter is fitted per output (one output, or one
   value for all of them).
 
 ``coefficients`` (:func:`service.model.coefficients.model_coefficients`) takes each output's
