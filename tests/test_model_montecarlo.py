@@ -284,7 +284,7 @@ def test_a_damped_cosine_fit_that_stalled_scipys_nnls_still_holds_the_variance(m
     Checked as scipy runs it here, and with nnls made to fail always (the fallback alone, whatever
     a later scipy does on this problem)."""
     import scipy.optimize
-    from service.model.predict import _damped_cosines
+    from service.model.spectra import _damped_cosines
 
     path = Path(__file__).parent / "data" / "distortion_acf_nnls_maxiter.txt"
     h = np.loadtxt(path)

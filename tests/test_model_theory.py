@@ -8,7 +8,8 @@ from scipy.integrate import quad_vec
 from scipy.linalg import expm
 
 from service.model import discretize, parse_model
-from service.model.predict import allan_from_variogram, gauss_pwl
+from service.model.linearize import gauss_pwl
+from service.model.spectra import allan_from_variogram
 
 
 def model(body: str, Ts=0.01, disc="zoh", plant="m = 1.0\nc = 0.4\nk = 2.0"):

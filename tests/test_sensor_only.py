@@ -150,7 +150,7 @@ def test_predict_json_of_a_gyro_at_rest(tmp_path, capsys):
 def test_spectra_of_a_gyro_at_rest_are_the_closed_forms():
     """One-sided PSD of white noise 2 Ts std^2; ACF std^2 at lag 0, 0 beyond; Allan variance of
     white std^2 / m and of the walk (increment variance q = K^2 Ts) q (2 m^2 + 1) / (6 m) (the
-    sampled forms, module docstring of service.model.predict)."""
+    sampled forms, module docstring of service.model.spectra)."""
     m = parse_model(GYRO_WALK)
     pr = m.predictor()
     Ts = m.Ts

@@ -19,7 +19,7 @@ mean removal are inside the predictions instead of being excluded:
   :func:`service.stats.welch`), averaged in log bands (frequency bands); per bin
   E|X_j|^2 = -sum_{n,m} h_n conj(h_m) gamma(|n-m|), h_n = w_n e^{-i w_j n} - W_j / L.
 * ``allan``: overlapping Allan deviation at octave taus (taus), the exact discrete Allan variance
-  of the model (:func:`service.model.predict.allan_from_variogram`), its bounds from the
+  of the model (:func:`service.model.spectra.allan_from_variogram`), its bounds from the
   estimator's equivalent degrees of freedom (Greenhall).
 
 Standardized deviations z (E[z^2] = 1 when the model is right):
@@ -64,7 +64,9 @@ from scipy.signal import get_window
 from scipy.special import digamma, polygamma
 
 from ..model import ModelError
-from ..model.predict import LEAK, allan_from_variogram, free_response_fit
+from ..model.lyapunov import LEAK
+from ..model.mean_response import free_response_fit
+from ..model.spectra import allan_from_variogram
 from ..stats import oadev, welch
 from ..stats.psd import window_autocorrelation
 from ..stats.psd import log_bin_groups
@@ -1029,7 +1031,7 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
     one (:attr:`Model.predicts_level`: not a sensor-only model's): add the level view.
     ``free_start``: the record does not start at rest (cut mid-stream, or the longest run after a
     gap); under a command, the mean state after the burn is fitted
-    (:func:`service.model.predict.free_response_fit`).
+    (:func:`service.model.mean_response.free_response_fit`).
     """
     y, t = check_samples(model, t, y, u)
     pr = predictor_of(model)
