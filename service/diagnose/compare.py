@@ -64,6 +64,11 @@ from scipy.signal import get_window
 from scipy.special import digamma, polygamma
 
 from ..model import ModelError
+from ..model.expected import (
+    _welch_kernel,
+    expected_welch_detrended,
+    expected_window_stats,
+)
 from ..model.lyapunov import LEAK
 from ..model.mean_response import free_response_fit
 from ..model.spectra import allan_from_variogram
@@ -283,75 +288,6 @@ def quantizer_moments(model, mean_y: np.ndarray, k0: int = 0, h: str | None = No
     h = _record_hash(mean_y) if h is None else h
     return _cached(model, "quantizer_moments", (k0, h, mean_y.shape),
                    lambda: predictor_of(model).quantizer_moments(mean_y, k0))
-
-
-def expected_window_stats(gam: np.ndarray, M: int, max_lag: int) -> np.ndarray:
-    """E[segment autocovariance] (biased, 1/M, segment mean removed) at lags 0..max_lag for each
-    column of ``gam`` (variogram, rows d = 0..>=M-1). Returns (max_lag+1, K)."""
-    g_ = gam[:M]
-    S = np.cumsum(g_, axis=0)
-    a = np.arange(M)
-    g = (S[a] + S[M - 1 - a]) / M                    # g(a) = (1/M) sum_m gamma(|a - m|)
-    G = g.mean(axis=0)
-    Pg = np.concatenate([np.zeros((1,) + g.shape[1:]), np.cumsum(g, axis=0)])   # Pg[n] = sum_{i<n} g(i)
-    d = np.arange(max_lag + 1)
-    head = Pg[M - d]                                  # sum_{n=0}^{M-1-d} g(n)
-    tail = Pg[M] - Pg[d]                              # sum_{n=d}^{M-1} g(n)
-    cnt = (M - d)[:, None]
-    return ((cnt * (-g_[d] - G)) + head + tail) / M
-
-
-@lru_cache(maxsize=3)
-def _welch_kernel(L: int, window: str) -> np.ndarray:
-    """Re C_j(d), d = 0..L-1, of h_j(n) = w_n e_j(n) - a_j, e_j(n) = e^{-i w_j n}, a_j = W_j / L,
-    for bins j = 0..L/2: (J, L). With c_w(d) = sum_n w_{n+d} w_n, the suffix sums
-    S1(d) = sum_{m>=d} w_m e(m) and prefix sums S2(d) = sum_{n<=L-1-d} w_n conj(e(n)):
-    C(d) = e^{-i w d} c_w(d) - conj(a) S1(d) - a S2(d) + |a|^2 (L - d)."""
-    w = get_window(window, L)
-    n = np.arange(L)
-    d = n
-    cw = window_autocorrelation(w)
-    J = L // 2 + 1
-    out = np.empty((J, L))
-    # a_j = W_j / L vanishes (to rounding) for most bins of a smooth window (Hann: all but j = 0, 1);
-    # there C(d) = e^{-i w d} c_w(d), no sums needed
-    A = np.fft.rfft(w) / L
-    full = np.abs(A) > 1e-13 * abs(A[0])
-    for j0 in range(0, J, 256):
-        j = np.arange(j0, min(J, j0 + 256))[:, None]
-        out[j0:j0 + j.size] = np.cos(2 * np.pi * ((j * n) % L) / L) * cw
-    for j in np.flatnonzero(full):
-        e = np.exp(-2j * np.pi * ((j * n) % L) / L)
-        we = w * e
-        a = we.sum() / L
-        S1 = np.cumsum(we[::-1])[::-1]                 # sum_{m>=d}
-        S2 = np.cumsum(np.conj(we))[::-1]              # sum_{n<=L-1-d}
-        out[j] = (e * cw - np.conj(a) * S1 - a * S2 + np.abs(a) ** 2 * (L - d)).real
-    return out
-
-
-def _welch_kernel_fft(L: int, window: str) -> np.ndarray:
-    """The same kernel by FFT autocorrelation of h_j (reference for the tests)."""
-    w = get_window(window, L)
-    n = np.arange(L)
-    J = L // 2 + 1
-    out = np.empty((J, L))
-    for j0 in range(0, J, 256):
-        j = np.arange(j0, min(J, j0 + 256))
-        h = w * np.exp(-2j * np.pi * np.outer(j, n) / L)
-        h -= h.sum(axis=1, keepdims=True) / L
-        Hf = np.fft.fft(h, 2 * L, axis=1)
-        out[j] = np.fft.ifft(np.abs(Hf) ** 2, axis=1).real[:, :L]
-    return out
-
-
-def expected_welch_detrended(gam: np.ndarray, L: int, Ts: float, window: str = "hann") -> np.ndarray:
-    """E[Welch estimate] (segment mean removed, one-sided, every bin doubled) for each column of
-    the variogram ``gam`` (rows d = 0..>=L-1): (L//2+1, K) in units^2/Hz."""
-    K = _welch_kernel(L, window)
-    w = get_window(window, L)
-    EX2 = -2.0 * K[:, 1:] @ gam[1:L]                  # -sum_{d != 0} gamma(|d|) Re C(d)
-    return 2.0 * EX2 * Ts / np.sum(w**2)
 
 
 # -- statistics of log chi-squared ratios -----------------------------------------------------------------
