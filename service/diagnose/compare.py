@@ -73,8 +73,7 @@ from ..model.lyapunov import LEAK
 from ..model.mean_response import free_response_fit
 from ..model.spectra import allan_from_variogram
 from ..stats import oadev, welch
-from ..stats.psd import window_autocorrelation
-from ..stats.psd import log_bin_groups
+from ..stats.psd import log_bin_groups, window_autocorrelation
 from .results import VIEW_NAMES, AnalysisError, Comparison, Region, View
 
 FAMILY_ALPHA = 0.05
