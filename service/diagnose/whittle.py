@@ -505,7 +505,7 @@ def linear_part(F, G, H, J, Pe, M: int, k0: int, at_rest: bool, groups: Groups |
     """E I_f (nf, p) of one source of the augmented linear system (see the module docstring);
     ``groups``: their means (nb, p); ``cross``: the expected cross-periodogram matrices (nf or nb,
     p, p), complex Hermitian (Cov(d_{q+h}, d_q) for every pair of outputs). ``De``: (I - F) P, given
-    for a plant that integrates (:func:`service.model.predict.lyap_leaky`): every term is then
+    for a plant that integrates (:func:`service.model.lyapunov.lyap_leaky`): every term is then
     formed from it, without the cancellation between lags at the walk's scale."""
     p = H.shape[0]
     n = F.shape[0]
