@@ -1,6 +1,6 @@
 """A child process of the live tests (``python -m service.cli ...`` or a helper script) with its
 stdout and stderr lines collected by threads, so a test waits for a line (an event) instead of
-sleeping. Shared by tests/test_live.py and tests/test_analysis_live.py; the ``spawn`` fixture is
+sleeping. Shared by tests/e2e/test_live.py and tests/e2e/test_analysis_live.py; the ``spawn`` fixture is
 in tests/conftest.py."""
 
 from __future__ import annotations

@@ -25,7 +25,7 @@ is counted twice and their cross-spectra are left out, so for those cases the fi
 bound in either direction (10 of the 63 hidden cases, 9.4 of the 53.0 expected). Integrator
 plants have no stationary spectrum and are not in this set. Checked against the closed form for a
 Gauss-Markov process observed over T >> tau: sd(ln tau) = sqrt(2 tau / T)
-(``tests/test_diagnose.py::test_ceiling_crb_matches_the_gauss_markov_closed_form``).
+(``tests/diagnose/test_diagnose.py::test_ceiling_crb_matches_the_gauss_markov_closed_form``).
 
 Two more of bench_diagnose's sets, the same way: a bias random walk and a Gauss-Markov bias hidden
 together (``hidden_set.with_bias_pair``, seeds 0..15), and plants with two inputs

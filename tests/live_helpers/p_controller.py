@@ -1,4 +1,4 @@
-"""A proportional controller process for the closed-loop test (tests/test_live.py).
+"""A proportional controller process for the closed-loop test (tests/e2e/test_live.py).
 
 Subscribes ``noiselab/<name>/measurement`` and answers every measurement y_k with
 ``u = Kp (r - y_k)`` on ``noiselab/<name>/control`` (payload ``wire.encode(seq, t_k, [u],

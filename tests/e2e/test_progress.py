@@ -28,7 +28,7 @@ from service.model import load_model
 from service.nodes.simwrite import write_simulation
 from service.progress import Progress, Steps, wanted
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 T_RUN = 300                  # an upper bound on a command's run: a test never passes on it
 
 
@@ -205,6 +205,7 @@ def test_json_at_a_terminal_is_pure_json_and_no_bar(recording, command):
     assert "\r" not in term and f"noiselab {command}: reading" not in term
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("command", ["analyze", "diagnose"])
 def test_no_bar_when_stderr_is_a_pipe_unless_forced(recording, command):
     args = [command, str(recording), "--model", "seed-nominal"] + (["--max-effects", "1"] if command == "diagnose" else [])

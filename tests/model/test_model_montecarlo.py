@@ -26,6 +26,7 @@ def z_bound(count):
     return stats.norm.ppf(1 - ALPHA / (2 * count))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name,text", [("seed", None), ("all", ALL_LINEAR)])
 def test_ensemble_matches_mean_P_and_Sy(name, text):
     mdl = load_model("seed") if text is None else load(text)
@@ -62,6 +63,7 @@ def test_ensemble_matches_mean_P_and_Sy(name, text):
             assert np.all(np.abs(c - P[:, a, b]) < z * sd + 1e-20), (a, b)   # + rounding where sd = 0
 
 
+@pytest.mark.slow
 def test_statistical_linearization_of_the_saturated_actuator():
     """Mean: the ensemble mean follows m_{k+1} = A m_k + B E[sat(u_c + n)] exactly (white n, linear
     plant). Variance: with white actuator noise the clipped drive is iid, N(u) = E[N] + g n + d
@@ -148,6 +150,7 @@ limit = 0.7
 """
 
 
+@pytest.mark.slow
 def test_ar1_actuator_noise_through_a_saturation_the_command_reaches_has_the_gains_spectrum():
     """A chirp through the limit switches the clipper's gain g_k (1 inside, 0 beyond) many times
     within the AR(1)'s correlation time (0.25 s): the clipped noise g_k n_k has autocovariance
@@ -211,6 +214,7 @@ limit = 0.8
 """
 
 
+@pytest.mark.slow
 def test_the_distortion_of_a_colored_noise_through_a_saturation_is_colored():
     """A slow AR(1) (tau 0.5 s = 100 samples) clipped at 0.8 by a 1.0 sine: the distortion
     d_k = f(u_k + n_k) - E[f] - g_k n_k is as slow as the noise near the limit (by Mehler's formula
@@ -286,7 +290,7 @@ def test_a_damped_cosine_fit_that_stalled_scipys_nnls_still_holds_the_variance(m
     import scipy.optimize
     from service.model.spectra import _damped_cosines
 
-    path = Path(__file__).parent / "data" / "distortion_acf_nnls_maxiter.txt"
+    path = Path(__file__).resolve().parents[1] / "data" / "distortion_acf_nnls_maxiter.txt"
     h = np.loadtxt(path)
     rad = float(path.read_text().split("rad ")[1].split(",")[0])
     d = np.arange(h.size)

@@ -39,9 +39,11 @@ from service.nodes import mcapio, transport, wire
 from service.nodes.recorder import Ingest, TopicBook
 from service.nodes.runner import READY_MARK, free_port
 
-ROOT = Path(__file__).resolve().parents[1]
+pytestmark = pytest.mark.slow   # live end-to-end runs: real processes and sessions
+
+ROOT = Path(__file__).resolve().parents[2]
 SEED_TOML = (ROOT / "service" / "scenarios" / "seed.toml").read_text()
-CONTROLLER = Path(__file__).resolve().parent / "live_helpers" / "p_controller.py"
+CONTROLLER = Path(__file__).resolve().parents[1] / "live_helpers" / "p_controller.py"
 EMULATE_MARK = "noiselab emulate: "       # printed once the emulator's session is open
 ROUTER_MARK = "noiselab router: listening"
 DATA_KINDS = wire.KINDS                   # truth, command, measurement

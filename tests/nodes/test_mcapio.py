@@ -33,7 +33,7 @@ from service.nodes.mcapio import (
     recover,
 )
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 Ts = 0.01
 DIMS = {"truth": 2, "command": 1, "measurement": 2}
 

@@ -22,7 +22,7 @@ from service.model import load_model, parse_model
 from service.model.effects import CATALOGUE
 from service.model.model import scenario_names
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "tests" / "bench"))
 from hidden_set import make_case, score_case  # noqa: E402
 
@@ -56,6 +56,7 @@ def _value(v):
     return float(np.max(v)) if isinstance(v, list) else float(v)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("eid", PAIRS)
 def test_hidden_effect_ranked_first_and_recovered(eid):
     """3 minutes of the truth model: the hidden effect is ranked first, each planted parameter is
@@ -78,6 +79,7 @@ def test_hidden_effect_ranked_first_and_recovered(eid):
 
 
 # -- null scenarios: nothing reported ------------------------------------------------------------------------
+@pytest.mark.slow
 def test_nothing_reported_on_null_scenarios_over_many_seeds():
     """12 seeds of each null scenario (2 minutes each): a false report in at most 5 % of them (at
     the threshold Delta BIC > 10 the expected rate is far below that)."""
@@ -94,6 +96,7 @@ def test_nothing_reported_on_null_scenarios_over_many_seeds():
     assert len(reported) <= 0.05 * runs, (reported, worst)
 
 
+@pytest.mark.slow
 def test_tone_frequency_interval_has_the_cramer_rao_width():
     """The tone pair's 50 Hz line over 60 records of 30 s: the frequency's error in units of its
     reported standard error (the interval's half width / 1.96) has mean square chi2_60 / 60 if the
@@ -114,6 +117,7 @@ def test_tone_frequency_interval_has_the_cramer_rao_width():
     assert sum(abs(v) < 1e-6 for v in z) <= 3          # on the grid value (50 Hz is a bin here): 5 of 20 before
 
 
+@pytest.mark.slow
 def test_lesson_case_finds_colored_actuator_noise_in_place_of_white():
     """Against the lesson's nominal model, the first effect is the AR(1) actuator noise that the
     nominal model treats as white; its std is recovered within its 95 % interval and 30 %."""
@@ -126,6 +130,7 @@ def test_lesson_case_finds_colored_actuator_noise_in_place_of_white():
     assert rep["error_after"] < rep["error_before"] / 100
 
 
+@pytest.mark.slow
 def test_prefix_screening_finds_what_the_whole_record_screening_finds(monkeypatch):
     """Records of 2 SCREEN_N samples or more are screened on their first SCREEN_N samples, then
     scored and (the leaders) fitted on the whole record. With SCREEN_N lowered so that a 60,000
@@ -153,6 +158,7 @@ def test_prefix_screening_finds_what_the_whole_record_screening_finds(monkeypatc
     assert part["error_after"] == pytest.approx(whole["error_after"], rel=0.02)
 
 
+@pytest.mark.slow
 def test_nested_choice_statistic_is_half_chi2_0_half_chi2_1():
     """Search.choice charges CHIBAR2_95 = 2.71 per extra parameter because, between nested effects
     (white actuator noise and its AR(1), white at rho = 0 on the edge of tau_s > 0), the likelihood
@@ -213,6 +219,7 @@ def test_a_drift_slower_than_the_plant_is_reported_as_a_sensor_bias():
     assert "actuator.ar1" in [a.effect for a in first.alternatives]
 
 
+@pytest.mark.slow
 def test_lr_spread_is_the_spread_of_the_likelihood_ratio_over_records():
     """lr_spread (the model-based standard deviation of 2 (l_A - l_B) over records, data drawn from
     A's spectrum) against 4000 Monte Carlo periodograms: one output with groups of 1 and 8 bins
@@ -312,6 +319,7 @@ AR1_SAT = ("name = \"ar1sat\"\n[sampling]\nTs = 0.005\n[plant]\nA = [[0.0, 1.0],
            "[actuator.ar1]\nstd = 0.05\nrho = 0.98\n[actuator.saturation]\nlimit = 0.7\n[sensor.white]\nstd = 0.002\n")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [1, 3])
 def test_an_ar1_actuator_noise_behind_a_saturation_the_chirp_reaches_is_found_and_nothing_else(seed):
     """AR(1) actuator noise (tau 0.25 s) through a saturation a chirp (0.1-3 Hz) reaches a third of
@@ -344,6 +352,7 @@ def test_an_ar1_actuator_noise_behind_a_saturation_the_chirp_reaches_is_found_an
         [(c["effect"], c["score"]) for c in null["candidates"][:3]]
 
 
+@pytest.mark.slow
 def test_the_sandwich_factor_of_a_noise_behind_a_switching_saturation_is_its_monte_carlo_spread():
     """White actuator noise (std 0.1) through a saturation at 0.5 that a sine of amplitude 1 reaches
     two thirds of the time: the noise reaches the plant modulated by the switching gain, and over
@@ -421,6 +430,7 @@ TWO_INPUTS_LIMIT = ("name = \"dev\"\n[sampling]\nTs = 0.01\n[plant]\nA = [[-1.0,
                     "[sensor.white]\nstd = 0.003\n[actuator.saturation]\nlimit = [0.8, 0.4]\n")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("text,eid,name,want", [
     (TWO_OUTPUTS_SCALE, "sensor.scale_factor", "error", [0.1, -0.05]),
     (TWO_INPUTS_LIMIT, "actuator.saturation", "limit", [0.8, 0.4]),
@@ -453,6 +463,7 @@ def test_a_mean_effects_value_per_channel_is_fitted_per_channel(text, eid, name,
     assert rep["error_after"] < 1.5 < rep["error_before"]
 
 
+@pytest.mark.slow
 def test_a_saturations_limit_under_a_step_is_fitted_to_the_records_level():
     """A mass-spring-damper (k = 4) stepped to 2 at t = 0 with its input clipped at 1.5, 120 s
     from rest (``tests/bench/bench_step_level.py``, seed 2). After the transient the plant input
@@ -508,6 +519,7 @@ def test_the_ramps_whitener_whitens():
     assert all(abs(S[a:b].mean() / S.mean() - 1) < 0.1 for a, b in bands)
 
 
+@pytest.mark.slow
 def test_a_drift_the_views_see_is_added_when_bic_alone_would_stop():
     """Generated case 21 (an actuator AR(1) and a Gauss-Markov bias of tau 18 s hidden; Ts 5 ms,
     390 s): after the AR(1) the bias scored Delta BIC -1.5 (2 Delta l = 21 for 2 parameters, but
@@ -592,6 +604,7 @@ def test_a_bias_walks_evidence_names_the_band_where_it_dominates():
     assert abs(edge - f_c) <= 0.02 * f_c + 1.0 / (30_000 * Ts), (edge, f_c)
 
 
+@pytest.mark.slow
 def test_a_wrong_tau_that_the_views_see_is_refitted_when_the_fall_reaches_explained():
     """Generated case 48 with its Gauss-Markov bias in the model at 4x its tau (60.9 s for 15.2 s;
     Ts 2 ms, 380 s): the refit to the right tau passes the likelihood-ratio test with room
@@ -694,6 +707,7 @@ def test_a_walk_first_taken_for_a_gauss_markov_bias_is_exchanged_once_it_leads()
     assert rep["error_after"] <= 1.5
 
 
+@pytest.mark.slow
 def test_a_slow_drift_stays_the_sensor_bias_when_the_ar1_leads_within_its_spread():
     """Generated case 323 (a Gauss-Markov bias of tau 26 s and a quantization hidden; no command;
     plant time constant 0.12 s): after the quantization, an actuator AR(1) of tau 17 s led the
@@ -717,6 +731,7 @@ def test_a_slow_drift_stays_the_sensor_bias_when_the_ar1_leads_within_its_spread
     assert TIE < lead < margin and margin > DISTINCT_Z * 1.5
 
 
+@pytest.mark.slow
 def test_a_slow_ar1_that_only_led_while_an_effect_was_missing_gives_way_to_the_bias():
     """Generated case 300 (a Gauss-Markov bias of tau 7.6 s and a scale factor of +7.5 % hidden;
     plant time constant 0.24 s): with the scale factor still missing, an actuator AR(1) of tau
@@ -742,6 +757,7 @@ def test_a_slow_ar1_that_only_led_while_an_effect_was_missing_gives_way_to_the_b
     assert rep["error_after"] < 1.5
 
 
+@pytest.mark.slow
 def test_a_mean_candidate_is_searched_beside_the_fitted_mean_effects_before_they_move():
     """Generated case 229 (a lag of 0.417 s and a scale factor of +3.4 % hidden, under a sine):
     after the lag is in, the scale factor is screened jointly with it. It starts mid-range
@@ -816,6 +832,7 @@ def test_a_right_model_with_jitter_under_a_chirp_reads_about_one():
     assert abs(np.mean(errors) - 1) < 3 * se, (np.mean(errors), se, errors)
 
 
+@pytest.mark.slow
 def test_modulation_kappa_against_monte_carlo():
     """White noise whose variance follows 1 + 0.9 sin(2 pi k / 200): the variance of a Welch band
     average (1024-sample Hann segments, bands of 1, 8 and 64 bins) over 800 records, against the same
@@ -846,6 +863,7 @@ def test_quantization_grid_detected():
     assert quantization_grid(np.random.default_rng(2).normal(0, 1, (5000, 1))) == [None]
 
 
+@pytest.mark.slow
 def test_a_coarse_quantizer_on_a_slow_signal_is_found_alone():
     """A quantizer of step 0.02 beside a sensor noise of 0.002 on a signal that crosses a step every
     ~10 samples (an undithered encoder): its error is a sawtooth, correlated over ~5 samples, not
@@ -868,6 +886,7 @@ def test_a_coarse_quantizer_on_a_slow_signal_is_found_alone():
     assert rep["error_after"] < 1.5 < rep["error_before"]
 
 
+@pytest.mark.slow
 def test_an_encoder_like_quantizer_is_found_alone_and_explains_the_record():
     """A step of 0.5 over a sensor noise of 0.08 step on a sine across ~11 steps: most of the
     quantizer's error is its conditional mean E[Q(x)] - mu, a function of the mean response. With it
@@ -934,6 +953,7 @@ AMBIGUOUS_1006 = ("a Gauss-Markov bias of tau 19.9 s in a 380 s record: found, w
                   "theory alone")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [1001, pytest.param(1002, marks=pytest.mark.xfail(strict=True, reason=AMBIGUOUS_1002)),
                                   1003, 1004, 1005,
                                   pytest.param(1006, marks=pytest.mark.xfail(strict=True, reason=AMBIGUOUS_1006))])
@@ -1051,6 +1071,7 @@ def test_cli_bad_input_one_line_exit_2(walk_recording, tmp_path, args, needle):
     assert walk_recording.stat().st_size > 0
 
 
+@pytest.mark.slow
 def test_a_plant_that_integrates_end_to_end(tmp_path):
     """A DC motor's angle (a pole at 0: the angle is a random walk plus a stationary part) with a
     sensor bias walk hidden: `simulate`, then `diagnose` against the model without the bias. The
@@ -1148,6 +1169,7 @@ def test_the_text_report_gives_intervals_and_scores_the_digits_they_need():
     assert fmt_score(52354402782748.0) == "5.24e+13" and fmt_score(4.83) == "4.8" and fmt_score(-1.46) == "-1.5"
 
 
+@pytest.mark.slow
 def test_a_sensor_noise_of_two_outputs_is_fitted_per_output():
     """A position and a velocity sensor (noise 1 : 10). (a) The model has their white noise at a
     quarter of its value: the refit finds each output's, [0.004, 0.04] within 3 %. The scale was
@@ -1197,6 +1219,7 @@ def test_a_sensor_noise_of_two_outputs_is_fitted_per_output():
     assert rep["error_after"] <= 1.5
 
 
+@pytest.mark.slow
 def test_an_actuator_noise_of_two_inputs_is_fitted_per_input():
     """Two masses, each driven by its own input, each position measured; AR(1) actuator noise of
     std [0.3, 0.05] (tau 0.2 s) missing. One factor over the inputs (their proportions taken as

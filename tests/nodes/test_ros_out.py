@@ -149,6 +149,7 @@ def _mcap_header_and_meta(path: Path):
     return header, meta, schemas, enc
 
 
+@pytest.mark.slow
 def test_imu_bag_round_trip_is_exact(tmp_path):
     model = parse_model(IMU, "imu6.toml")
     n, seed = 65_600, 11                          # two blocks of simulate_blocks (65 536 each)

@@ -27,7 +27,7 @@ Only physics is asserted:
 What the diagnosis reaches beyond that (model error before -> after, every effect added, what
 ``analyze`` still flags with the fitted model) is reported in tests/bench/RESULTS.md ("Real data:
 MPU-6050 at rest"); this file run as a script prints those figures:
-``.venv/bin/python tests/test_real_mpu6050.py``.
+``PYTHONPATH=tests .venv/bin/python tests/diagnose/test_real_mpu6050.py``.
 """
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from service.cli import main
 
-DATA = Path(__file__).resolve().parent / "data" / "mpu6050"
+DATA = Path(__file__).resolve().parents[1] / "data" / "mpu6050"
 SHA256 = {   # of the uncompressed source files (README there)
     "static_7min": "53d954fa8595e24503000defeea8d546edb472665a6e0ffe743e0d59a4c73f43",
     "static_100s": "08db7ff8860e5bb9993b5b7ed036f2faf9718a20401467c41aef0c3c52abcc33",

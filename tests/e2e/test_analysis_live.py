@@ -29,7 +29,9 @@ from service.model import load_model
 from service.nodes import mcapio, wire
 from service.nodes.runner import free_port
 
-ROOT = Path(__file__).resolve().parents[1]
+pytestmark = pytest.mark.slow   # live end-to-end runs: real processes and sessions
+
+ROOT = Path(__file__).resolve().parents[2]
 SCENARIOS = ROOT / "service" / "scenarios"
 T_EVENT = 60.0           # bound for "the next event happens" on a shared 2-core machine; never a pass
 FILE_SEED = 3            # see test_hot_reload for why this seed's numbers are well inside the bounds

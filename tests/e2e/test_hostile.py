@@ -1,7 +1,7 @@
 """Messages from the network are untrusted input: every node (emulator, recorder, live analyzer)
 survives anything a Zenoh peer on 127.0.0.1 publishes, and a hostile message never spoils a
 recording. Real processes and real Zenoh sessions on loopback (multicast scouting off), real
-MCAP files read back, as in tests/test_live.py, whose helpers this file uses.
+MCAP files read back, as in tests/e2e/test_live.py, whose helpers this file uses.
 
 Synchronisation is by events only (a child's stderr line, a subscriber's condition variable, a
 recorder's answer to a query, process exit); every timeout is a failure bound, never a pass.
@@ -31,6 +31,8 @@ from service.nodes.recorder import Ingest, RecorderSummary
 from service.nodes.runner import READY_MARK, free_port
 from test_live import (CONTROLLER, EMULATE_MARK, LOOP_TOML, ROUTER_MARK, Collector, check_summary_topics, ep,
                        file_messages, session_config, waited_for_subscribers)
+
+pytestmark = pytest.mark.slow   # live end-to-end runs: real processes and sessions
 
 T_EVENT = 60.0            # bound for "the next event happens" on a shared 2-core machine; never a pass
 DEEP = 200_000            # nesting levels of the deep payloads (Python's JSON parser recurses ~1000)

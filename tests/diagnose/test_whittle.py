@@ -11,7 +11,7 @@ from service.diagnose import whittle as W
 from service.model import load_model, parse_model
 from service.model.simulate import lsim, propagate
 
-SEED = open(__file__.replace("tests/test_whittle.py", "service/scenarios/seed.toml")).read()
+SEED = open(__file__.replace("tests/diagnose/test_whittle.py", "service/scenarios/seed.toml")).read()
 
 
 def _ensemble(model, N, trials, seed):
@@ -22,6 +22,7 @@ def _ensemble(model, N, trials, seed):
     return I, mean
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("text", [
     SEED,                                                                        # euler, AR(1), walk, quantization
     SEED.replace('discretization = "euler"', 'discretization = "zoh"')
@@ -275,7 +276,7 @@ def test_expected_periodogram_against_an_extended_precision_sum(tau):
     assert err < 1e-6 * np.max(E_ref)
 
 
-TWOOUT = open(__file__.replace("tests/test_whittle.py", "service/scenarios/hidden/null-twoout.toml")).read()
+TWOOUT = open(__file__.replace("tests/diagnose/test_whittle.py", "service/scenarios/hidden/null-twoout.toml")).read()
 TWOOUT_ALL = TWOOUT.replace("[actuator.white]\nstd = 0.05", "[actuator.ar1]\nstd = 0.05\ntau_s = 0.2") + \
     "\n[sensor.bias_walk]\nstd = [0.001, 0.002]\n[sensor.jitter]\nstd_s = 0.0005\n"
 
@@ -347,6 +348,7 @@ def test_cross_spectra_against_the_definition():
     assert np.all(grouped["sensor.white"][:, 0, 1] == 0) and np.all(grouped["sensor.bias_walk"][:, 0, 1] == 0)
 
 
+@pytest.mark.slow
 def test_cross_periodogram_matches_monte_carlo():
     """Mean cross-periodogram over 300 records from rest of the two-output plant (with jitter, a walk
     and AR(1) actuator noise) against the summed expected parts, in 20 bands of ~18 bins: the real
@@ -459,6 +461,7 @@ def _spread_and_factor(eid, seeds, duration):
     return np.var(v, ddof=1) / np.mean(model_var), np.array(c)
 
 
+@pytest.mark.slow
 def test_jitter_sandwich_variance_matches_its_spread():
     """The jitter's likelihood (a Whittle part that takes its modulated power as stationary, plus a
     modulation term reading the same squared residuals) overstates its information about 2x under
@@ -481,6 +484,7 @@ def test_sandwich_factor_is_one_for_stationary_noise():
     assert abs(np.mean(c) - 1) < 3 * np.std(c, ddof=1) / math.sqrt(len(c)), (np.mean(c), np.std(c))
 
 
+@pytest.mark.slow
 def test_jitter_level_unbiased_under_a_prbs_command():
     """Under a PRBS command the slope's power is not spread evenly over the record, and the tapered
     periodogram weights the middle of the record more: the jitter's expected power must use the
@@ -597,7 +601,7 @@ def test_the_levels_covariance_is_the_autocovariance_summed():
     sensor white noise, the quantizer's Delta^2/12) and with a Gauss-Markov bias and an AR(1)
     actuator noise; the walk's rate and initial variance passed through. At N = 1000 the finite
     record's term is 30 % of the variance, at 50000 under 1 %."""
-    base = open(__file__.replace("tests/test_whittle.py", "service/scenarios/seed-nominal.toml")).read()
+    base = open(__file__.replace("tests/diagnose/test_whittle.py", "service/scenarios/seed-nominal.toml")).read()
     for text in (base, base.replace("[actuator.white]\nstd = 0.08", "[actuator.ar1]\nstd = 0.08\nrho = 0.95")
                  + "\n[sensor.bias_markov]\nstd = 0.02\ntau_s = 4.0\n[sensor.bias_walk]\nstd = 0.003\ninitial_std = 0.01\n"):
         model = parse_model(text)
@@ -612,12 +616,13 @@ def test_the_levels_covariance_is_the_autocovariance_summed():
         assert b0[0] == pytest.approx(0.01**2 if walk else 0.0)
 
 
+@pytest.mark.slow
 def test_the_level_of_a_record_from_rest_has_the_predicted_spread():
     """The residual's mean over records of the model from rest against V = C (from rest) + the
     walk's Var(b_0) + q (N - 1)(2N - 1) / 6N: z = m / sqrt(V) over 400 records has mean(z^2) = 1
     with sd sqrt(2 / 400) = 0.071 (3 sd: 0.21; the stationary form, without the start at rest,
     is 7 % too large at N = 5000 for this plant), and l_level is the N(0, V) log-density."""
-    base = open(__file__.replace("tests/test_whittle.py", "service/scenarios/seed-nominal.toml")).read()
+    base = open(__file__.replace("tests/diagnose/test_whittle.py", "service/scenarios/seed-nominal.toml")).read()
     for text in (base, base + "\n[sensor.bias_walk]\nstd = 0.002\ninitial_std = 0.005\n"):
         model = parse_model(text)
         N, trials = 5000, 400

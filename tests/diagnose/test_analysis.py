@@ -25,7 +25,7 @@ from service.diagnose.compare import compare, transient_samples
 from service.model import load_model, parse_model
 from service.nodes import mcapio, wire
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 VIEWS = ("variance", "acf", "psd", "allan")
 
 
@@ -73,6 +73,7 @@ def test_error_of_the_right_model_is_about_one(which):
     assert not bad, bad
 
 
+@pytest.mark.slow
 def test_window_variance_spread_is_exact_for_long_memory():
     """The variance view's z divides by the exact std of a window's sample variance. The O(W)
     formula equals the definition (2/W^2) sum_ij C_ij^2 (the demeaned window's covariance built
@@ -114,6 +115,7 @@ def test_window_variance_spread_is_exact_for_long_memory():
     assert abs(got - want) < 4 * se, (got, want, se)
 
 
+@pytest.mark.slow
 def test_level_view_is_calibrated_with_a_walk_and_a_gauss_markov_bias():
     """The level view (window means of y - E[y] on a record from rest) under a right model whose
     bias walk (b_0 random) and Gauss-Markov bias move every window's mean together: over 300
@@ -139,6 +141,7 @@ def test_level_view_is_calibrated_with_a_walk_and_a_gauss_markov_bias():
         compare(m, rec.t, rec.y, rec.u, burn=None).view("level", 0)
 
 
+@pytest.mark.slow
 def test_window_variance_kurtosis_is_exact():
     """The variance view's Var(z^2) = 2 + 12 sum lambda^4 / (sum lambda^2)^2 over the eigenvalues of
     the demeaned window's covariance (a Gaussian quadratic form's fourth cumulant). The ratio equals
@@ -186,6 +189,7 @@ def test_window_variance_kurtosis_is_exact():
     assert abs(z4.mean() - old) > 4 * se           # the data reject the chi-squared's value
 
 
+@pytest.mark.slow
 def test_acf_spread_at_lag_zero_is_exact_for_long_memory():
     """The ACF view's spread, Bartlett's formula scaled to the exact variance at lag 0 (the mean of
     the segments' variances, with the correlation between segments): a Monte Carlo of 1000 records
@@ -526,6 +530,7 @@ def _record_of(w: mcapio.RecordingWriter, model, n: int, seed: int, kinds=("trut
                          for kind in kinds])
 
 
+@pytest.mark.slow
 def test_the_command_analysed_is_named_in_the_json_and_an_assumed_one_on_stderr(seed_recording, tmp_path):
     """A recording without a command topic (a sensor log) is analysed with the model's own
     [command]: analyze and diagnose say so on stderr once (with --json too, stdout staying JSON)
@@ -550,6 +555,7 @@ def test_the_command_analysed_is_named_in_the_json_and_an_assumed_one_on_stderr(
         assert json.loads(r.stdout)["command"] == {"source": "recording", "topic": "noiselab/seed/command"}
 
 
+@pytest.mark.slow
 def test_a_restarted_source_is_analysed_one_segment_at_a_time_chosen_with_segment(tmp_path):
     """A recording in which the source restarted (a stream of 1500 samples, then one of 3000 from
     seq 0 again, 60 s later) is analysed one stream segment at a time: by default the longest,
@@ -643,6 +649,7 @@ def test_foreign_recording_with_gap_and_irregular_timing(tmp_path):
 
 
 # -- 6. what the live analyzer relies on: exact predictions, cached and bounded ----------------------------
+@pytest.mark.slow
 @pytest.mark.parametrize("text, name", [(None, "seed (rho = 0.97)"), ("tau", "seed, tau_s = 30 s (rho = 0.99967)"),
                                         ("everything", "every effect: AR(1) + white actuator noise")])
 def test_drive_noise_var_equals_the_closed_form(text, name):
@@ -752,6 +759,7 @@ def test_cached_predictions_follow_the_record_when_a_coarse_quantizer_makes_them
         assert np.array_equal(x.predicted, y.predicted), x.name
 
 
+@pytest.mark.slow
 def test_psd_view_spread_holds_at_a_resonance_narrower_than_a_welch_bin():
     """A lightly damped plant (zeta 0.01 at 1 Hz: half-power width 0.02 Hz, a Welch bin 0.024 Hz)
     has a correlation time longer than a segment, so the bands at its resonance know less than the
@@ -808,6 +816,7 @@ std = 0.001
     assert np.allclose(fac[far], 1.0, atol=0.01), fac
 
 
+@pytest.mark.slow
 def test_psd_view_a_tones_band_varies_only_through_the_noise_under_it():
     """A tone's power in a band is the same in every Welch segment (a fixed amplitude, a random
     phase): its band's estimate varies through the noise under the tone and the tone x noise
@@ -1003,7 +1012,7 @@ def test_a_motor_measured_by_angle_and_speed_holds_the_speed_to_its_levels():
     a stationary variance, runs for the speed alone (it was off for both: one flag per model), and
     on the right model its error averages 1 within three standard errors of the view's own
     error variance over 8 records."""
-    text = (Path(__file__).resolve().parents[1] / "service" / "scenarios" / "motor.toml").read_text()
+    text = (Path(__file__).resolve().parents[2] / "service" / "scenarios" / "motor.toml").read_text()
     m = parse_model(text.replace("C = [[1.0, 0.0]]", "C = [[1.0, 0.0], [0.0, 1.0]]"), "motor2")
     assert m.p == 2
     errs, evars = [], []

@@ -22,6 +22,8 @@ from conftest import ROOT, run_once
 from service.diagnose.load import load_noiselab
 from service.model import load_model
 
+pytestmark = pytest.mark.slow   # live end-to-end runs: real processes and sessions
+
 DURATION, SPEED, SEED = 120.0, 20.0, 4
 
 

@@ -228,6 +228,7 @@ def test_imu_scenarios_hold_the_published_numbers():
 
 
 # -- diagnose --json: the fitted model's coefficients ---------------------------------------------------
+@pytest.mark.slow
 def test_diagnose_json_gives_the_fitted_coefficients(tmp_path, capsys):
     """A gyro axis at rest with the ADIS16448's N and K (EuRoC), 600 s at 200 Hz, diagnosed against a
     model whose white density is 1.5x too high and that has no bias walk: the white noise is refitted

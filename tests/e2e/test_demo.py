@@ -21,6 +21,8 @@ from conftest import readme_main_command, run_noiselab
 from service.diagnose.load import load_noiselab
 from service.model import load_model, parse_model
 
+pytestmark = pytest.mark.slow   # live end-to-end runs: real processes and sessions
+
 DURATION, SPEED, SEED = 1200.0, 20.0, 1          # the demo's defaults, which the README's command uses
 
 

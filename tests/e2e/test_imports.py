@@ -21,7 +21,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("service", "viewers")
 # modules below the command line: none of them imports it (the CLI imports them)
 BELOW_CLI = ("service.nodes", "service.diagnose", "service.model", "service.stats", "service.commands", "viewers")

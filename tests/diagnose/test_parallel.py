@@ -15,7 +15,9 @@ import sys
 import textwrap
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _run(code: str, *args) -> dict:
@@ -45,6 +47,7 @@ _DIAGNOSE = """
 """
 
 
+@pytest.mark.slow
 def test_forked_candidate_maps_give_the_report_the_threads_give():
     forked = _run(_DIAGNOSE.format(processes=True))
     threads = _run(_DIAGNOSE.format(processes=False))
@@ -328,7 +331,7 @@ def test_a_forked_map_computes_here_what_the_child_did_not_deliver():
 _READ = """
     import json, sys
     import numpy as np
-    sys.path.insert(0, "tests")
+    sys.path.insert(0, "tests/nodes")
     from test_mcapio import raw_file, write_sample
     from service import parallel
     from service.nodes import mcapio, wire

@@ -33,7 +33,7 @@ from service.stats import (
     oadev_from_phase,
 )
 
-DATA = Path(__file__).parent / "data" / "ocxo"
+DATA = Path(__file__).resolve().parents[1] / "data" / "ocxo"
 OCXO_SHA256 = "2c507ce0fee6a2010116c6cfe78724d8f87b527f55cdbfe901afbdc9b214d3ac"
 
 

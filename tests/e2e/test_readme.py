@@ -33,6 +33,7 @@ def test_readme_has_examples():
     assert test_cmd.split("&&")[-1].strip() in ci, "CI must run the README's test command"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("block", console_blocks(), ids=lambda b: b[0][:40])
 def test_console_examples(block, scratch):
     """Each console block runs in order in one directory (later lines use earlier outputs)."""
@@ -45,6 +46,7 @@ def test_console_examples(block, scratch):
             assert target.exists() and (target.is_dir() or target.stat().st_size > 0), out
 
 
+@pytest.mark.slow
 def test_main_command_steps(tmp_path_factory):
     """The main command as a user runs it, from a fresh directory (run once per test run: test_demo
     checks what it wrote)."""
@@ -80,6 +82,7 @@ def _port_free(port: int) -> bool:
     return True
 
 
+@pytest.mark.slow
 def test_three_terminal_example(default_endpoint, scratch):
     """The by-hand example, as written, on the default endpoint: the recorder is started first and
     waits for the emulator; Ctrl-C (SIGINT) finishes its file; the replay republishes it."""

@@ -44,7 +44,7 @@ from service.model.predict import HORIZON_MAX
 from service.nodes import mcapio, transport, wire
 from service.nodes.runner import READY_MARK, free_port
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 SEED = scenario_text("seed")
 
@@ -328,6 +328,7 @@ def test_an_rrd_that_meets_a_full_disk_is_one_line_and_nothing_after_it(where, s
     assert where == "/dev/full" or not Path(rrd).exists()
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not Path("/dev/full").exists(), reason="no /dev/full")
 def test_the_live_analyzer_meets_a_full_disk_at_its_end_in_one_line(spawn):
     """analyze --live --rrd /dev/full: the .rrd is written when the analyzer stops, after an
@@ -344,6 +345,7 @@ def test_the_live_analyzer_meets_a_full_disk_at_its_end_in_one_line(spawn):
     assert an.err[-1] == "noiselab: /dev/full: cannot write it (No space left on device)", an.stderr_text()
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not Path("/dev/full").exists(), reason="no /dev/full")
 @pytest.mark.parametrize("name", ["demo-seed-fitted.toml", "demo-seed-diagnosis.rrd", "demo-seed-summary.json"])
 def test_the_demo_meets_a_full_disk_in_one_line(name, tmp_path):

@@ -14,7 +14,7 @@ from service.cli import main
 from service.model import load_model
 from service.nodes import mcapio, wire
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_predict_json_fields_and_values(capsys):
@@ -89,6 +89,7 @@ def test_simulate_writes_the_wire_contract(tmp_path, capsys):
         assert set(js["required"]) >= {"seq", "t"}
 
 
+@pytest.mark.slow
 def test_simulate_refuses_existing_and_shows_progress(tmp_path):
     out = tmp_path / "x.mcap"
     out.write_bytes(b"precious")

@@ -154,6 +154,7 @@ def test_a_recording_writers_file_equals_mcaps_for_the_same_messages(tmp_path):
     assert path.read_bytes() == buf.getvalue()
 
 
+@pytest.mark.slow
 def test_simulate_writes_the_single_message_encoders_payloads_readable_by_every_reader(tmp_path):
     """More samples than one simulated block (65536), so chunks span two writes; every message
     of the file, in file order, is wire.encode's payload of its sample (truth, command,

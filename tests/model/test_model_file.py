@@ -574,7 +574,7 @@ def test_cli_has_a_module_entry_point():
     """`python -m service.cli` runs the command line, and a usage error a node raises (imported from
     service.cli, not __main__) is still a one-line error with exit 2 (it was a traceback)."""
     from pathlib import Path
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     ok = subprocess.run([sys.executable, "-m", "service.cli", "--version"], capture_output=True, text=True, cwd=root)
     assert ok.returncode == 0 and ok.stdout.startswith("noiselab "), (ok.returncode, ok.stdout, ok.stderr)
     bad = subprocess.run([sys.executable, "-m", "service.cli", "analyze", "--live", "some.mcap", "--model", "seed"],

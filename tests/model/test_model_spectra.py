@@ -99,6 +99,7 @@ def check_acf(mdl, r):
         assert abs(est.r[0] - total[0, j]) < z * var_se, (est.r[0], total[0, j])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", list(CASES))
 def test_psd_and_acf_per_effect(case):
     mdl = load(BASE + CASES[case])
@@ -107,6 +108,7 @@ def test_psd_and_acf_per_effect(case):
     check_acf(mdl, r)
 
 
+@pytest.mark.slow
 def test_psd_and_acf_two_outputs_every_linear_effect():
     text = ALL_LINEAR.replace("[sensor.bias_walk]\nstd = [0.001, 0.002]\ninitial_std = 0.001\n", "")
     mdl = load(text)
@@ -115,6 +117,7 @@ def test_psd_and_acf_two_outputs_every_linear_effect():
     check_acf(mdl, r)
 
 
+@pytest.mark.slow
 def test_allan_deviation_of_walk_white_and_markov():
     """The exact discrete Allan variance of the model (per effect, summed) against the overlapping
     Allan deviation of a long record, within the estimator's chi-squared bounds."""
