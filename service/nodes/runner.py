@@ -23,6 +23,11 @@ from pathlib import Path
 
 READY_MARK = "noiselab record: subscribed"
 END_WAIT_S = 15.0          # longest wait for the recorder's "<prefix> ended" line after the emulator exits
+BIND_TRIES = 5
+"""Ports a listening node is given before the run gives up: :func:`free_port` learns a free port by
+binding and closing it, so another process on the machine may take it before the node binds
+(the node then exits saying the address is in use) and the node is started again on a new one."""
+ADDRESS_IN_USE = "Address already in use"
 
 
 def free_port() -> int:
@@ -66,6 +71,32 @@ def _last_json(lines: list[str]) -> dict | None:
             except json.JSONDecodeError:
                 continue
     return None
+
+
+class _Listening:
+    """A node that listens on a free 127.0.0.1 port (``make_argv(endpoint)`` its command line),
+    started again on another port when the one it was given was taken before it bound it
+    (:data:`BIND_TRIES`). ``children`` collects every process started, for the caller's cleanup."""
+
+    def __init__(self, make_argv, mark, env, children: list):
+        self.make_argv, self.mark, self.env, self.children = make_argv, mark, env, children
+        self._start()
+
+    def _start(self) -> None:
+        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+        self.child = _Child(self.make_argv(self.endpoint), self.mark, self.env)
+        self.children.append(self.child)
+
+    def wait_ready(self, what: str) -> _Child:
+        for attempt in range(BIND_TRIES):
+            try:
+                self.child.wait_ready(what)
+                return self.child
+            except RuntimeError as exc:
+                if ADDRESS_IN_USE not in str(exc) or attempt == BIND_TRIES - 1:
+                    raise
+                self._start()
+        raise AssertionError("unreachable")
 
 
 class _Child:
@@ -128,25 +159,22 @@ def run_pipeline(model_spec: str, model_name: str, *, duration: float, seed: int
     stamp = time.strftime("%Y%m%d-%H%M%S")
     out = out_dir / f"{out_name or f'{model_name}-{stamp}'}.mcap"
     rrd = out.with_suffix(".rrd")
-    rec_ep = f"tcp/127.0.0.1:{free_port()}"
-    an_ep = f"tcp/127.0.0.1:{free_port()}"
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     force_flag = ["--force"] if force else []
     children = []
     try:
-        rec = _Child(_cli("record", "--key", f"noiselab/{model_name}/**", "--out", str(out), "--listen", rec_ep,
-                          "--json", *force_flag), READY_MARK, env)
-        children.append(rec)
-        an = None
+        rec_node = _Listening(lambda ep: _cli("record", "--key", f"noiselab/{model_name}/**", "--out", str(out),
+                                              "--listen", ep, "--json", *force_flag), READY_MARK, env, children)
+        an_node = None
         if analyze:
-            an = _Child(_cli("analyze", "--live", "--model", analyze_model or model_spec, "--device", model_name,
-                             "--listen", an_ep, "--window", repr(window or max(60.0, duration + 5)), "--rrd", str(rrd), "--json", *force_flag),
-                        ANALYZER_READY, env)
-            children.append(an)
-        rec.wait_ready("recorder")
-        if an is not None:
-            an.wait_ready("analyzer")
-        connect = ["--connect", rec_ep] + (["--connect", an_ep] if an is not None else [])
+            an_node = _Listening(lambda ep: _cli("analyze", "--live", "--model", analyze_model or model_spec,
+                                                 "--device", model_name, "--listen", ep, "--window",
+                                                 repr(window or max(60.0, duration + 5)), "--rrd", str(rrd), "--json",
+                                                 *force_flag), ANALYZER_READY, env, children)
+        rec = rec_node.wait_ready("recorder")
+        an = None if an_node is None else an_node.wait_ready("analyzer")
+        rec_ep = rec_node.endpoint
+        connect = ["--connect", rec_ep] + (["--connect", an_node.endpoint] if an is not None else [])
         emu = subprocess.run(_cli("emulate", model_spec, "--duration", repr(duration), "--seed", str(seed),
                                   "--speed", repr(speed),
                                   *connect, "--wait-peers", str(len(connect) // 2), "--wait-subscribers", "10",
