@@ -85,7 +85,7 @@ and the Scalars are float64.
 
 Which axes are logarithmic follows the View's ``log_x``/``log_y`` (compare.py sets both for psd
 and allan). Not verified: how the viewer GUI finally lays the labels out (no display here); the
-geometry and the blueprint are checked by reading the file back (tests/test_viewers.py).
+geometry and the blueprint are checked by reading the file back (tests/diagnose/test_viewers.py).
 
 The blueprint: a Tabs container with one tab per revision (the last one active) holding, per
 output, the time series with its band and the variance (time series views on ``t``, x axes linked)

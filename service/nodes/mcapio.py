@@ -278,7 +278,7 @@ class _BlockWriter:
     byte for byte: the same records, the same chunking rule (a chunk is closed after the message
     that takes its uncompressed records past ``chunk_size``; schemas and channels go into the
     chunk in progress), the same message indexes, summary groups, statistics and CRCs
-    (tests/test_mcap_block_writer.py compares the two). What differs is the cost:
+    (tests/nodes/test_mcap_block_writer.py compares the two). What differs is the cost:
     ``Writer.add_message`` builds each Message record field by field in Python calls (as costly
     as simulating and encoding the message), whereas :meth:`add_messages` packs a block's
     record headers (opcode 0x05, record length, channel_id u16, sequence u32,

@@ -280,7 +280,7 @@ def join_points(session, key_expr: str, timeout: float = JOIN_TIMEOUT_S) -> dict
     final mark can reach the source before its subscriber: the sink may then receive a few samples
     from the first phase, none until the subscriber arrives, then all of them: a gap right after
     its first samples (seen as 1 to 3 samples missing 4 samples after a recorder's first, under
-    load; tests/test_live.py). A query sent after the subscriber is processed by the source after
+    load; tests/e2e/test_live.py). A query sent after the subscriber is processed by the source after
     it: a link's messages are handled in order, and the sender never lets a lower priority (the
     query's, DATA) pass a message queued before it at a higher or equal one (declarations: DATA or
     above, by zenoh version). So a source's answer, the first seq it had not started when the

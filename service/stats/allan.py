@@ -38,7 +38,7 @@ sums of m second differences are a moving sum through one more cumulative sum.
 Precision: the second difference is a difference of cumulative sums, so its absolute rounding
 error is about eps * max|sum (y - mean y)| (eps = 2.2e-16). Data with a large constant offset
 (e.g. frequency normalised to 1.0 instead of 0) would otherwise lose digits; Stable32 itself
-loses about four digits that way (see tests/test_stats_allan.py).
+loses about four digits that way (see tests/stats/test_stats_allan.py).
 
 Noise identification (``alpha``), as Stable32 does it:
 
