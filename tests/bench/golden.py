@@ -44,8 +44,8 @@ README = [
     "diagnose hidden-ar1.mcap --model ar1-fitted.toml --json",
     "simulate imu --duration 120 --seed 3 --format ros2 --out imu_bag",
     "allan imu_bag --measurement /imu/measurement:angular_velocity.x --json",
-    "diagnose imu_bag --measurement /imu/measurement:angular_velocity.*,linear_acceleration.* "
-    "--model imu-nominal --fit-out imu-fitted.toml --json",
+    ("diagnose imu_bag --measurement /imu/measurement:angular_velocity.*,linear_acceleration.* "
+     "--model imu-nominal --fit-out imu-fitted.toml --json"),
     "predict motor --json",
     "simulate motor --duration 60 --seed 1 --out motor.mcap",
     "diagnose motor.mcap --model motor-nominal --json",
@@ -58,13 +58,14 @@ def _cli(args: str, cwd: Path) -> subprocess.CompletedProcess:
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     (cwd / "service").exists() or (cwd / "service").symlink_to(ROOT / "service")
     return subprocess.run([sys.executable, "-c", "import sys; from service.cli import main; sys.exit(main())",
-                           *args.split()], capture_output=True, text=True, env=env, cwd=cwd)
+                           *args.split()], check=False, capture_output=True, text=True, env=env, cwd=cwd)
 
 
 def save(out: Path, n_cases: int) -> None:
     from service import one_blas_thread
     one_blas_thread()          # as bench_diagnose.py and the command line do
     from hidden_set import make_case
+
     from service.diagnose.diagnose import diagnose
     from service.diagnose.report import diagnosis_json
     from service.model import parse_model
@@ -81,7 +82,7 @@ def save(out: Path, n_cases: int) -> None:
     for seed in range(n_cases):
         case = make_case(seed)
         truth, nominal = parse_model(case.truth, "truth"), parse_model(case.nominal, "nominal")
-        rec = truth.simulate(int(round(case.duration / truth.Ts)), seed=case.seed)
+        rec = truth.simulate(round(case.duration / truth.Ts), seed=case.seed)
         rep = diagnose(nominal, rec.t, rec.y, rec.u)
         js = diagnosis_json(rep)
         js["fitted_model"] = rep["fitted_model"]
