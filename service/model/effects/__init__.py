@@ -24,4 +24,18 @@ CATALOGUE: dict[str, type[Effect]] = {
         key=lambda c: c.chain_order)
 }
 
-__all__ = ["CATALOGUE", "Dims", "Effect"]
+
+
+def of_kind(ids, kind: str) -> str | None:
+    """The id of the effect among ``ids`` (effect ids, or a dict keyed by them: a model's effects, a
+    fit's free parameters) whose :class:`~.base.FitSpec` kind is ``kind``, the first of
+    ``ids``; None when there is none. How the diagnosis finds the effect a kind's machinery
+    applies to (:mod:`.base`, diagnosis hooks) without naming it."""
+    for eid in ids:
+        cls = CATALOGUE.get(eid)
+        if cls is not None and cls.fit.kind == kind:
+            return eid
+    return None
+
+
+__all__ = ["CATALOGUE", "Dims", "Effect", "of_kind"]

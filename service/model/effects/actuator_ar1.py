@@ -21,6 +21,9 @@ class ActuatorAR1(Effect):
     draw_order = 1
     summary = "colored (AR(1)) actuator noise in the input channel"
     fit = FitSpec("noise", scale="std", shape=(("tau_s", 0.5, 2.0, "Ts|T", "log"),), replaces=("actuator.white",))
+    # -- diagnosis hooks (base module docstring)
+    channels = "input"
+    drift = "actuator"
 
     @classmethod
     def explain(cls, params, Ts, ctx=None):

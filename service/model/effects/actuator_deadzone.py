@@ -20,6 +20,9 @@ class ActuatorDeadzone(Effect):
     linear = False
     summary = "actuator dead zone"
     fit = FitSpec("mean", shape=(("width", 0.003, 0.9, "umax", "log"),), needs_command=True)
+    # -- diagnosis hooks (base module docstring)
+    per_channel_mean = True
+    clips = True
 
     @classmethod
     def explain(cls, params, Ts, ctx=None):

@@ -19,6 +19,10 @@ class ActuatorLag(Effect):
     chain_order = 3
     summary = "first-order actuator lag between command and plant input"
     fit = FitSpec("mean", shape=(("tau_s", 0.2, 0.05, "Ts|T", "log"),), needs_command=True)
+    # -- diagnosis hooks (base module docstring)
+    # one time constant over the inputs only (not per_channel_mean): per-input time constants can
+    # take up the amplitude loss of a saturation beside it (two lags and a Gauss-Markov bias fitted
+    # in place of one lag and a limit, on a two-input plant)
 
     @classmethod
     def explain(cls, params, Ts, ctx=None):

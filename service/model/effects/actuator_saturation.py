@@ -22,6 +22,9 @@ class ActuatorSaturation(Effect):
     linear = False
     summary = "actuator saturation of the plant input"
     fit = FitSpec("mean", shape=(("limit", 0.02, 1.2, "umax", "log"),), needs_command=True)
+    # -- diagnosis hooks (base module docstring)
+    per_channel_mean = True
+    clips = True
 
     @classmethod
     def explain(cls, params, Ts, ctx=None):

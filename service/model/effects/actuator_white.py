@@ -15,6 +15,8 @@ class ActuatorWhite(Effect):
     draw_order = 0
     summary = "white actuator noise in the input channel"
     fit = FitSpec("noise", scale="std")
+    # -- diagnosis hooks (base module docstring)
+    channels = "input"
 
     @classmethod
     def explain(cls, params, Ts, ctx=None):

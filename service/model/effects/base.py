@@ -37,11 +37,44 @@ Prediction hooks (implemented by the effects they concern; defaults contribute n
   ``("tone", amplitude, frequency_hz)``.
 * ``output_gain()``: a multiplicative modifier of the plant output (scale factor).
 
-Diagnosis hooks (how the effect is found and fitted from a residual, :mod:`service.diagnose`):
-``fit`` (a :class:`FitSpec`: which parameter scales the noise variance, which are searched and
-over what range, which effect it can replace), ``explain(params, Ts)`` (one sentence of evidence in
-physical terms) and ``equivalents(params, Ts)`` (the same fit in the file's other spellings, e.g.
-``rho`` for ``tau_s``, for users' scripts).
+Diagnosis hooks (how the effect is found and fitted from a residual, :mod:`service.diagnose`).
+The diagnosis never names an effect: it asks these, and each default contributes nothing.
+
+* ``fit``: a :class:`FitSpec`: which parameter scales the noise variance, which are searched and
+  over what range, which effect it can replace. Its ``kind`` also chooses the machinery the
+  diagnosis applies to the effect:
+
+  - ``noise``: a part of the expected periodogram linear in its variance (the inner fit);
+  - ``mean``: the residual is recomputed per value of its searched parameters;
+  - ``grid``: values on a grid of step ``fit.scale`` (quantization): the search starts at the
+    record's own grid steps (:attr:`.data.Data.grid`), the likelihood adds l_grid, and the
+    quantizer's conditional moments and correlated error (:class:`Predictor`'s quantizer terms)
+    enter the residual and the parts, the noise parts carrying its Stein factors;
+  - ``line``: a deterministic sinusoid of amplitude ``fit.scale`` and frequency ``frequency_hz``
+    (a tone): removed from the residual by least squares, started at the periodogram's peaks
+    (:func:`.tones.tone_peaks`), its frequency refined on the periodogram;
+  - ``modulated``: a white noise whose variance follows the squared slope, scale ``fit.scale`` in s
+    (jitter): its part from the mean slope, and the likelihood's modulation term
+    (:class:`.modulation.Modulation`).
+
+* ``channels``: how a fitted scale's variance splits over the channels: ``"output"`` (one per output:
+  a sensor noise), ``"input"`` (one per input: an actuator noise), ``"noise_input"`` (one per
+  process-noise input, a column of L), ``"one"`` (one factor; default).
+* ``per_channel_mean``: a mean effect also offered with one searched value per channel (a limit per
+  input, a scale factor per output).
+* ``gain_start``: the searched parameter is a relative gain error e of the mean response
+  (y = (1 + e) E[y]): its per-channel start is each output's least-squares e.
+* ``drift``: the effect models a slow drift: ``"sensor"`` (a bias walk or Gauss-Markov bias, the
+  usual model of one) or ``"actuator"`` (colored actuator noise, a drift through the plant's gain
+  when slow); the search's drift rule (:meth:`.search.Search.drift_margin`) weighs one against the other.
+* ``clips``: a static nonlinearity of the mean (saturation, dead zone): where the data cannot tell
+  it from a linear effect, the linear one is reported.
+* ``output_white_std()``: the std of a white noise the effect adds to each output before the
+  quantizer (a lower bound of the noise there), or None.
+* ``explain(params, Ts)``: one sentence of evidence in physical terms; ``equivalents(params, Ts)``:
+  the same fit in the file's other spellings, e.g. ``rho`` for ``tau_s``, for users' scripts.
+
+:func:`service.model.effects.of_kind` finds the effect of a kind among a model's.
 
 Spelling hooks: a parameter the file may give in another spelling (``sensor.white``'s ``density``
 for its ``std``) is held in ``params`` under the catalogue's name, which the simulation, the
@@ -164,7 +197,17 @@ class Effect:
         """The effect's IEEE Std 952 coefficients (:class:`Coefficient`); none by default."""
         return []
 
-    # -- diagnosis ----------------------------------------------------------------------------
+    # -- diagnosis hooks (module docstring) -------------------------------------------------------
+    channels: ClassVar[str] = "one"          # "output" | "input" | "noise_input" | "one"
+    per_channel_mean: ClassVar[bool] = False
+    gain_start: ClassVar[bool] = False
+    drift: ClassVar[str | None] = None       # "sensor" | "actuator" | None
+    clips: ClassVar[bool] = False
+
+    def output_white_std(self) -> np.ndarray | float | None:
+        """The std of a white noise this effect adds to each output before the quantizer; None."""
+        return None
+
     @classmethod
     def explain(cls, params: dict, Ts: float, ctx: dict | None = None) -> str:
         """One sentence of evidence for a fitted effect; ``ctx`` may hold ``band`` (f_lo, f_hi)

@@ -23,6 +23,8 @@ class ProcessWhite(Effect):
     draw_order = 2
     summary = "white process (force) noise through L"
     fit = FitSpec("noise", scale="std")
+    # -- diagnosis hooks (base module docstring)
+    channels = "noise_input"
 
     @classmethod
     def explain(cls, params, Ts, ctx=None):

@@ -39,6 +39,9 @@ class SensorBiasMarkov(Effect):
     draw_order = 4
     summary = "first-order Gauss-Markov sensor bias (bias instability)"
     fit = FitSpec("noise", scale="std", shape=(("tau_s", 2.0, 1.0, "Ts|T", "log"),))
+    # -- diagnosis hooks (base module docstring)
+    channels = "output"
+    drift = "sensor"
 
     @classmethod
     def explain(cls, params, Ts, ctx=None):

@@ -31,6 +31,9 @@ class SensorBiasWalk(Effect):
     draw_order = 3
     summary = "sensor bias random walk (drift)"
     fit = FitSpec("noise", scale="std")
+    # -- diagnosis hooks (base module docstring)
+    channels = "output"
+    drift = "sensor"
 
     @classmethod
     def explain(cls, params, Ts, ctx=None):

@@ -52,7 +52,7 @@ class SensorQuantization(Effect):
     chain_order = 12
     linear = False
     summary = "quantization of the measurement"
-    fit = FitSpec("grid")
+    fit = FitSpec("grid", scale="step")
 
     @classmethod
     def explain(cls, params, Ts, ctx=None):

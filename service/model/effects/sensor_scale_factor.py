@@ -18,6 +18,9 @@ class SensorScaleFactor(Effect):
     chain_order = 6
     summary = "sensor scale-factor error"
     fit = FitSpec("mean", shape=(("error", -0.5, 1.0, "1", "lin"),), needs_command=True)
+    # -- diagnosis hooks (base module docstring)
+    per_channel_mean = True
+    gain_start = True
 
     @classmethod
     def explain(cls, params, Ts, ctx=None):

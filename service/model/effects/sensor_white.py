@@ -30,6 +30,11 @@ class SensorWhite(Effect):
     draw_order = 5
     summary = "white sensor noise"
     fit = FitSpec("noise", scale="std")
+    # -- diagnosis hooks (base module docstring)
+    channels = "output"
+
+    def output_white_std(self):
+        return self.params["std"]
 
     @classmethod
     def explain(cls, params, Ts, ctx=None):
