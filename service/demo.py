@@ -26,6 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .diagnose.modes import ADD, Mode
+
 LESSON_N = 6000          # the lesson's program: N = 6000 samples (60 s at Ts = 0.01 s) ...
 LESSON_BURN = 1000       # ... statistics after a burn-in of 1000 samples
 
@@ -59,6 +61,12 @@ def _lesson_check(nominal, y: np.ndarray, u: np.ndarray) -> dict:
             "residual_ratio": float(np.mean(r**2)) / pred}
 
 
+def _walk_id(model) -> str:
+    """The effect whose variance grows with time (a ``walk`` spectral primitive: the bias walk)."""
+    return next(eid for eid, e in model.effects.items()
+                if hasattr(e, "spectral") and any(p[0] == "walk" for p in e.spectral()))
+
+
 def _variance_story(models: list, y: np.ndarray, u: np.ndarray, Ts: float) -> list[dict]:
     """For each model: measured mean-square residual y - E[y] over the whole record against the
     model's predicted mean of S_y,k (steady state + the bias walk's k Q_b growth, the start-up
@@ -74,7 +82,7 @@ def _variance_story(models: list, y: np.ndarray, u: np.ndarray, Ts: float) -> li
         pred = float(st.var_y[0]) + walk_mean
         parts = {eid: float(np.ravel(v)[0]) for eid, v in st.contributions.items() if v is not None}
         if walk_mean > 0:
-            parts["sensor.bias_walk"] = walk_mean
+            parts[_walk_id(m)] = walk_mean
         out.append({"model": m.name, "measured_ms": float(np.mean(r**2)), "predicted_ms": pred,
                     "ratio": float(np.mean(r**2)) / pred, "parts": parts})
     return out
@@ -134,8 +142,8 @@ def run_demo(out_dir: Path, *, duration: float, speed: float, seed: int, force: 
     story = _variance_story(rep["step_models"], y, u, truth.Ts)
     story[0]["model"] = "seed-nominal (the lesson's model)"
     for s, st in zip(story[1:], rep["steps"]):
-        s["model"] = f"+ {st['effect']}" + (f" ({st['mode'].replace('replace:', 'in place of ')})"
-                                             if st["mode"] != "add" else "")
+        mode = Mode.parse(st["mode"])
+        s["model"] = f"+ {st['effect']}" + (f" ({mode.phrase()})" if mode != ADD else "")
 
     rec = live.get("recorder") or {}
     emu = live.get("emulator") or {}
@@ -185,7 +193,7 @@ def _lines(s: dict, rep: dict) -> list[str]:
         L.append(f"   {row['model']:<44} {e:>11.3g} {row['measured_ms']:>20.3e} {row['predicted_ms']:>10.3e} "
                  f"{row['ratio']:>6.2f}")
     for i, m in enumerate(rep["missing"], 1):
-        what = m["mode"].replace("replace:", "in place of ")
+        what = Mode.parse(m["mode"]).phrase()
         ps = ", ".join(f"{k} = {val:.3g} [{m['interval'][k][0]:.3g}, {m['interval'][k][1]:.3g}]"
                        for k, val in m["params"].items() if k in m["interval"] and isinstance(val, float))
         L.append(f"   {i}. {m['effect']} ({what}): {ps}")

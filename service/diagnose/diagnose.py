@@ -30,6 +30,7 @@ from ..model.effects.base import _g
 from .compare import auto_burn, check_samples, compare, transient_samples
 from .data import Data
 from .intervals import interval_tasks, merge_intervals
+from .modes import ADD, REFIT, replacing
 from .results import fmt_score
 from .search import Search
 from .thresholds import THRESHOLD
@@ -38,7 +39,6 @@ MAX_EFFECTS = 3
 ERROR_OK = 1.5            # a model error the views call explained
 ERROR_FALL = 2.0 / 3.0    # ... and the fall an effect added on their word must bring
 BY_ERROR_ALPHA = 0.01     # ... and the family-wise level of its likelihood-ratio test (see _by_error)
-NONLINEAR = ("actuator.saturation", "actuator.deadzone")
 
 
 def _band(fit, eid: str, data: Data):
@@ -70,7 +70,7 @@ def _prefer_replacements(S, cur, accepted, say):
     from .thresholds import TIE
 
     for c in accepted:
-        if c.mode != "add":
+        if c.mode != ADD:
             continue
         for rep in CATALOGUE[c.effect].fit.replaces:
             if rep not in cur.model.effects or rep in cur.free:
@@ -82,7 +82,7 @@ def _prefer_replacements(S, cur, accepted, say):
             if 2 * (alt.loglik - cur.loglik) > -TIE:
                 say(f"{c.effect} replaces {rep}: the data support the model without {rep} as well "
                     f"(2 Delta l = {2 * (alt.loglik - cur.loglik):.1f})")
-                c.mode = f"replace:{rep}"
+                c.mode = replacing(rep)
                 cur = alt
     return cur
 
@@ -105,97 +105,118 @@ def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
     nothing changed since it, keeps its own decision: only its
     leaders (their joint thorough refits reused) are compared again, for the nonlinearity tie rule.
     Returns the fit and whether anything changed."""
-    import math
+    return _Exchange(S, cur, accepted, step_cands, say, n_alt).run()
 
-    from ..model import ModelError
-    from .hypotheses import Fit
-    from .search import DRIFT_BIASES, EXACT_RANK, exact_tie
-    from .thresholds import CHIBAR2_95, TIE
 
-    swapped = False
-    log_n = math.log(S.data.n_bic)
-    step_of = {id(c): i for i, c in enumerate(accepted)}       # the step that ranked each addition
+class _Exchange:
+    """The state of one :func:`_exchange`: the current fit, the accepted candidates (changed in
+    place), the fits with one of them undone (per current fit)."""
 
-    undone: dict = {}          # (id(cur), id(c)) -> (cur, fit): cur kept so its id is not reused
+    def __init__(self, S, cur, accepted, step_cands, say, n_alt: int):
+        self.S, self.cur, self.accepted, self.step_cands, self.say, self.n_alt = S, cur, accepted, step_cands, say, n_alt
+        self.swapped = False
+        self.log_n = math.log(S.data.n_bic)
+        self.step_of = {id(c): i for i, c in enumerate(accepted)}       # the step that ranked each addition
+        self.undone: dict = {}          # (id(cur), id(c)) -> (cur, fit): cur kept so its id is not reused
 
-    def without(c):
+    def run(self):
+        self.backward()
+        any_exchange = False
+        for c in list(self.accepted):
+            any_exchange |= self.exchange(c)
+        if any_exchange:    # an effect the exchanged one needed may not be needed now
+            self.backward()
+        return self.cur, self.swapped
+
+    def without(self, c):
         """The fit with ``c`` undone: an added effect removed, a refitted one back at the user's values
         (once per current fit: the backward pass and the exchange ask for the same ones)."""
+        from .hypotheses import Fit
+        S, cur = self.S, self.cur
         key = (id(cur), id(c))
-        if key not in undone:
+        if key not in self.undone:
             free = {k: v for k, v in cur.free.items() if k != c.effect}
-            if c.mode == "refit":
+            if c.mode == REFIT:
                 m = cur.model.with_params(c.effect, S.nominal.effects[c.effect].param_dict())
-            elif c.mode.startswith("replace:"):           # the user's effect back, at the user's values
-                old = c.mode.split(":", 1)[1]
+            elif c.mode.replaces is not None:           # the user's effect back, at the user's values
+                old = c.mode.replaces
                 m = cur.model.without_effect(c.effect).with_effect(old, S.nominal.effects[old].param_dict())
             else:
                 m = cur.model.without_effect(c.effect)
-            undone[key] = (cur, S.refit_all(Fit(m, free, -math.inf), thorough=True))
-        return undone[key][1]
+            self.undone[key] = (cur, S.refit_all(Fit(m, free, -math.inf), thorough=True))
+        return self.undone[key][1]
 
-    def backward():
+    def backward(self):
         """While the least needed addition is not significant given the others, drop it."""
-        nonlocal cur, swapped
+        from ..model import ModelError
+
+        def try_without(c):
+            try:
+                return self.without(c)
+            except (ModelError, ValueError, np.linalg.LinAlgError):
+                return None
+
         while True:
-            owns = []
-            todo = [c for c in accepted if c.mode.split(":")[0] in ("add", "refit", "replace") and c.effect in cur.model.effects
-                    and not (c.mode.startswith("replace:") and c.mode.split(":", 1)[1] in cur.model.effects)]
-
-            def try_without(c):
-                try:
-                    return without(c)
-                except (ModelError, ValueError, np.linalg.LinAlgError):
-                    return None
-
-            for c, d in zip(todo, S._map(try_without, todo)):
+            cur, owns = self.cur, []
+            todo = [c for c in self.accepted if c.effect in cur.model.effects
+                    and not (c.mode.replaces is not None and c.mode.replaces in cur.model.effects)]
+            for c, d in zip(todo, self.S._map(try_without, todo)):
                 if d is not None:
-                    undone.setdefault((id(cur), id(c)), (cur, d))    # kept here when a forked map computed it
-                    owns.append((2 * (cur.loglik - d.loglik) - c.k * log_n, c, d))
+                    self.undone.setdefault((id(cur), id(c)), (cur, d))    # kept here when a forked map computed it
+                    owns.append((2 * (cur.loglik - d.loglik) - c.k * self.log_n, c, d))
             if not owns:
                 break
             own, c, d = min(owns, key=lambda x: x[0])
             if own >= THRESHOLD:
                 break
             what = {"refit": f"{c.effect} back at the model's values",
-                    "replace": f"{c.mode.split(':', 1)[-1]} back in place of {c.effect}"}.get(c.mode.split(":")[0], c.effect)
-            say(f"drop: {what} (Delta BIC {own:.1f} once the others are in)")
-            accepted.remove(c)
-            cur, swapped = d, True
+                    "replace": f"{c.mode.replaces} back in place of {c.effect}"}.get(c.mode.kind, c.effect)
+            self.say(f"drop: {what} (Delta BIC {own:.1f} once the others are in)")
+            self.accepted.remove(c)
+            self.cur, self.swapped = d, True
 
-    backward()
-    # exchange
-    any_exchange = False
-    for c in list(accepted):
-        i = accepted.index(c)
-        if c.mode != "add" or c.effect not in cur.model.effects:
-            continue
+    def alternatives(self, c) -> list:
+        """The other candidates ``c``'s step found significant (one the data did not support then,
+        with fewer effects in, is not a competing explanation of what c explains). For the last
+        step, with nothing changed since, its own decision stands as it was taken: its leaders'
+        joint thorough refits had exactly these effects free (those before it, and theirs), so are
+        reused (the tie rule for a nonlinearity still applies); the others were passed over on
+        their screens then, as now."""
+        cur = self.cur
+        alts = [a for a in self.step_cands[self.step_of[id(c)]][:self.n_alt + 1] if a.score >= THRESHOLD
+                and not (a.mode not in (ADD, REFIT) or a.effect == c.effect or a.effect not in a.fit.model.effects
+                        or (a.mode == ADD and a.effect in cur.model.effects) or a.effect in cur.free)]
+        return [a for a in alts if a.full] if self.reuse(c) else alts
+
+    def reuse(self, c) -> bool:
+        return c is self.accepted[-1] and not self.swapped
+
+    def exchange(self, c) -> bool:
+        """Exchange added effect ``c`` for the best of :meth:`alternatives` that beats it by
+        :meth:`margin`; whether it was."""
+        from ..model import ModelError
+        from .hypotheses import Fit
+        from .search import exact_tie
+        from .thresholds import CHIBAR2_95, TIE
+
+        S, cur, say = self.S, self.cur, self.say
+        i = self.accepted.index(c)
+        if c.mode != ADD or c.effect not in cur.model.effects:
+            return False
         try:        # everything else in, without c: c's own Delta BIC given the rest
-            drop = without(c)
+            drop = self.without(c)
         except (ModelError, ValueError, np.linalg.LinAlgError):
-            continue
-        own = 2 * (cur.loglik - drop.loglik) - c.k * log_n
-        trials = []
-        # the other candidates its step found significant (one the data did not support then, with
-        # fewer effects in, is not a competing explanation of what c explains)
-        alts = [a for a in step_cands[step_of[id(c)]][:n_alt + 1] if a.score >= THRESHOLD
-                and not (a.mode not in ("add", "refit") or a.effect == c.effect or a.effect not in a.fit.model.effects
-                        or (a.mode == "add" and a.effect in cur.model.effects) or a.effect in cur.free)]
-
-        # the last step, with nothing changed since: its own decision stands as it was taken. Its
-        # leaders' joint thorough refits had exactly these effects free (those before it, and
-        # theirs), so are reused (the tie rule for a nonlinearity still applies); the others were
-        # passed over on their screens then, as now
-        reuse = c is accepted[-1] and not swapped
-        if reuse:
-            alts = [a for a in alts if a.full]
+            return False
+        own = 2 * (cur.loglik - drop.loglik) - c.k * self.log_n
+        reuse = self.reuse(c)
+        alts = self.alternatives(c)
 
         def exchanged(a, drop=drop, reuse=reuse):
             if reuse:                   # a leader of the last step (the others were filtered out)
                 return a.fit
             try:
                 params = a.fit.model.effects[a.effect].param_dict()
-                m = drop.model.with_params(a.effect, params) if a.mode == "refit" else \
+                m = drop.model.with_params(a.effect, params) if a.mode == REFIT else \
                     drop.model.with_effect(a.effect, params)
                 free = dict(drop.free)
                 free[a.effect] = list(a.fit.free.get(a.effect, []))
@@ -203,59 +224,68 @@ def _exchange(S, cur, accepted, step_cands, say, n_alt: int = 5):
             except (ModelError, ValueError, np.linalg.LinAlgError):
                 return None
 
+        trials = []
         for a, alt in zip(alts, S._map(exchanged, alts)):
             if alt is None:
                 continue
-            a_own = 2 * (alt.loglik - drop.loglik) - a.k * log_n
+            a_own = 2 * (alt.loglik - drop.loglik) - a.k * self.log_n
             gain = 2 * (alt.loglik - cur.loglik) - (a.k - c.k) * CHIBAR2_95    # Search.choice's units
             say(f"  exchange trial {c.effect} -> {a.effect}: {gain:.1f} (own Delta BIC {a_own:.1f})")
             if _vanished(alt.model.effects[a.effect]) or a_own < THRESHOLD:
                 continue            # not significant by itself with the rest in
-            margin = TIE
-            if a.effect == "actuator.ar1" and c.effect in DRIFT_BIASES:
-                margin = S.drift_margin(alt, cur) or TIE      # a slow drift stays the sensor's bias
-                if TIE < gain <= margin:
-                    say(f"  {c.effect} kept: a drift this slow through the plant's gain, and the AR(1)'s "
-                        f"lead within {margin:.1f} (its spread)")
-            elif c.effect == "actuator.ar1" and a.effect in DRIFT_BIASES:
-                slow = S.drift_margin(cur, alt)               # ... and becomes it unless clearly worse
-                if slow is not None:
-                    margin = -slow
-                    if -slow < gain <= TIE:
-                        say(f"  {a.effect} for a drift this slow through the plant's gain: the AR(1)'s lead "
-                            f"{-gain:+.1f} is within {slow:.1f} (its spread)")
-            elif c.effect in DRIFT_BIASES and a.effect in DRIFT_BIASES:
-                # a walk and a Gauss-Markov bias are nested (the walk is the long-tau limit): the
-                # units are the likelihood-ratio test of 1/tau > 0, which decides between them as a
-                # step's ranking does (the better choice score), not the incumbent's margin. A
-                # Gauss-Markov bias added while the sensor's white noise was still missing took a
-                # tau of the record's length once it was in, and stayed though the walk then led
-                # by 1.7 (pure walk records of bench_noise_density: model error 2.04 after)
-                margin = 0.0
-            if gain > margin or (abs(gain) <= TIE and c.effect in NONLINEAR and a.effect not in NONLINEAR
-                              and a.k <= c.k):
+            if gain > self.margin(c, a, alt, gain) or (abs(gain) <= TIE and CATALOGUE[c.effect].clips
+                                                       and not CATALOGUE[a.effect].clips and a.k <= c.k):
                 # better; or as good and linear in place of a nonlinearity: a saturation or dead zone
                 # that the data cannot tell from a gain (a two-level command) shows no clipping
                 trials.append((gain, a, alt, a_own - own))
-        if trials:
-            # the best; among equally good (identical spectra) the preferred mode, then chain order
-            gains = {id(x[1]): x[0] for x in trials}
-            lead = max(trials, key=lambda x: x[0])[1]
-            gain, a, alt, d_bic = min((x for x in trials if exact_tie(x[1], lead, lambda c: gains[id(c)])),
-                                      key=lambda x: (EXACT_RANK[x[1].mode.split(":")[0]], CATALOGUE[x[1].effect].chain_order))
-            say(f"exchange: {a.effect} in place of {c.effect} (2 Delta l - Delta k chi2 = {gain:+.1f}, "
-                f"Delta BIC {d_bic:+.1f}, with everything else in)")
-            a.score = float(c.score + d_bic)
-            a.alternatives = [x for x in c.alternatives if x.effect != a.effect]
-            if abs(gain) <= TIE:
-                a.alternatives = [c] + a.alternatives
-            accepted[i] = a
-            step_of[id(a)] = step_of[id(c)]
-            cur, swapped = alt, True
-            any_exchange = True
-    if any_exchange:    # an effect the exchanged one needed may not be needed now
-        backward()
-    return cur, swapped
+        if not trials:
+            return False
+        # the best; among equally good (identical spectra) the preferred mode, then chain order
+        gains = {id(x[1]): x[0] for x in trials}
+        lead = max(trials, key=lambda x: x[0])[1]
+        gain, a, alt, d_bic = min((x for x in trials if exact_tie(x[1], lead, lambda c: gains[id(c)])),
+                                  key=lambda x: (x[1].mode.exact_rank, CATALOGUE[x[1].effect].chain_order))
+        say(f"exchange: {a.effect} in place of {c.effect} (2 Delta l - Delta k chi2 = {gain:+.1f}, "
+            f"Delta BIC {d_bic:+.1f}, with everything else in)")
+        a.score = float(c.score + d_bic)
+        a.alternatives = [x for x in c.alternatives if x.effect != a.effect]
+        if abs(gain) <= TIE:
+            a.alternatives = [c] + a.alternatives
+        self.accepted[i] = a
+        self.step_of[id(a)] = self.step_of[id(c)]
+        self.cur, self.swapped = alt, True
+        return True
+
+    def margin(self, c, a, alt, gain: float) -> float:
+        """By how much ``a`` (fitted in ``alt``) must beat ``c`` (in the current fit) to take its
+        place: the tie margin, or the drift rule's (``Effect.drift``) between a slow actuator noise
+        and a sensor bias, or 0 between two sensor drifts."""
+        from .search import drift
+        from .thresholds import TIE
+
+        S, say = self.S, self.say
+        margin = TIE
+        if drift(a.effect) == "actuator" and drift(c.effect) == "sensor":
+            margin = S.drift_margin(alt, self.cur) or TIE      # a slow drift stays the sensor's bias
+            if TIE < gain <= margin:
+                say(f"  {c.effect} kept: a drift this slow through the plant's gain, and the AR(1)'s "
+                    f"lead within {margin:.1f} (its spread)")
+        elif drift(c.effect) == "actuator" and drift(a.effect) == "sensor":
+            slow = S.drift_margin(self.cur, alt)               # ... and becomes it unless clearly worse
+            if slow is not None:
+                margin = -slow
+                if -slow < gain <= TIE:
+                    say(f"  {a.effect} for a drift this slow through the plant's gain: the AR(1)'s lead "
+                        f"{-gain:+.1f} is within {slow:.1f} (its spread)")
+        elif drift(c.effect) == "sensor" and drift(a.effect) == "sensor":
+            # a walk and a Gauss-Markov bias are nested (the walk is the long-tau limit): the
+            # units are the likelihood-ratio test of 1/tau > 0, which decides between them as a
+            # step's ranking does (the better choice score), not the incumbent's margin. A
+            # Gauss-Markov bias added while the sensor's white noise was still missing took a
+            # tau of the record's length once it was in, and stayed though the walk then led
+            # by 1.7 (pure walk records of bench_noise_density: model error 2.04 after)
+            margin = 0.0
+        return margin
 
 
 def _vanished(eff) -> bool:
@@ -266,7 +296,7 @@ def _vanished(eff) -> bool:
 
 def _step(c, model, error, Ts: float) -> dict:
     """A step's entry in the report: candidate ``c`` as fitted in ``model``, the model error after."""
-    return {"effect": c.effect, "mode": c.mode, "score": float(c.score),
+    return {"effect": c.effect, "mode": str(c.mode), "score": float(c.score),
             "error": None if error is None else float(error), "accepted_by": "error" if c.by_error else "bic",
             "params": _report_params(c.effect, model.effects[c.effect].param_dict(), Ts)}
 
@@ -341,8 +371,8 @@ def _replay(S, start, final, accepted):
     for c in accepted:
         m = cur.model
         free = dict(cur.free)
-        if c.mode.startswith("replace:"):
-            rep = c.mode.split(":", 1)[1]
+        if c.mode.replaces is not None:
+            rep = c.mode.replaces
             m = m.without_effect(rep)
             free.pop(rep, None)
         params = final.model.effects[c.effect].param_dict()
@@ -538,23 +568,11 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0,
     before = before_f.result()
     comps[0] = before
     say(f"model error before: {before.error:.3g}")
-    for i, fut in pending:
-        cmp = fut.result()
-        cmp.model_name = f"+ {steps[i]['effect']}"
-        comps[i + 1] = cmp
-        steps[i]["error"] = float(cmp.error)
-        say(f"step {i + 1}: model error {cmp.error:.3g}")
+    _collect(pending, steps, comps, say)
     phase("checking exchanges and replacements")
     cur, swapped = _exchange(S, cur, accepted, step_cands, say)
     if swapped:      # the steps again, in order, with the exchanged effects
-        steps, comps, step_models = [], [before], [model]
-        for i, fit in enumerate(_replay(S, start, cur, accepted), 1):
-            c = accepted[i - 1]
-            cmp = _compare(S, fit.model, t, y, u, burn, revision=i)
-            cmp.model_name = f"+ {c.effect}"
-            comps.append(cmp)
-            step_models.append(fit.model)
-            steps.append(_step(c, fit.model, cmp.error, model.Ts))
+        steps, comps, step_models = _replayed_steps(S, start, cur, accepted, before, model, t, y, u, burn)
     cur = _prefer_replacements(S, cur, accepted, say)
     cur = _by_error(S, cur, accepted, steps, comps, step_models, max_effects, t, y, u, burn, say)
     final = cur.model
@@ -570,40 +588,7 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0,
     res = S._map(lambda task: task[2](), tasks)
     ivs = [merge_intervals([(key, r) for (i, key, _), r in zip(tasks, res) if i == k]) for k in range(len(accepted))]
     for c, (iv_c, per_c) in zip(accepted, ivs):
-        eff = cur.model.effects.get(c.effect)
-        params = eff.param_dict()
-        iv = _report_intervals(c.effect, iv_c, model.Ts)
-        iv_per = _report_intervals_per_output(c.effect, per_c, model.Ts)
-        band = _band(cur, c.effect, data)
-        alts = [{"effect": a.effect, "mode": a.mode, "score": float(a.score),
-                 "params": _report_params(a.effect, a.fit.model.effects[a.effect].param_dict(), model.Ts)}
-                for a in c.alternatives if a.effect in a.fit.model.effects]
-        evidence = CATALOGUE[c.effect].explain(params, model.Ts, {"band": band} if band else None)
-        if c.mode == "refit" and c.effect in model.effects:
-            # a changed value: what the user's model said, and what the data say (the effect's own
-            # sentence describes it as an excess over nothing, which a changed value is not)
-            evidence = (f"the model's value does not fit the data ({_changes(model.effects[c.effect].param_dict(), params)}); "
-                        f"refitted: {evidence.rsplit(': ', 1)[-1]}")
-        if c.by_error:
-            e0, e1 = c.by_error
-            evidence += (f"; added on the views' word: Delta BIC {fmt_score(c.score)} is under the threshold "
-                         f"{THRESHOLD:g}, but it takes the model error from {e0:.3g} to {e1:.3g}")
-        if alts:
-            evidence += "; the data support " + " and ".join(
-                f"{a.effect} ({', '.join(f'{k} = {_g(v)}' for k, v in a.fit.model.effects[a.effect].param_dict().items())})"
-                for a in [a for a in c.alternatives if a.effect in a.fit.model.effects][:2]) + " as well"
-        missing.append({
-            "effect": c.effect,
-            "params": _report_params(c.effect, params, model.Ts),
-            "interval": {k: [float(a) for a in v] for k, v in iv.items()},
-            "intervals_per_output": {k: [None if x is None else [float(a) for a in x] for x in v]
-                                     for k, v in iv_per.items()},
-            "score": float(c.score),
-            "mode": c.mode,
-            "accepted_by": "error" if c.by_error else "bic",
-            "evidence": evidence,
-            "alternatives": alts,
-        })
+        missing.append(_missing_entry(c, iv_c, per_c, cur, model, data))
     phase("comparing the fitted model with the data")
     after = after_f.result() if accepted else before
     if accepted:
@@ -618,10 +603,7 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0,
         "error_after": float(after.error),
         "missing": missing,
         "steps": steps,
-        "candidates": [{"effect": c.effect, "mode": c.mode, "score": float(c.score),
-                        "params": _report_params(c.effect, c.fit.model.effects[c.effect].param_dict(), model.Ts)
-                        if c.effect in c.fit.model.effects else {}}
-                       for c in (first or [])[:10]],
+        "candidates": [_candidate_entry(c, model.Ts) for c in (first or [])[:10]],
         "regions": [r.__dict__ for r in before.regions],
         "samples": int(len(y)),
         "Ts": model.Ts,
@@ -636,3 +618,73 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0,
         "notes": data.notes,
     }
     return out
+
+
+def _missing_entry(c, iv_c: dict, per_c: dict, cur, model, data: Data) -> dict:
+    """Candidate ``c``'s entry in the report's ``missing``: its parameters as fitted in ``cur``, its
+    intervals (``iv_c``, per output ``per_c``), score, mode and sentence of evidence."""
+    eff = cur.model.effects.get(c.effect)
+    params = eff.param_dict()
+    iv = _report_intervals(c.effect, iv_c, model.Ts)
+    iv_per = _report_intervals_per_output(c.effect, per_c, model.Ts)
+    band = _band(cur, c.effect, data)
+    alts = [{"effect": a.effect, "mode": str(a.mode), "score": float(a.score),
+             "params": _report_params(a.effect, a.fit.model.effects[a.effect].param_dict(), model.Ts)}
+            for a in c.alternatives if a.effect in a.fit.model.effects]
+    evidence = CATALOGUE[c.effect].explain(params, model.Ts, {"band": band} if band else None)
+    if c.mode == REFIT and c.effect in model.effects:
+        # a changed value: what the user's model said, and what the data say (the effect's own
+        # sentence describes it as an excess over nothing, which a changed value is not)
+        evidence = (f"the model's value does not fit the data ({_changes(model.effects[c.effect].param_dict(), params)}); "
+                    f"refitted: {evidence.rsplit(': ', 1)[-1]}")
+    if c.by_error:
+        e0, e1 = c.by_error
+        evidence += (f"; added on the views' word: Delta BIC {fmt_score(c.score)} is under the threshold "
+                     f"{THRESHOLD:g}, but it takes the model error from {e0:.3g} to {e1:.3g}")
+    if alts:
+        evidence += "; the data support " + " and ".join(
+            f"{a.effect} ({', '.join(f'{k} = {_g(v)}' for k, v in a.fit.model.effects[a.effect].param_dict().items())})"
+            for a in [a for a in c.alternatives if a.effect in a.fit.model.effects][:2]) + " as well"
+    return {
+        "effect": c.effect,
+        "params": _report_params(c.effect, params, model.Ts),
+        "interval": {k: [float(a) for a in v] for k, v in iv.items()},
+        "intervals_per_output": {k: [None if x is None else [float(a) for a in x] for x in v]
+                                 for k, v in iv_per.items()},
+        "score": float(c.score),
+        "mode": str(c.mode),
+        "accepted_by": "error" if c.by_error else "bic",
+        "evidence": evidence,
+        "alternatives": alts,
+    }
+
+
+def _candidate_entry(c, Ts: float) -> dict:
+    """A first step's candidate in the report's ``candidates``."""
+    return {"effect": c.effect, "mode": str(c.mode), "score": float(c.score),
+            "params": _report_params(c.effect, c.fit.model.effects[c.effect].param_dict(), Ts)
+            if c.effect in c.fit.model.effects else {}}
+
+
+def _replayed_steps(S, start, cur, accepted, before, model, t, y, u, burn) -> tuple[list, list, list]:
+    """The steps, comparisons and step models again, in order, after an exchange (:func:`_replay`)."""
+    steps, comps, step_models = [], [before], [model]
+    for i, fit in enumerate(_replay(S, start, cur, accepted), 1):
+        c = accepted[i - 1]
+        cmp = _compare(S, fit.model, t, y, u, burn, revision=i)
+        cmp.model_name = f"+ {c.effect}"
+        comps.append(cmp)
+        step_models.append(fit.model)
+        steps.append(_step(c, fit.model, cmp.error, model.Ts))
+    return steps, comps, step_models
+
+
+def _collect(pending: list, steps: list, comps: list, say) -> None:
+    """The steps' comparisons computed in the background (``pending``: (step index, future)) into
+    ``comps`` and the steps' model errors."""
+    for i, fut in pending:
+        cmp = fut.result()
+        cmp.model_name = f"+ {steps[i]['effect']}"
+        comps[i + 1] = cmp
+        steps[i]["error"] = float(cmp.error)
+        say(f"step {i + 1}: model error {cmp.error:.3g}")

@@ -68,14 +68,14 @@ def _set(model, eid: str, values: dict):
     return model.with_params(eid, params)
 
 
-PER_OUTPUT = ("sensor.white", "sensor.bias_walk", "sensor.bias_markov")   # one variance per output
-PER_INPUT = ("actuator.white", "actuator.ar1", "process.white")            # ... per (noise) input
 COMMON = "common"     # among an effect's free names: one factor over its channels (the file's proportions)
 PER_CHANNEL = "per_channel"   # among a mean effect's free names: its searched parameters one per channel
-# the mean effects offered one value per channel: not the lag, whose per-input time constants can
-# take up the amplitude loss of a saturation beside it (two lags and a Gauss-Markov bias fitted in
-# place of one lag and a limit, on a two-input plant)
-PER_CHANNEL_MEAN = ("actuator.saturation", "actuator.deadzone", "sensor.scale_factor")
+
+
+def per_input(eid: str) -> bool:
+    """Whether effect ``eid``'s scale has one variance per input (an actuator noise) or per noise
+    input (a process noise): its part on one input reaches every output (``Effect.channels``)."""
+    return CATALOGUE[eid].channels in ("input", "noise_input")
 
 
 def shape_channels(model, eid: str) -> int:
@@ -87,14 +87,15 @@ def shape_channels(model, eid: str) -> int:
 
 
 def n_channels(model, eid: str) -> int:
-    """How many variances effect ``eid``'s scale has in a fit: one per output for a sensor noise
-    (:data:`PER_OUTPUT`), one per input for an actuator noise and per noise input (a column of L)
-    for a process noise (:data:`PER_INPUT`), where there are several; else 1 (one factor)."""
-    if eid in PER_OUTPUT:
+    """How many variances effect ``eid``'s scale has in a fit (``Effect.channels``): one per output
+    for a sensor noise, one per input for an actuator noise and per noise input (a column of L) for
+    a process noise, where there are several; else 1 (one factor)."""
+    layout = CATALOGUE[eid].channels
+    if layout == "output":
         return model.p
-    if eid == "process.white":
+    if layout == "noise_input":
         return model.plant.nw
-    return model.m if eid in PER_INPUT else 1
+    return model.m if layout == "input" else 1
 
 
 def _channel(E: np.ndarray, j, chparts: dict, eid: str):
@@ -103,7 +104,7 @@ def _channel(E: np.ndarray, j, chparts: dict, eid: str):
     element. An input's part reaches every output: computed apart, in ``chparts`` under (eid, j)."""
     if j is None:
         return E
-    if eid in PER_INPUT:
+    if per_input(eid):
         return chparts[(eid, j)]
     out = np.zeros_like(E)
     if E.ndim == 3:

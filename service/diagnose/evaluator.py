@@ -26,6 +26,7 @@ import math
 import numpy as np
 
 from ..memo import Memo
+from ..model.effects import of_kind
 from ..model.predict import free_response_fit
 from ..model.predict import mean_key as _mean_key
 from . import whittle as W
@@ -55,13 +56,14 @@ class Evaluator:
         """The quantizer's conditional moments over this record under ``model``
         (:meth:`Predictor.quantizer_moments`: they depend on its noise, not only on the mean
         effects) and a key for them; (None, None) when the error does not depend on the mean."""
-        q = model.effects.get("sensor.quantization")
-        if q is None:
+        qid = of_kind(model.effects, "grid")
+        if qid is None:
             return None, None
         # the sensor's white noise bounds the noise before the quantizer from below: above 0.84 step
         # no output's error depends on the mean (the common case, e.g. the seed's 10 steps)
-        w = model.effects.get("sensor.white")
-        if w is not None and not _quant_mean_possible(q.params["step"], w.params["std"]):
+        white = [np.asarray(s, float) ** 2 for s in (e.output_white_std() for e in model.effects.values())
+                 if s is not None]
+        if white and not _quant_mean_possible(_param(model, qid), sum(white[1:], white[0])):
             return None, None
         key = repr(model.to_dict())
 
@@ -113,9 +115,10 @@ class Evaluator:
         # white noises bound the variogram at lags >= 1 from below: often white already. Decided from
         # the parameters alone, before any steady state: on the 10^6-sample seed record 1,516 calls
         # all ended here, and the Lyapunov solutions they did first cost 4.4 s of CPU
+        qid = of_kind(model.effects, "grid")
         white = sum((np.broadcast_to(prm[0], (d.p,)) for eid, kind, *prm in pr._primitives()
-                     if kind == "white" and eid != "sensor.quantization"), np.zeros(d.p))
-        step = model.effects["sensor.quantization"].params["step"]
+                     if kind == "white" and eid != qid), np.zeros(d.p))
+        step = _param(model, qid)
         mo = self.quant_moments(model)[0]
         if mo is None and white_enough(step, white):
             return None
@@ -132,7 +135,7 @@ class Evaluator:
         # whose increments' rms agree to 3 significant digits at lags 1, 8, 64 and 512 (the searches
         # of a lag or a scale factor try many nearby ones; 1 - C_m changes with them at first order,
         # so the part is off by about 1 % at most)
-        tone = model.effects.get("sensor.tone")
+        tone = _line(model)
         ym = self.mean(model)[0][d.k0:]
         inc = [np.sqrt(np.mean((ym[h:] - ym[:-h]) ** 2, axis=0)) for h in (1, 8, 64, 512) if h < ym.shape[0]]
         key = (tuple(float(f"{v:.3g}") for v in np.concatenate(inc)) if inc else (),
@@ -199,10 +202,10 @@ class Evaluator:
         ym, yd = self.mean(model)
         mo = self.quant_moments(model)[0]
         r = d.y - ym if mo is None else d.y - ym - mo.g
-        tone = model.effects.get("sensor.tone")
+        tone = _line(model)
         fitted = None
         if tone is not None:
-            amp = np.broadcast_to(tone.params["amplitude"], (d.p,)).astype(float)
+            amp = np.broadcast_to(tone.params[type(tone).fit.scale], (d.p,)).astype(float)
             freq = np.broadcast_to(tone.params["frequency_hz"], (d.p,)).astype(float)
             r = r.copy()
             fitted = amp.copy()
@@ -219,14 +222,26 @@ class Evaluator:
         return r, yd, fitted
 
 
-def _quant_mean_possible(step, white_std) -> bool:
-    """Whether a white noise of ``white_std`` before a quantizer of ``step`` leaves its error's
+def _quant_mean_possible(step, white_var) -> bool:
+    """Whether a white noise of variance ``white_var`` before a quantizer of ``step`` leaves its error's
     conditional mean on some output (:func:`.sensor_quantization.mean_matters`; other noise only lowers it)."""
     from ..model.effects.sensor_quantization import mean_matters
-    return bool(np.any(mean_matters(step, np.asarray(white_std, float) ** 2)))
+    return bool(np.any(mean_matters(step, white_var)))
+
+
+def _param(model, eid: str):
+    """Effect ``eid``'s scale parameter (``fit.scale``: a grid's step, a line's amplitude)."""
+    eff = model.effects[eid]
+    return eff.params[type(eff).fit.scale]
+
+
+def _line(model):
+    """The model's deterministic line (a ``line`` effect: a tone), or None."""
+    eid = of_kind(model.effects, "line")
+    return None if eid is None else model.effects[eid]
 
 
 def _residual_key(model, free_tone: bool) -> tuple:
     """What the residual depends on: the mean response and the tone (fitted freely or held)."""
-    tone = model.effects.get("sensor.tone")
+    tone = _line(model)
     return _mean_key(model), repr(tone.param_dict()) if tone is not None else None, free_tone

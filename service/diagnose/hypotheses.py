@@ -32,14 +32,13 @@ import numpy as np
 
 from ..memo import Memo
 from ..model import ModelError
-from ..model.effects import CATALOGUE
+from ..model.effects import CATALOGUE, of_kind
 from ..model.predict import mean_key as _mean_key
 from . import whittle as W
 from .data import Data
 from .edits import (
     COMMON,
     PER_CHANNEL,
-    PER_INPUT,
     _channel,
     _radius,
     _scale_name,
@@ -50,6 +49,7 @@ from .edits import (
     _shape_values,
     _vec,
     n_channels,
+    per_input,
     plant_stable,
     shape_channels,
 )
@@ -67,7 +67,7 @@ from .thresholds import (
 from .tones import refine_frequency
 
 
-def _stein(parts: dict, mo, tones=()) -> dict:
+def _stein(parts: dict, mo, keep=()) -> dict:
     """The expected periodogram's parts with a quantizer's covariance with the noise (Stein's
     lemma: Cov(n_j, e_k) = Cov(n_j, x_k) h_k, :mod:`service.model.effects.sensor_quantization`)
     carried by the noise parts: output j's times 1 + 2 h_j, a cross term between outputs j and k
@@ -75,7 +75,8 @@ def _stein(parts: dict, mo, tones=()) -> dict:
     cross-spectral matrices positive definite). For several outputs only: with one, the term is in
     the quantizer's part, as in the views (negative where the quantizer holds the measurement; the
     likelihood floors the total), which a matrix's determinant cannot take. h <= -1/2 (a mean
-    parked on a level) takes the noise out. ``mo`` None: the parts as they are."""
+    parked on a level) takes the noise out. ``keep``: the parts left as they are (the quantizer's
+    own, the tones'). ``mo`` None: the parts as they are."""
     if mo is None:
         return parts
     a = np.sqrt(np.maximum(1.0 + 2.0 * np.asarray(mo.h, float), 0.0))
@@ -83,13 +84,49 @@ def _stein(parts: dict, mo, tones=()) -> dict:
         return parts
     out = {}
     for k, v in parts.items():
-        if k == "sensor.quantization" or k in tones:
+        if k in keep:
             out[k] = v
         elif v.ndim == 3:
             out[k] = v * np.outer(a, a)[None]
         else:
             out[k] = v * (a * a)
     return out
+
+
+def _scales(model, free: dict) -> list:
+    """The free variances of a fit: (effect id, parameter, power of the variance, channel or None).
+    A sensor noise of several outputs has one variance per output, an actuator or process noise of
+    several inputs one per input (:func:`.edits.n_channels`), the others one over their channels;
+    "hold:j" among an effect's free names holds channel j's at the model's value (a profile), and
+    :data:`.edits.COMMON` makes one factor over the channels."""
+    scales = []
+    for e, names in free.items():
+        if CATALOGUE[e].fit.kind in ("noise", "modulated") and e in model.effects:
+            sname, power = _scale_name(model.effects[e])
+            if sname in names:
+                nc = n_channels(model, e)
+                chans = [j for j in range(nc) if f"hold:{j}" not in names] if nc > 1 and COMMON not in names \
+                    else (None,)
+                scales += [(e, sname, power, j) for j in chans]
+    return scales
+
+
+def _scale_refs(model, scales: list, Ts: float) -> tuple[list, list]:
+    """Each scale's current value (its largest channel's, or the channel's) and its reference: where
+    the inner problem's variance is 1 (:func:`.edits._scale_ref`; its value under a nonlinearity)."""
+    nonlin = any(hasattr(e, "knots") for e in model.effects.values())
+    cur, refs = [], []
+    for e, sname, _power, j in scales:
+        vals = np.atleast_1d(np.asarray(model.effects[e].params[sname], float))
+        val = float(np.max(vals) if j is None else np.broadcast_to(vals, (n_channels(model, e),))[j])
+        cur.append(val)
+        refs.append(val if (nonlin and val > 0) else _scale_ref(e, sname, Ts))
+    return cur, refs
+
+
+def _scale_of(model, eid: str):
+    """Effect ``eid``'s scale parameter in ``model`` (``fit.scale``: a grid's step, a jitter's std_s)."""
+    return model.effects[eid].params[CATALOGUE[eid].fit.scale]
 
 
 def _g_moved(a, b, rtol: float = 1e-2) -> bool:
@@ -113,7 +150,7 @@ class Fit:
     v: np.ndarray = None
     scale_ids: list = field(default_factory=list)   # the effect of each of ``v``'s variances
     scale_ch: list = field(default_factory=list)    # ... and its channel (None: all its channels)
-    chparts: dict = field(default_factory=dict)     # (effect id, input): that input's part (PER_INPUT)
+    chparts: dict = field(default_factory=dict)     # (effect id, input): that input's part (:func:`.edits.per_input`)
     level_fn: object = None         # () -> l_level (:meth:`.evaluator.Evaluator.level_term`), outside ``loglik``
     _level: float | None = None
 
@@ -171,8 +208,8 @@ class Hypotheses:
         The terms left out are damped by the noise's whole variance V: exact enough for V above
         ~0.35 step^2 (0.6 step of noise); below, where the conditional mean is in the residual,
         approximate (they follow where the mean sits between the levels). Tones are left out."""
-        q = model.effects.get("sensor.quantization")
-        if q is None:
+        qid = of_kind(model.effects, "grid")
+        if qid is None:
             return None
         d = self.data
         pr = model.predictor()
@@ -180,12 +217,12 @@ class Hypotheses:
         gam = pr.variogram(2, quantization=False)
         if any(v is None for v in gam.values()):
             return None
-        jit = model.effects.get("sensor.jitter")
-        std_s = float(jit.params["std_s"]) if jit is not None else 0.0
+        jid = of_kind(model.effects, "modulated")
+        std_s = float(_scale_of(model, jid)) if jid is not None else 0.0
         # the noise's own increments; a jitter's follow the slope: std_s^2 (ydot_{q+1}^2 + ydot_q^2
         # + 2 Var(ydot)) at sample q
-        Vd0 = 2.0 * pr.before_quantizer({e: v for e, v in gam.items() if e != "sensor.jitter"})[1]   # (p,)
-        step = np.broadcast_to(np.asarray(q.params["step"], float), (d.p,))
+        Vd0 = 2.0 * pr.before_quantizer({e: v for e, v in gam.items() if e != jid})[1]   # (p,)
+        step = np.broadcast_to(np.asarray(_scale_of(model, qid), float), (d.p,))
         a0 = 2.0 * np.pi**2 * Vd0 / step**2
         if np.all(a0 > QUANT_SLOPE_MAX):
             return None
@@ -213,87 +250,40 @@ class Hypotheses:
     def inner_fit(self, model, free: dict) -> Fit:
         d = self.data
         self.ev.evals += 1
-        # (effect id, parameter, power of the variance, channel or None): a sensor noise of several
-        # outputs has one variance per output, an actuator or process noise of several inputs one per
-        # input (:func:`.edits.n_channels`), the others one over their channels
-        scales = []
-        for e, names in free.items():
-            if CATALOGUE[e].fit.kind in ("noise", "modulated") and e in model.effects:
-                sname, power = _scale_name(model.effects[e])
-                if sname in names:
-                    # "hold:j" among the names: channel j's variance held at the model's value (a
-                    # profile); COMMON: one factor over the channels
-                    nc = n_channels(model, e)
-                    chans = [j for j in range(nc) if f"hold:{j}" not in names] if nc > 1 and COMMON not in names \
-                        else (None,)
-                    scales += [(e, sname, power, j) for j in chans]
+        scales = _scales(model, free)
         scale_ids = [e for e, *_ in scales]
         scale_ch = [j for *_, j in scales]
-        nonlin = any(hasattr(e, "knots") for e in model.effects.values())
-        canon = model
-        cur, refs = [], []
-        for e, sname, power, j in scales:
-            vals = np.atleast_1d(np.asarray(model.effects[e].params[sname], float))
-            val = float(np.max(vals) if j is None else np.broadcast_to(vals, (n_channels(model, e),))[j])
-            ref = val if (nonlin and val > 0) else _scale_ref(e, sname, d.Ts)
-            cur.append(val)
-            refs.append(ref)
-        canon = _set_scales(canon, scales, refs, model)
-        r, ydot, tone_amp, Ig = self.ev.grouped_periodogram(model, "sensor.tone" in free)
-        if tone_amp is not None and "sensor.tone" in free:
-            model = _set(model, "sensor.tone", {"amplitude": _vec(tone_amp)})
-            canon = _set(canon, "sensor.tone", {"amplitude": _vec(tone_amp)})
+        cur, refs = _scale_refs(model, scales, d.Ts)
+        canon = _set_scales(model, scales, refs, model)
+        tid = of_kind(free, "line")
+        r, ydot, tone_amp, Ig = self.ev.grouped_periodogram(model, tid is not None)
+        if tone_amp is not None and tid is not None:
+            aname = CATALOGUE[tid].fit.scale
+            model = _set(model, tid, {aname: _vec(tone_amp)})
+            canon = _set(canon, tid, {aname: _vec(tone_amp)})
         # the jitter's slope power: per output, or (several outputs) the matrix of mean products,
         # weighted by the taper like the periodogram (see :func:`.whittle.slope_power`)
         ydot_sq = self.ev.slope_power(model, ydot)
-        parts = self.ev.parts(canon, ydot_sq)
-        if "sensor.jitter" in model.effects and any(e != "sensor.jitter" for e in scale_ids):
-            # the jitter's power includes the noise-driven slope, std_s^2 Var(ydot), set by the other
-            # sources' variances: from their current values, not the scaling references of ``canon``
-            # (a process noise of unit std made the jitter's part 4x too large on a two-output case)
-            jm = model if "sensor.jitter" not in scale_ids else \
-                _set(model, "sensor.jitter", {"std_s": refs[scale_ids.index("sensor.jitter")]})
-            parts = dict(parts)
-            parts["sensor.jitter"] = W.expected_parts(
-                jm, d.M, d.k0, d.at_rest, ydot_sq=ydot_sq, skip=tuple(e for e in jm.effects if e != "sensor.jitter"),
-                groups=d.groups, cross=d.p > 1)["sensor.jitter"]
-        # an input's part reaches every output (not a diagonal element): each input's computed apart,
-        # the effect's scale at its value in ``canon`` on that input alone (parts are linear in it)
-        chparts = {}
-        for e, sname in dict.fromkeys((e, sname) for e, sname, _, j in scales if j is not None and e in PER_INPUT):
-            vec = np.broadcast_to(np.asarray(canon.effects[e].params[sname], float), (n_channels(model, e),))
-            for j in range(vec.size):
-                one = np.where(np.arange(vec.size) == j, vec, 0.0)
-                chparts[(e, j)] = self.ev.parts(_set(canon, e, {sname: [float(x) for x in one]}), ydot_sq)[e] \
-                    if vec[j] > 0 else np.zeros_like(parts[e])
-        mod = None
-        mod_index = None
-        if "sensor.jitter" in model.effects or "sensor.jitter" in scale_ids:
-            dd = np.diff(r[d.k0:], axis=0)
-            if "sensor.jitter" in scale_ids:
-                i = scale_ids.index("sensor.jitter")
-                mod, mod_index = Modulation(dd, ydot, d.k0, refs[i] ** 2, self._quant_slope(model)), i
-        qid = "sensor.quantization"
+        parts = self._jitter_part(model, self.ev.parts(canon, ydot_sq), scales, refs, ydot_sq)
+        chparts = self._input_parts(canon, model, scales, parts, ydot_sq)
+        jid = of_kind(model.effects, "modulated")
+        mod = mod_index = None
+        dd = np.diff(r[d.k0:], axis=0) if jid is not None else None
+        if jid in scale_ids:
+            mod_index = scale_ids.index(jid)
+            mod = Modulation(dd, ydot, d.k0, refs[mod_index] ** 2, self._quant_slope(model))
+        qid = of_kind(model.effects, "grid")
         white_q = parts.get(qid)
-        qpart = self.ev.quant_part(model) if qid in model.effects else None
+        qpart = self.ev.quant_part(model) if qid is not None else None
         if qpart is not None:
             # the quantizer's error is correlated when the signal crosses few steps per sample; how
             # much depends on the other sources' variances: from the model's values, then again
             # from the fitted ones until they settle (the part is not linear in them)
             parts = dict(parts)
             parts[qid] = qpart
+
         def assemble(parts, m):
-            """E0 and U, the noise parts times the quantizer's Stein factors (:func:`_stein`)."""
-            mo = self.ev.quant_moments(m)[0] if qid in m.effects and d.p > 1 else None
-            tones = m.predictor().tone_ids() if mo is not None else ()
-            ps, cps = _stein(parts, mo, tones), _stein(chparts, mo, tones)
-            # the fixed parts: every effect without a free variance, and the channels held of one with
-            # a variance per channel (at the model's value in ``canon``)
-            pairs = set(zip(scale_ids, scale_ch))
-            held = [_channel(ps[e], j, cps, e) for e in {e for e, j in pairs if j is not None} if e in ps
-                    for j in range(n_channels(m, e)) if (e, j) not in pairs]
-            return (sum((v for k, v in ps.items() if k not in scale_ids), np.zeros_like(Ig)) + sum(held, np.zeros_like(Ig)),
-                    [_channel(ps.get(e, np.zeros_like(Ig)), j, cps, e) for e, j in zip(scale_ids, scale_ch)])
+            return self._assemble(parts, chparts, m, qid, scale_ids, scale_ch, Ig)
         E0, U = assemble(parts, model)
         inner = Inner(Ig, d.weights / W.taper(d.M)[2], E0, U, mod, mod_index)
         res_model = model                              # the model the residual (Ig) is of
@@ -303,7 +293,7 @@ class Hypotheses:
         def values(v):               # the scales' values at the inner problem's variances v
             return [ref * vi ** (1.0 / sc[2]) for sc, vi, ref in zip(scales, v, refs)]
 
-        for _ in range(QUANT_ROUNDS if qid in model.effects and scales else 0):
+        for _ in range(QUANT_ROUNDS if qid is not None and scales else 0):
             trial = _set_scales(model, scales, values(v), model)
             # the quantizer's slope modulation at the fitted noise and jitter (:meth:`_quant_slope`)
             base_moved = False
@@ -324,29 +314,71 @@ class Hypotheses:
             parts[qid] = new_q
             if moved:
                 res_model = trial
-                Ig = self.ev.grouped_periodogram(res_model, "sensor.tone" in free)[3]
+                Ig = self.ev.grouped_periodogram(res_model, tid is not None)[3]
             E0, U = assemble(parts, res_model)
             inner = Inner(Ig, d.weights / W.taper(d.M)[2], E0, U, mod, mod_index)
             v, l = inner.optimize(v)
-        if "sensor.jitter" in model.effects and "sensor.jitter" not in scale_ids:
+        if jid is not None and jid not in scale_ids:
             # a fixed jitter still explains (or not) the modulation
-            dd = np.diff(r[d.k0:], axis=0)
-            std_s = float(model.effects["sensor.jitter"].params["std_s"])
-            l += Modulation(dd, ydot, d.k0, 1.0, self._quant_slope(model))(std_s**2)[0]
+            l += Modulation(dd, ydot, d.k0, 1.0, self._quant_slope(model))(float(_scale_of(model, jid)) ** 2)[0]
         if d.grid is not None:
             l += self.grid_loglik(model)
-        l += self.ev.ramp_term(res_model, "sensor.tone" in free)
+        l += self.ev.ramp_term(res_model, tid is not None)
         fitted = _set_scales(model, scales, values(v), model)
-        ev, tone_free = self.ev, "sensor.tone" in free
+        ev, tone_free = self.ev, tid is not None
         return Fit(fitted, free, l, parts, inner, v, scale_ids, scale_ch, chparts,
                    lambda: ev.level_term(res_model, tone_free, fitted))
 
+    def _jitter_part(self, model, parts: dict, scales: list, refs: list, ydot_sq) -> dict:
+        """``parts`` with a ``modulated`` effect's (jitter) part recomputed where other variances are
+        free: its power includes the noise-driven slope, std_s^2 Var(ydot), set by the other sources'
+        variances: from their current values, not the scaling references of the canonical model
+        (a process noise of unit std made the jitter's part 4x too large on a two-output case)."""
+        d = self.data
+        jid = of_kind(model.effects, "modulated")
+        scale_ids = [e for e, *_ in scales]
+        if jid is None or not any(e != jid for e in scale_ids):
+            return parts
+        jm = model if jid not in scale_ids else \
+            _set(model, jid, {CATALOGUE[jid].fit.scale: refs[scale_ids.index(jid)]})
+        parts = dict(parts)
+        parts[jid] = W.expected_parts(
+            jm, d.M, d.k0, d.at_rest, ydot_sq=ydot_sq, skip=tuple(e for e in jm.effects if e != jid),
+            groups=d.groups, cross=d.p > 1)[jid]
+        return parts
+
+    def _input_parts(self, canon, model, scales: list, parts: dict, ydot_sq) -> dict:
+        """{(effect id, input j): its part on input j alone} for the scales fitted per input: an
+        input's part reaches every output (not a diagonal element), so each input's is computed apart,
+        the effect's scale at its value in ``canon`` on that input alone (parts are linear in it)."""
+        chparts = {}
+        for e, sname in dict.fromkeys((e, sname) for e, sname, _, j in scales if j is not None and per_input(e)):
+            vec = np.broadcast_to(np.asarray(canon.effects[e].params[sname], float), (n_channels(model, e),))
+            for j in range(vec.size):
+                one = np.where(np.arange(vec.size) == j, vec, 0.0)
+                chparts[(e, j)] = self.ev.parts(_set(canon, e, {sname: [float(x) for x in one]}), ydot_sq)[e] \
+                    if vec[j] > 0 else np.zeros_like(parts[e])
+        return chparts
+
+    def _assemble(self, parts: dict, chparts: dict, m, qid, scale_ids: list, scale_ch: list, Ig):
+        """E0 and U of :class:`.inner.Inner`: the fixed parts (every effect without a free variance,
+        and the channels held of one with a variance per channel, at the model's value) and each free
+        variance's part, the noise parts times the quantizer's Stein factors (:func:`_stein`)."""
+        mo = self.ev.quant_moments(m)[0] if qid in m.effects and self.data.p > 1 else None
+        keep = (qid, *m.predictor().tone_ids()) if mo is not None else ()
+        ps, cps = _stein(parts, mo, keep), _stein(chparts, mo, keep)
+        pairs = set(zip(scale_ids, scale_ch))
+        held = [_channel(ps[e], j, cps, e) for e in {e for e, j in pairs if j is not None} if e in ps
+                for j in range(n_channels(m, e)) if (e, j) not in pairs]
+        return (sum((v for k, v in ps.items() if k not in scale_ids), np.zeros_like(Ig)) + sum(held, np.zeros_like(Ig)),
+                [_channel(ps.get(e, np.zeros_like(Ig)), j, cps, e) for e, j in zip(scale_ids, scale_ch)])
+
     def grid_loglik(self, model) -> float:
         """l_grid: values on the model's quantization grid (ln(1 / 2e-6) each) when the data are."""
-        q = model.effects.get("sensor.quantization")
-        if q is None:
+        qid = of_kind(model.effects, "grid")
+        if qid is None:
             return 0.0
-        step = np.broadcast_to(q.params["step"], (self.data.p,))
+        step = np.broadcast_to(_scale_of(model, qid), (self.data.p,))
         l = 0.0
         for j, g in enumerate(self.data.grid):
             if g is not None and np.isclose(step[j], g, rtol=1e-6):
@@ -369,8 +401,9 @@ class Hypotheses:
         # (a scale factor started mid-range at +25 % sent a fitted lag along the ridge the two
         # share, and two rounds stopped 120 below the truth in 2 Delta l: generated case 229)
         outer.sort(key=lambda x: new.index(x[0]) if x[0] in new else len(new))
-        if "sensor.tone" in free and "frequency_hz" in free["sensor.tone"] and (not screen or "sensor.tone" in new):
-            best = self._fit_tone_frequency(best)
+        tid = of_kind(free, "line")
+        if tid is not None and "frequency_hz" in free[tid] and (not screen or tid in new):
+            best = self._fit_tone_frequency(best, tid)
         n_rounds = 1 if screen else rounds
         rnd = 0
         mean = any(CATALOGUE[e].fit.kind == "mean" for e, _ in outer)
@@ -538,16 +571,16 @@ class Hypotheses:
                 break
         return best
 
-    def _fit_tone_frequency(self, fit: Fit) -> Fit:
+    def _fit_tone_frequency(self, fit: Fit, tid: str) -> Fit:
         d = self.data
-        tone = fit.model.effects["sensor.tone"]
+        tone = fit.model.effects[tid]
         freq = np.broadcast_to(tone.params["frequency_hz"], (d.p,)).astype(float).copy()
         ym, _ = self.ev.mean(fit.model)
         mo = self.ev.quant_moments(fit.model)[0]
         r = d.y - ym if mo is None else d.y - ym - mo.g
         for j in range(d.p):
             freq[j] = refine_frequency(r[:, j], freq[j], d.Ts, d.k0, 1.0 / (d.M * d.Ts))
-        m = _set(fit.model, "sensor.tone", {"frequency_hz": _vec(freq)})
+        m = _set(fit.model, tid, {"frequency_hz": _vec(freq)})
         f = self.inner_fit(m, fit.free)
         # the periodogram's peak is the line's maximum-likelihood frequency (Kay 1993 ch. 7); the
         # Whittle likelihood of group means cannot resolve shifts of a CRLB (its differences there are

@@ -107,15 +107,16 @@ def interval_tasks(H: Hypotheses, fit: Fit, eid: str) -> list:
     spec = CATALOGUE[eid].fit
     p = fit.model.p
     if spec.kind == "line":
-        return [(None, lambda: _tone_intervals(H, fit))]
+        return [(None, lambda: _tone_intervals(H, fit, eid))]
     if spec.kind == "grid":
         # found exactly on the data's grid: each output's step is its own interval; the one interval
         # is the range of the outputs' steps
-        step = eff.param_dict()["step"]
+        sname = spec.scale
+        step = eff.param_dict()[sname]
         iv = [step, step] if not isinstance(step, list) else [min(step), max(step)]
-        own = np.broadcast_to(np.asarray(eff.params["step"], float), (p,))
-        per = {"step": [[float(v), float(v)] for v in own]} if isinstance(step, list) else {}
-        return [(None, lambda: ({"step": iv}, per))]
+        own = np.broadcast_to(np.asarray(eff.params[sname], float), (p,))
+        per = {sname: [[float(v), float(v)] for v in own]} if isinstance(step, list) else {}
+        return [(None, lambda: ({sname: iv}, per))]
     shaped = [sh for sh in spec.shape if sh[0] in fit.free.get(eid, [])]
     out = []
     if eid in fit.scale_ids:
@@ -169,7 +170,7 @@ def _profile_scale(H: Hypotheses, fit: Fit, eid: str, name: str, power: int, val
     return [ref * lo ** (1 / power), ref * hi ** (1 / power)]
 
 
-def _tone_intervals(H: Hypotheses, fit: Fit) -> tuple[dict, dict]:
+def _tone_intervals(H: Hypotheses, fit: Fit, eid: str) -> tuple[dict, dict]:
     """Least-squares amplitude (Var = 2 S / N) and the Cramer-Rao bound of the frequency
     (Var(w) = 12 / (eta N^3) with eta = A^2 / (2 S), i.e. 24 S / (A^2 N^3): Kay 1993 eq. 3.41), S
     the residual's per-sample spectral density next to the line (the 40 bins on each side, the
@@ -177,8 +178,9 @@ def _tone_intervals(H: Hypotheses, fit: Fit) -> tuple[dict, dict]:
     :func:`merge_intervals` takes them: the amplitude is each output's own (several outputs), the
     one frequency's interval and the amplitude's one interval are the largest amplitude's."""
     d = H.data
-    tone = fit.model.effects["sensor.tone"]
-    amp = np.broadcast_to(tone.params["amplitude"], (d.p,)).astype(float)
+    tone = fit.model.effects[eid]
+    aname = CATALOGUE[eid].fit.scale
+    amp = np.broadcast_to(tone.params[aname], (d.p,)).astype(float)
     freq = np.broadcast_to(tone.params["frequency_hz"], (d.p,)).astype(float)
     r, _, _ = H.ev.residual(fit.model, True)
     n = d.N - d.k0
@@ -196,8 +198,8 @@ def _tone_intervals(H: Hypotheses, fit: Fit) -> tuple[dict, dict]:
         lo_f.append(freq[j] - 1.96 * sf)
         hi_f.append(freq[j] + 1.96 * sf)
     k = int(np.argmax(amp))
-    per = {"amplitude": [[a, b] for a, b in zip(lo_a, hi_a)]} if d.p > 1 else {}
-    return {"amplitude": [lo_a[k], hi_a[k]], "frequency_hz": [lo_f[k], hi_f[k]]}, per
+    per = {aname: [[a, b] for a, b in zip(lo_a, hi_a)]} if d.p > 1 else {}
+    return {aname: [lo_a[k], hi_a[k]], "frequency_hz": [lo_f[k], hi_f[k]]}, per
 
 
 def _profile_scale_shaped(H: Hypotheses, fit: Fit, eid: str, name: str, val: float, direction: int,

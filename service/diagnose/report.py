@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..model.coefficients import model_coefficients
+from .modes import Mode
 from .results import VIEW_UNITS as UNITS
 from .results import fmt_score
 
@@ -109,7 +110,7 @@ def diagnosis_lines(rep: dict, series=None, extra: dict | None = None) -> list[s
         lines.append("missing, most likely first (Delta BIC; model error after adding it):")
         for i, (m, st) in enumerate(zip(rep["missing"], rep["steps"]), 1):
             ps = ", ".join(_param_text(k, v, m) for k, v in m["params"].items() if k in _file_keys(rep, m))
-            what = m["mode"].replace("replace:", "in place of ")
+            what = Mode.parse(m["mode"]).phrase()
             lines.append(f"  {i}. [{m['effect']}] {what}: {ps}   (Delta BIC {fmt_score(m['score'])}; "
                          f"error {st['error']:.3g})")
             lines.append(f"     {m['evidence']}")

@@ -10,7 +10,7 @@ import math
 import numpy as np
 import scipy.fft as sfft
 
-from ..model.effects import CATALOGUE
+from ..model.effects import CATALOGUE, of_kind
 from ..model.predict import gain_switches
 from . import whittle as W
 from .data import Data
@@ -55,7 +55,7 @@ def score_contributions(H: Hypotheses, fit: Fit) -> np.ndarray:
     short memory (A lies between 0 and 1 / v_a): unwhitened, U / E^2 grows like 1 / w^2 where a
     differenced spectrum falls like w^2, and the terms would carry that long kernel."""
     d, inner = H.data, fit.inner
-    r, ydot = H.ev.grouped_periodogram(fit.model, "sensor.tone" in fit.free)[:2]
+    r, ydot = H.ev.grouped_periodogram(fit.model, of_kind(fit.free, "line") is not None)[:2]
     g = np.diff(r[d.k0:], axis=0)
     M = g.shape[0]
     w, _, kappa = W.taper(M)
@@ -111,7 +111,7 @@ def godambe_factor(H: Hypotheses, fit: Fit, a: int) -> float:
     w2 = W.taper(M)[0] ** 2
     cols = [np.ones(M), w2]
     if inner.mod is not None:
-        x = Modulation.slope_squares(H.ev.grouped_periodogram(fit.model, "sensor.tone" in fit.free)[1], H.data.k0)
+        x = Modulation.slope_squares(H.ev.grouped_periodogram(fit.model, of_kind(fit.free, "line") is not None)[1], H.data.k0)
         for j in range(x.shape[1]):
             xj = x[:, j] / max(float(np.mean(x[:, j])), 1e-300)
             cols += [xj, w2 * xj]

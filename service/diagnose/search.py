@@ -27,8 +27,6 @@ from .data import Data
 from .edits import (
     COMMON,
     PER_CHANNEL,
-    PER_CHANNEL_MEAN,
-    PER_INPUT,
     _scale_name,
     _set,
     _shape_value,
@@ -36,9 +34,11 @@ from .edits import (
     _unit_scale,
     _vec,
     n_channels,
+    per_input,
     shape_channels,
 )
 from .hypotheses import Fit, Hypotheses
+from .modes import ADD, REFIT, Mode, replacing
 from .sandwich import lr_spread
 from .thresholds import (
     CHIBAR2_95,
@@ -60,7 +60,7 @@ SCREEN_N = 1 << 18        # records of at least 2 SCREEN_N samples are screened 
 @dataclass
 class Candidate:
     effect: str
-    mode: str                       # add | refit | replace:<effect id>
+    mode: Mode                      # add | refit | replace:<effect id> (:mod:`.modes`)
     fit: Fit
     k: int                          # free parameters it adds
     score: float = float("nan")     # Delta BIC against the current hypothesis
@@ -71,9 +71,10 @@ class Candidate:
     by_error: tuple | None = None   # added on the views' word: (model error before, after)
 
 
-MODE_RANK = {"replace": 0, "refit": 1, "add": 2}
-EXACT_RANK = {"replace": 0, "add": 1, "refit": 2}     # on an exact tie: the user's values kept
-DRIFT_BIASES = ("sensor.bias_markov", "sensor.bias_walk")   # the sensor's models of a slow drift
+
+def drift(eid: str) -> str | None:
+    """What slow drift effect ``eid`` models (``Effect.drift``): "sensor", "actuator" or None."""
+    return CATALOGUE[eid].drift
 
 
 def plant_time_constant(model) -> float:
@@ -108,7 +109,7 @@ def exact_tie(c, lead, key) -> bool:
 class Start:
     """A candidate before fitting: its initial model and free parameters."""
     effect: str
-    mode: str
+    mode: Mode
     model: object
     free: dict
     k: int
@@ -165,6 +166,35 @@ class Search:
         addition; within a mode the best score, and the signal chain's order on an exact tie
         (:data:`.thresholds.EXACT_TIE`). ``bar``: the Delta BIC that counts as significant (the model-error rule
         of :func:`.diagnose._by_error` ranks every candidate by the choice score: ``-inf``)."""
+        out = self._screened(cur, bar)
+        out.sort(key=lambda c: -c.score)
+        # the two forms of a noise of several inputs (per input or one factor) and of a mean effect
+        # of several channels (one value per channel or one for all): the better by Delta BIC
+        best: dict = {}
+        for c in out:
+            best.setdefault((c.effect, c.mode), c)
+        two = {(c.effect, c.mode) for c in out if per_input(c.effect) or PER_CHANNEL in c.start.free.get(c.effect, ())}
+        out = [c for c in out if (c.effect, c.mode) not in two or best[(c.effect, c.mode)] is c]
+        leaders = [c for c in out[:self.n_full] if c.score >= bar - 30]
+
+        def full_fit(c):
+            try:
+                return self.refit_all(c.fit, thorough=True)
+            except (ModelError, ValueError, np.linalg.LinAlgError):
+                return None
+
+        for c, full in zip(leaders, self._map(full_fit, leaders)):
+            if full is not None and full.loglik > c.fit.loglik:
+                c.fit = full
+                c.score = self.score(full, cur, c.k)
+                c.full = True
+        for c in out:
+            c.loglik = c.fit.loglik
+            c.sel = self.choice(c.fit, cur, c.k)
+        return self._ranked(out, bar)
+
+    def _screened(self, cur: Fit, bar: float) -> list[Candidate]:
+        """Every start of :meth:`starts` screened (:meth:`candidates`) and scored, unsorted."""
         out: list[Candidate] = []
         starts = self.starts(cur)
 
@@ -186,20 +216,20 @@ class Search:
 
         def screen_cost(st):
             spec = CATALOGUE[st.effect].fit
-            return (3 if spec.kind == "mean" else 1) * (1 + len(spec.shape)) + (2 if st.effect == "sensor.tone" else 0)
+            return (3 if spec.kind == "mean" else 1) * (1 + len(spec.shape)) + (2 if spec.kind == "line" else 0)
 
-        def per_input(st):
+        def per_input_form(st):
             return PER_CHANNEL in st.free.get(st.effect, ()) and CATALOGUE[st.effect].stage == "actuator"
 
         # an actuator mean effect's per-input form (a grid per input: the dearest screen) only where
         # its one-value form comes near significance (two limits clip alike: one value finds both)
-        first = [st for st in starts if not per_input(st)]
+        first = [st for st in starts if not per_input_form(st)]
         todo = [(first, self._map(screen, first, cost=screen_cost))]
         near = set()
         for st, fit in zip(*todo[0]):
             if not isinstance(fit, Exception) and self.score(fit, cur, st.k) >= bar - 30:
                 near.add((st.effect, st.mode))
-        later = [st for st in starts if per_input(st) and (st.effect, st.mode) in near]
+        later = [st for st in starts if per_input_form(st) and (st.effect, st.mode) in near]
         if later:
             todo.append((later, self._map(screen, later, cost=screen_cost)))
         for st, fit in ((st, fit) for sts, fits in todo for st, fit in zip(sts, fits)):
@@ -210,30 +240,10 @@ class Search:
             c.score = self.score(fit, cur, st.k)
             c.start = st
             out.append(c)
-        out.sort(key=lambda c: -c.score)
-        # the two forms of a noise of several inputs (per input or one factor) and of a mean effect
-        # of several channels (one value per channel or one for all): the better by Delta BIC
-        best: dict = {}
-        for c in out:
-            best.setdefault((c.effect, c.mode), c)
-        two = {(c.effect, c.mode) for c in out if c.effect in PER_INPUT or PER_CHANNEL in c.start.free.get(c.effect, ())}
-        out = [c for c in out if (c.effect, c.mode) not in two or best[(c.effect, c.mode)] is c]
-        leaders = [c for c in out[:self.n_full] if c.score >= bar - 30]
+        return out
 
-        def full_fit(c):
-            try:
-                return self.refit_all(c.fit, thorough=True)
-            except (ModelError, ValueError, np.linalg.LinAlgError):
-                return None
-
-        for c, full in zip(leaders, self._map(full_fit, leaders)):
-            if full is not None and full.loglik > c.fit.loglik:
-                c.fit = full
-                c.score = self.score(full, cur, c.k)
-                c.full = True
-        for c in out:
-            c.loglik = c.fit.loglik
-            c.sel = self.choice(c.fit, cur, c.k)
+    def _ranked(self, out: list[Candidate], bar: float) -> list[Candidate]:
+        """The candidates in :meth:`candidates`' order, each near-tie's alternatives set."""
         # significant candidates first, ranked by the choice score; the rest by Delta BIC
         out.sort(key=lambda c: (c.score < bar, -(c.sel if c.score >= bar else c.score)))
         if out:
@@ -242,13 +252,13 @@ class Search:
             near = [c for c in out if top - key(c) < TIE and (c.score >= bar) == (out[0].score >= bar)]
             # the preferred mode first; within it the best score, and on an exact tie (identical
             # spectra, e.g. process and actuator white noise through the same input) chain order
-            rank = min(MODE_RANK[c.mode.split(":")[0]] for c in near)
-            same = [c for c in near if MODE_RANK[c.mode.split(":")[0]] == rank]
+            rank = min(c.mode.rank for c in near)
+            same = [c for c in near if c.mode.rank == rank]
             lead = max(same, key=key)
             first = min((c for c in same if exact_tie(c, lead, key)), key=lambda c: CATALOGUE[c.effect].chain_order)
             sig = out[0].score >= bar
             first = self._drift_as_bias(first, [c for c in out if (c.score >= bar) == sig
-                                                and MODE_RANK[c.mode.split(":")[0]] == rank], key)
+                                                and c.mode.rank == rank], key)
             # an exact tie between a new effect and a changed value (identical spectra): the data do
             # not contradict the user's value, so it is kept and the effect is added. The leader's tie
             # first, then the chosen candidate's: a third candidate leading (an AR(1) 0.8 ahead in the
@@ -256,8 +266,8 @@ class Search:
             # a refit of process noise was taken over the added actuator noise it is identical with
             for anchor in (max(near, key=key), first):
                 exact = [c for c in near if exact_tie(c, anchor, key) and exact_tie(anchor, c, key)]
-                if {"add", "refit"} <= {c.mode.split(":")[0] for c in exact}:
-                    first = min(exact, key=lambda c: (EXACT_RANK[c.mode.split(":")[0]], CATALOGUE[c.effect].chain_order))
+                if {"add", "refit"} <= {c.mode.kind for c in exact}:
+                    first = min(exact, key=lambda c: (c.mode.exact_rank, CATALOGUE[c.effect].chain_order))
                     break
             near = [first] + [c for c in near if c is not first]
             first.alternatives = [c for c in near[1:] if c.effect != first.effect]
@@ -274,7 +284,8 @@ class Search:
         reported instead: :data:`.thresholds.TIE`, or :data:`.thresholds.DISTINCT_Z` standard deviations of the likelihood
         ratio between the two (:func:`.sandwich.lr_spread`) when larger (on the generated Gauss-Markov cases
         the AR(1)'s lead reached 2.2 with a spread of 2.1). None when the AR(1) is not that slow."""
-        tau = _shape_value(ar1.model.effects["actuator.ar1"], "tau_s", self.data.Ts)
+        eid = next(e for e in ar1.model.effects if drift(e) == "actuator")
+        tau = _shape_value(ar1.model.effects[eid], "tau_s", self.data.Ts)
         if tau is None or not tau > SLOW_DRIFT * plant_time_constant(self.nominal):
             return None
         return max(TIE, DISTINCT_Z * (lr_spread(ar1, bias) or 0.0))
@@ -283,11 +294,11 @@ class Search:
         """A slow actuator AR(1) on top gives way to the better supported of the sensor bias
         candidates it does not beat by :meth:`drift_margin`. ``pool``: the candidates of the
         first's mode and significance."""
-        if first.effect != "actuator.ar1":
+        if drift(first.effect) != "actuator":
             return first
         bias = []
         for c in pool:
-            if c.effect in DRIFT_BIASES:
+            if drift(c.effect) == "sensor":
                 margin = self.drift_margin(first.fit, c.fit)
                 if margin is not None and key(first) - key(c) < margin:
                     bias.append(c)
@@ -356,31 +367,31 @@ class Search:
                 continue
             if spec.needs_command and not d.has_command:
                 continue
-            mode = "refit" if eid in model.effects else "add"
+            mode = REFIT if eid in model.effects else ADD
             try:
                 if spec.kind in ("noise", "modulated", "mean"):
                     out += self._noise_or_mean(cur, eid, mode)
                     for rep in spec.replaces:
-                        if mode == "add" and rep in model.effects and rep not in cur.free:
-                            out += self._noise_or_mean(cur, eid, f"replace:{rep}")
+                        if mode == ADD and rep in model.effects and rep not in cur.free:
+                            out += self._noise_or_mean(cur, eid, replacing(rep))
                 elif spec.kind == "grid":
-                    out += self._grid(cur, mode)
+                    out += self._grid(cur, eid, mode)
                 elif spec.kind == "line":
-                    out += self._tones(cur, mode)
+                    out += self._tones(cur, eid, mode)
             except (ModelError, ValueError, np.linalg.LinAlgError) as exc:
                 self.log(f"candidate {eid}: skipped ({exc})")
         return out
 
-    def _noise_or_mean(self, cur: Fit, eid: str, mode: str) -> list[Start]:
+    def _noise_or_mean(self, cur: Fit, eid: str, mode: Mode) -> list[Start]:
         d = self.data
         spec = CATALOGUE[eid].fit
         model = cur.model
-        if mode.startswith("replace:"):
-            model = model.without_effect(mode.split(":", 1)[1])
+        if mode.replaces is not None:
+            model = model.without_effect(mode.replaces)
         names = []
         init: dict = {}
         if spec.kind in ("noise", "modulated"):
-            if mode == "refit":
+            if mode == REFIT:
                 sname, _ = _scale_name(model.effects[eid])
             else:
                 sname = spec.scale
@@ -392,7 +403,7 @@ class Search:
                 return []
             names.append(sh[0])
             cur_v = None
-            if mode == "refit":
+            if mode == REFIT:
                 cur_v = _shape_value(model.effects[eid], sh[0], d.Ts)
             init[sh[0]] = cur_v if cur_v is not None else \
                 (math.sqrt(lo * hi) if spacing == "log" else 0.5 * (lo + hi))
@@ -401,23 +412,23 @@ class Search:
         free[eid] = names
         nc = n_channels(model, eid) if spec.kind == "noise" else 1
         out = [Start(eid, mode, m, free, len(names) + nc - 1)]
-        ns = shape_channels(model, eid) if eid in PER_CHANNEL_MEAN else 1
+        ns = shape_channels(model, eid) if CATALOGUE[eid].per_channel_mean else 1
         if ns > 1:
             # a mean effect of several inputs or outputs: also one value per channel (a saturation
             # limit per input, a scale factor per output; the file's values for a refit), each a
             # parameter for Delta BIC; :meth:`candidates` keeps the better supported of the two
             mc = m
-            if mode == "refit":
+            if mode == REFIT:
                 for sh in spec.shape:
                     v = _shape_values(model.effects[eid], sh[0], d.Ts)
                     if v is not None and v.size == ns:
                         mc = _set(mc, eid, {sh[0]: _vec(v)})
-            elif eid == "sensor.scale_factor":
+            elif CATALOGUE[eid].gain_start:
                 # linear in the residual: each output's least-squares factor on the mean response
                 # (a grid cannot start near it when the response is far above the noise)
-                mc = _set(mc, eid, {"error": _vec(self._scale_ls(model))})
+                mc = _set(mc, eid, {spec.shape[0][0]: _vec(self._scale_ls(model, spec.shape[0]))})
             out.append(Start(eid, mode, mc, dict(free, **{eid: names + [PER_CHANNEL]}), len(names) * ns))
-        if nc > 1 and eid in PER_INPUT:
+        if nc > 1 and per_input(eid):
             # a noise of several inputs: also one factor over them (the file's proportions, equal for
             # a new effect); :meth:`candidates` keeps the better supported of the two. Where inputs
             # reach the outputs alike their variances are not told apart, and a per-input fit put
@@ -425,9 +436,9 @@ class Search:
             out.append(Start(eid, mode, m, dict(free, **{eid: names + [COMMON]}), len(names)))
         return out
 
-    def _scale_ls(self, model) -> np.ndarray:
+    def _scale_ls(self, model, shape) -> np.ndarray:
         """Per output, the least-squares scale-factor error e of y - E[y] = e E[y] (both centered,
-        from sample k0), within the search's range."""
+        from sample k0), within the search's range of the searched parameter ``shape``."""
         d = self.data
         ym, _ = self.H.ev.mean(model)
         a = ym[d.k0:] - ym[d.k0:].mean(axis=0)
@@ -435,28 +446,33 @@ class Search:
         r = r - r.mean(axis=0)
         den = np.sum(a * a, axis=0)
         e = np.where(den > 0, np.sum(r * a, axis=0) / np.where(den > 0, den, 1.0), 0.0)
-        lo, hi, _ = self.H._bounds(CATALOGUE["sensor.scale_factor"].fit.shape[0])
+        lo, hi, _ = self.H._bounds(shape)
         return np.clip(e, lo, hi)
 
-    def _grid(self, cur: Fit, mode: str) -> list[Start]:
+    def _grid(self, cur: Fit, eid: str, mode: Mode) -> list[Start]:
+        """A ``grid`` effect (quantization): started at the record's own grid steps (:attr:`.data.Data.grid`)."""
         d = self.data
         steps = d.grid
         if any(s is None for s in steps):
             return []
-        q = cur.model.effects.get("sensor.quantization")
-        if q is not None and np.allclose(np.broadcast_to(q.params["step"], (d.p,)), steps, rtol=1e-6):
+        sname = CATALOGUE[eid].fit.scale
+        q = cur.model.effects.get(eid)
+        if q is not None and np.allclose(np.broadcast_to(q.params[sname], (d.p,)), steps, rtol=1e-6):
             return []
-        m = _set(cur.model, "sensor.quantization", {"step": _vec(steps)})
+        m = _set(cur.model, eid, {sname: _vec(steps)})
         free = dict(cur.free)
-        free["sensor.quantization"] = []
-        return [Start("sensor.quantization", mode, m, free, d.p)]
+        free[eid] = []
+        return [Start(eid, mode, m, free, d.p)]
 
-    def _tones(self, cur: Fit, mode: str) -> list[Start]:
+    def _tones(self, cur: Fit, eid: str, mode: Mode) -> list[Start]:
+        """A ``line`` effect (a tone): started at each peak of the residual's periodogram that no
+        noise explains (:func:`.tones.tone_peaks`)."""
         d = self.data
+        aname = CATALOGUE[eid].fit.scale
         free = dict(cur.free)
-        free["sensor.tone"] = ["amplitude", "frequency_hz"]
-        if mode == "refit":
-            return [Start("sensor.tone", mode, cur.model, free, 2 * d.p)]
+        free[eid] = [aname, "frequency_hz"]
+        if mode == REFIT:
+            return [Start(eid, mode, cur.model, free, 2 * d.p)]
         r, _, _ = self.H.ev.residual(cur.model, False)
         I = W.periodogram(r, d.k0)
         E = sum(W.expected_parts(cur.model, d.M, d.k0, d.at_rest, cache=self.H.ev._parts,
@@ -478,8 +494,8 @@ class Search:
         for j, f in tone_peaks(I, E, d.M, d.Ts, exclude=(harm, half)):
             amp = np.zeros(d.p)
             amp[j] = 1.0
-            m = _set(cur.model, "sensor.tone", {"amplitude": _vec(amp), "frequency_hz": _vec(np.full(d.p, f))})
-            out.append(Start("sensor.tone", "add", m, free, 3))
+            m = _set(cur.model, eid, {aname: _vec(amp), "frequency_hz": _vec(np.full(d.p, f))})
+            out.append(Start(eid, ADD, m, free, 3))
         return out
 
     def refit_all(self, cur: Fit, thorough: bool = False) -> Fit:

@@ -599,14 +599,14 @@ def parts_cache() -> Memo:
 
 
 def expected_parts(model, M: int, k0: int, at_rest: bool, ydot_sq: np.ndarray | None = None,
-                   skip: tuple = ("sensor.tone",), cache: Memo | None = None,
+                   skip: tuple = (), cache: Memo | None = None,
                    groups: Groups | None = None, cross: bool = False) -> dict:
     """{effect id: E I_f (nf, p)} for every effect of ``model`` that owns noise, for the
     differenced residual of M samples starting after sample k0. ``at_rest``: the record starts at
     rest at sample 0 (the from-rest correction applies). ``ydot_sq``: mean square of the predicted
     mean slope per output over the record (for the jitter; default: the predictor's); with
     ``cross``, the matrix of mean products (p, p). Tones are deterministic in a record and handled
-    by the caller (``skip``). ``cache``: a :func:`parts_cache` reused across calls, keyed by each
+    by the caller: their ``tone`` primitives add no part here. ``skip``: effects left out. ``cache``: a :func:`parts_cache` reused across calls, keyed by each
     source's own sub-system (an effect whose transfer did not change is not recomputed). ``groups``: the parts
     as group means (nb, p) (:class:`Groups`, fast on long records). ``cross``: the expected
     cross-periodogram matrices (nf or nb, p, p), complex Hermitian: sources through the plant (and
