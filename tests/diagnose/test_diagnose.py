@@ -16,6 +16,7 @@ import pytest
 
 from service.diagnose.data import Data, quantization_grid
 from service.diagnose.diagnose import diagnose
+from service.diagnose.modes import ADD
 from service.diagnose.search import Search
 from service.diagnose.thresholds import THRESHOLD
 from service.model import load_model, parse_model
@@ -211,7 +212,7 @@ def test_a_drift_slower_than_the_plant_is_reported_as_a_sensor_bias():
     rec = truth.simulate(30_000, seed=0)
     S = Search(nominal, Data(rec.y, rec.u, nominal.Ts, True))
     cands = S.candidates(S.start())
-    ar1 = next(c for c in cands if c.effect == "actuator.ar1" and c.mode == "add")
+    ar1 = next(c for c in cands if c.effect == "actuator.ar1" and c.mode == ADD)
     first = cands[0]
     assert first.effect == "sensor.bias_markov" and first.score > THRESHOLD
     tau = ar1.fit.model.effects["actuator.ar1"].param_dict()["tau_s"]
@@ -935,7 +936,7 @@ def test_command_lines_and_their_harmonics_are_no_tone():
     for f, offered in [(3 * f0, False), (5.3, True)]:
         y = mean.y + 0.01 * rng.standard_normal((N, 1)) + 0.02 * np.sin(2 * np.pi * f * t)[:, None]
         S = Search(model, Data(y, model.command.values(0, N, Ts), Ts, True))
-        tones = S._tones(S.start(), "add")
+        tones = S._tones(S.start(), "sensor.tone", ADD)
         assert bool(tones) == offered and all(abs(st.model.effects["sensor.tone"].params["frequency_hz"] - f) < 0.01
                                               for st in tones)
 
@@ -1333,7 +1334,7 @@ def test_an_exact_add_refit_tie_goes_to_the_addition_whichever_candidate_leads()
     rec = parse_model(base + "[actuator.white]\nstd = 0.4\n").simulate(6000, seed=2)
     S = Search(nominal, Data(rec.y, rec.u, nominal.Ts, True))
     cands = S.candidates(S.start())
-    by = {(c.effect, c.mode): c for c in cands}
+    by = {(c.effect, str(c.mode)): c for c in cands}
     add, refit = by[("actuator.white", "add")], by[("process.white", "refit")]
     assert add.score == pytest.approx(refit.score, rel=1e-9, abs=1e-9) and add.score > THRESHOLD
     assert max(c.sel for c in cands) > add.sel + EXACT_TIE          # the case: a third candidate leads
@@ -1354,8 +1355,8 @@ def test_the_leaders_exact_add_refit_tie_goes_before_the_mode_order():
     rec = truth.simulate(int(round(case.duration / truth.Ts)), seed=case.seed)
     S = Search(nominal, Data(rec.y, rec.u, nominal.Ts, True))
     cands = S.candidates(S.start())
-    assert (cands[0].effect, cands[0].mode) == ("process.white", "add")
-    assert any(c.mode.startswith("replace") and abs(c.sel - cands[0].sel) < TIE for c in cands[1:])
+    assert (cands[0].effect, str(cands[0].mode)) == ("process.white", "add")
+    assert any(c.mode.kind == "replace" and abs(c.sel - cands[0].sel) < TIE for c in cands[1:])
 
 
 def test_a_candidate_ties_with_itself_at_any_score():
