@@ -162,9 +162,9 @@ def test_generic_diagnosis_modules_name_no_effect():
         tree = ast.parse(path.read_text())
         docs = _docstrings(tree)
         for node in ast.walk(tree):
-            if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docs:
-                if ID.fullmatch(node.value) or node.value in CATALOGUE:
-                    found.append(f"{path.name}:{node.lineno}: {node.value!r}")
+            if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docs \
+                    and (ID.fullmatch(node.value) or node.value in CATALOGUE):
+                found.append(f"{path.name}:{node.lineno}: {node.value!r}")
     assert not found, found
 
 
