@@ -105,8 +105,9 @@ class FitSpec:
 
     kind: ``noise`` (a source whose variance scales with ``scale``^2, fitted by the spectral
     likelihood), ``mean`` (changes the mean response to the command), ``grid`` (quantization: values
-    on a grid), ``line`` (a tone: a deterministic sinusoid in a record), ``modulated`` (a noise source
-    whose variance follows the signal's slope: jitter).
+    on a grid of step ``scale``), ``line`` (a tone: a deterministic sinusoid in a record, amplitude
+    ``scale``, frequency ``frequency_hz``), ``modulated`` (a noise source whose variance follows the
+    signal's slope: jitter); the kind chooses the diagnosis' machinery (module docstring).
     shape: searched parameters ``(name, lo, hi, unit, spacing)``: bounds in ``unit`` ("Ts": sample
     periods, "T": record lengths, "umax": the largest |command|, "1": absolute), ``spacing`` "log"
     or "lin".
