@@ -310,6 +310,15 @@ class Model:
             d.setdefault(g, {})[s] = eff.param_dict()
         return d
 
+    def cache_key(self) -> str:
+        """The model as a cache key (:class:`service.memo.Memo`): its source and its content
+        (:meth:`to_dict`, repr), formed once. Models of equal content predict alike, whatever text
+        (comments, spelling) or object they came from; the source names them in error messages."""
+        key = self._asm.get("key")
+        if key is None:
+            key = self._asm["key"] = repr((self.source, self.to_dict()))
+        return key
+
     def to_toml(self) -> str:
         return dumps_toml(self.to_dict())
 

@@ -666,6 +666,11 @@ class Predictor(MeanResponses, Linearization, Spectra):
         return sum((np.asarray(prm[1], float) for _, kind, *prm in self._primitives() if kind == "walk"),
                    np.zeros(self.model.p))
 
+    def slope_modulated(self) -> dict:
+        """{effect id: s2} of the white noises whose variance follows the signal's slope,
+        s2 ydot_k^2 (their ``("jitter", s2)`` primitives)."""
+        return {eid: prm[0] for eid, kind, *prm in self._primitives() if kind == "jitter"}
+
     def walk_ids(self) -> set:
         """Ids of the effects that are walks (nonstationary: a growing variance, no ACF)."""
         return {eid for eid, kind, *_ in self._primitives() if kind == "walk"}
