@@ -63,7 +63,7 @@ from .cache import (
     quantization_gamma,
     quantizer_moments,
 )
-from .modulation import Modulation, modulation_kappa, slope_modulation
+from .modulation import LocalVariance, modulation_kappa, slope_modulation
 from .run import auto_burn, check_samples, compare, default_settings, transient_samples
 from .spread import (
     KURT_DENSE,
@@ -84,7 +84,7 @@ from .views import (
     variance_view,
 )
 
-__all__ = ["CACHE", "FAMILY_ALPHA", "KURT_DENSE", "PSD_DOF_MAX", "AnalysisError", "Modulation", "acf_view",
+__all__ = ["CACHE", "FAMILY_ALPHA", "KURT_DENSE", "PSD_DOF_MAX", "AnalysisError", "LocalVariance", "acf_view",
            "allan_edf_model", "allan_view", "auto_burn", "cache_clear", "check_samples", "compare",
            "default_settings", "level_view", "model_error", "modulation_kappa", "predictor_of", "psd_band_dof_factor",
            "psd_fine_length", "psd_view", "quantization_gamma", "quantizer_moments", "regions_of",

@@ -15,7 +15,7 @@ import numpy as np
 
 
 @dataclass(frozen=True)
-class Modulation:
+class LocalVariance:
     """The modulated white part of one output: local variance ``m`` (n,) times its mean, owned by
     the effects ``ids`` (their parts of each view follow it)."""
 

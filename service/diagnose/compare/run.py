@@ -20,7 +20,7 @@ from .cache import (
     quantizer_moments,
     record_hash,
 )
-from .modulation import Modulation, slope_modulation
+from .modulation import LocalVariance, slope_modulation
 from .summary import model_error, regions_of
 from .views import acf_view, allan_view, level_view, psd_view, variance_view
 
@@ -210,7 +210,7 @@ def _view_jobs(model, r: np.ndarray, ta: np.ndarray, s: dict, pp: _Predicted, le
     gam_stat = {eid: g for eid, g in gam.items() if eid not in pp.walk_ids}
     for j in range(model.p):
         rj = r[:, j]
-        mj = None if pp.mod is None else Modulation(pp.mod[:, j], pp.mod_ids)
+        mj = None if pp.mod is None else LocalVariance(pp.mod[:, j], pp.mod_ids)
         qj = qk = None
         if pp.qmo_r is not None and pp.qmo_r.active[j] and np.mean(pp.qmo_r.var_y[:, j]) > 0:
             vm = np.mean(pp.qmo_r.var_y[:, j])

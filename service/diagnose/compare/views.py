@@ -3,7 +3,7 @@ the expectation of that very estimator under the model (:mod:`service.model.expe
 (:mod:`.spread`), standardized deviations z and the view's error (formulas in :mod:`service.diagnose.compare`).
 
 ``variance`` (time windows), ``level`` (the windows' means, for a record from rest), ``acf``
-(lags), ``psd`` (log frequency bands) and ``allan`` (octave taus). ``mod`` (:class:`.modulation.Modulation`):
+(lags), ``psd`` (log frequency bands) and ``allan`` (octave taus). ``mod`` (:class:`.modulation.LocalVariance`):
 a white part whose variance follows the slope; ``qmod``: a quantizer's variance over its mean at
 each sample (both widen the spreads); ``jkey``: what else the cached predictions depend on.
 """
