@@ -22,6 +22,16 @@ def _nbytes(value) -> int:
     return getattr(value, "nbytes", 0)
 
 
+def deep_nbytes(value) -> int:
+    """Bytes of the arrays in a value, counted through dicts, lists and tuples (a ``sizeof`` for
+    a :class:`Memo` whose values are such structures)."""
+    if isinstance(value, dict):
+        return sum(deep_nbytes(v) for v in value.values())
+    if isinstance(value, (list, tuple)):
+        return sum(deep_nbytes(v) for v in value)
+    return _nbytes(value)
+
+
 class Memo:
     """A bounded map from a key to a computed value, safe to share between threads.
 
@@ -33,22 +43,45 @@ class Memo:
     That is right only for what a cache may hold: a value that is a function of its key alone
     (a result, not a choice), shared and not copied, so never changed by the caller.
 
-    Bounds: at most ``entries`` entries and ``nbytes`` bytes of array values. Beyond them the oldest
-    put go first (a key put again is the newest; a get does not reorder), or with ``flush`` all of
-    them at once before a new key is put (the small caches of one diagnosis, which hold the few
-    models of its current step: a full one means the search has moved on). A value larger than
-    ``nbytes`` alone is not kept (it would push out every other).
+    Bounds: at most ``entries`` entries and ``nbytes`` bytes of array values (as ``sizeof`` counts
+    them: a value's ``.nbytes`` by default, :func:`deep_nbytes` for values that are dicts, lists
+    and tuples of arrays). Beyond them the oldest put go first (a key put again is the newest; a get
+    does not reorder), or with ``lru`` the least recently used (a get makes its key the newest: a
+    live analyzer's cache keeps the views it reads at every update however early they were put),
+    or with ``flush`` all of them at once before a new key is put (the small caches of one
+    diagnosis, which hold the few models of its current step: a full one means the search has
+    moved on). A value larger than ``nbytes`` alone is not kept (it would push out every other).
+
+    Keys: a model enters a key by its content (:meth:`service.model.model.Model.cache_key`, or
+    :func:`service.model.mean_response.mean_key` for the part of it a mean response depends on),
+    never by its ``id`` (a new model can reuse a freed one's).
     """
 
-    def __init__(self, entries: int, nbytes: float = math.inf, flush: bool = False):
-        self.entries, self.nbytes, self.flush = entries, nbytes, flush
+    def __init__(self, entries: int, nbytes: float = math.inf, flush: bool = False, lru: bool = False,
+                 sizeof=_nbytes):
+        self.entries, self.nbytes, self.flush, self.lru = entries, nbytes, flush, lru
+        self._sizeof = sizeof
         self._lock = threading.Lock()
         self._d: dict = {}
         self._bytes = 0
 
     def get(self, key, default=None):
         with self._lock:
+            if self.lru and key in self._d:
+                self._d[key] = self._d.pop(key)          # the most recently used: the newest
             return self._d.get(key, default)
+
+    def pop(self, key) -> None:
+        """Forget ``key`` (if it is there)."""
+        with self._lock:
+            if key in self._d:
+                self._bytes -= self._sizeof(self._d.pop(key))
+
+    @property
+    def bytes(self) -> int:
+        """The bytes held (as ``sizeof`` counts them)."""
+        with self._lock:
+            return self._bytes
 
     def put(self, key, value) -> None:
         with self._lock:
@@ -97,15 +130,15 @@ class Memo:
     # -- under the lock ---------------------------------------------------------------------------
     def _put(self, key, value) -> None:
         if key in self._d:
-            self._bytes -= _nbytes(self._d.pop(key))
+            self._bytes -= self._sizeof(self._d.pop(key))
         elif self.flush and len(self._d) >= self.entries:
             self._d.clear()
             self._bytes = 0
-        nb = _nbytes(value)
+        nb = self._sizeof(value)
         if nb <= self.nbytes:
             self._d[key] = value
             self._bytes += nb
 
     def _evict(self) -> None:
         while self._d and (len(self._d) > self.entries or self._bytes > self.nbytes):
-            self._bytes -= _nbytes(self._d.pop(next(iter(self._d))))
+            self._bytes -= self._sizeof(self._d.pop(next(iter(self._d))))

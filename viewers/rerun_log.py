@@ -83,8 +83,8 @@ points outside the plotted range are cut out of the strip (the strip is split th
 plotted coordinates can be inverted: positions are float32 (``Position2D``), the raw AnyValues
 and the Scalars are float64.
 
-Which axes are logarithmic follows the View's ``log_x``/``log_y`` (compare.py sets both for psd
-and allan). Not verified: how the viewer GUI finally lays the labels out (no display here); the
+Which axes are logarithmic follows the View's ``log_x``/``log_y`` (:mod:`service.diagnose.compare.views`
+sets both for psd and allan). Not verified: how the viewer GUI finally lays the labels out (no display here); the
 geometry and the blueprint are checked by reading the file back (tests/diagnose/test_viewers.py).
 
 The blueprint: a Tabs container with one tab per revision (the last one active) holding, per

@@ -15,10 +15,13 @@ every bin (DC and Nyquist too) doubled.
 
 from __future__ import annotations
 
-from functools import lru_cache
-
 import numpy as np
 from scipy.signal import get_window
+
+from ..memo import Memo
+
+# the kernels of the last few segment lengths (each (L/2 + 1, L): 67 MB at L = 4096), shared and read-only
+_KERNELS = Memo(3, lru=True)
 
 
 def expected_welch(acf: dict, nperseg: int, Ts: float, window: str = "hann") -> dict:
@@ -65,8 +68,16 @@ def expected_window_stats(gam: np.ndarray, M: int, max_lag: int) -> np.ndarray:
     return ((cnt * (-g_[d] - G)) + head + tail) / M
 
 
-@lru_cache(maxsize=3)
 def _welch_kernel(L: int, window: str) -> np.ndarray:
+    """:func:`_welch_kernel_uncached`, remembered for the last few (L, window) in :data:`_KERNELS`."""
+    def compute():
+        k = _welch_kernel_uncached(L, window)
+        k.setflags(write=False)
+        return k
+    return _KERNELS.get_or_compute((int(L), window), compute)
+
+
+def _welch_kernel_uncached(L: int, window: str) -> np.ndarray:
     """Re C_j(d), d = 0..L-1, of h_j(n) = w_n e_j(n) - a_j, e_j(n) = e^{-i w_j n}, a_j = W_j / L,
     for bins j = 0..L/2: (J, L). With c_w(d) = sum_n w_{n+d} w_n, the suffix sums
     S1(d) = sum_{m>=d} w_m e(m) and prefix sums S2(d) = sum_{n<=L-1-d} w_n conj(e(n)):

@@ -177,10 +177,7 @@ def why_not_possible(eid: str, plant: Plant) -> str | None:
         return "process noise drives the plant's states, and there are none"
     if group == "actuator":
         return "an actuator acts on the plant's input, and there is none (the command is the reference the sensor measures)"
-    if eid == "sensor.jitter":
-        return ("a sampling-time error dt shows as dy/dt * dt, and the reference is held over each sample "
-                "(dy/dt = 0 between samples), so it adds nothing")
-    return None
+    return CATALOGUE[eid].without_plant
 
 
 @dataclass
@@ -223,12 +220,13 @@ class Model:
                 raise ModelError(f"{self.source}: [plant] with [sampling] Ts = {self.Ts:g}: expected a plant whose "
                                  f"{self.discretization} discretization over Ts is finite, got an overflow "
                                  "(A Ts too large for float64)")
-            proc = self.effects.get("process.white")
-            if proc is not None:
-                proc.bind(Ac, L)
-                self.S_proc = proc._S
-            else:
-                self.S_proc = np.zeros((Ac.shape[0], 0))
+            # the per-sample state-noise sources (``process_factor``), their factors side by side
+            self.proc_sources = [eff for eff in self.effects.values() if hasattr(eff, "process_factor")]
+            factors = [eff.bind(Ac, L) for eff in self.proc_sources]
+            self.S_proc = factors[0] if len(factors) == 1 else \
+                np.hstack(factors) if factors else np.zeros((Ac.shape[0], 0))
+            ends = np.cumsum([0] + [f.shape[1] for f in factors])
+            self.proc_columns = {e.id: slice(int(a), int(b)) for e, a, b in zip(self.proc_sources, ends, ends[1:])}
         gain = np.ones(p.p)
         for eff in self.effects.values():
             if hasattr(eff, "output_gain"):
@@ -311,6 +309,15 @@ class Model:
             g, s = eid.split(".")
             d.setdefault(g, {})[s] = eff.param_dict()
         return d
+
+    def cache_key(self) -> str:
+        """The model as a cache key (:class:`service.memo.Memo`): its source and its content
+        (:meth:`to_dict`, repr), formed once. Models of equal content predict alike, whatever text
+        (comments, spelling) or object they came from; the source names them in error messages."""
+        key = self._asm.get("key")
+        if key is None:
+            key = self._asm["key"] = repr((self.source, self.to_dict()))
+        return key
 
     def to_toml(self) -> str:
         return dumps_toml(self.to_dict())

@@ -99,6 +99,34 @@ class Steady:
     walk_var_rate: np.ndarray | None = None   # (p,) growth of Var(y) per second where the plant integrates
 
 
+class _Columns:
+    """The noise columns of the augmented system as they are added, each owned by an effect:
+    Gamma's column block, and J's and Jd's (zero for a source that reaches y only through states)."""
+
+    def __init__(self, n_s: int, p: int):
+        self.n_s, self.p = n_s, p
+        self.owners: dict = {}
+        self.start = 0
+        self.cols, self.Jc, self.Jdc = [], [], []
+
+    def add(self, eid: str, col: np.ndarray, j: np.ndarray | None = None, jd: np.ndarray | None = None) -> None:
+        k = col.shape[1]
+        z = np.zeros((self.p, k))
+        self.owners[eid] = np.concatenate([self.owners.get(eid, np.zeros(0, np.int64)),
+                                           np.arange(self.start, self.start + k)])
+        self.start += k
+        self.cols.append(col)
+        self.Jc.append(z if j is None else j)
+        self.Jdc.append(z if jd is None else jd)
+
+    def stacked(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(Gamma, J, Jd)."""
+        Gam = np.hstack(self.cols) if self.cols else np.zeros((self.n_s, 0))
+        J = np.hstack(self.Jc) if self.Jc else np.zeros((self.p, 0))
+        Jd = np.hstack(self.Jdc) if self.Jdc else np.zeros((self.p, 0))
+        return Gam, J, Jd
+
+
 # The model's own mean response over its horizon, shared between models that differ only in what
 # it does not depend on (:func:`mean_key`): a diagnosis builds thousands of models that differ in a
 # noise parameter, and each one's steady state needs the mean when the model has a quantizer, a
@@ -221,12 +249,53 @@ class Predictor(MeanResponses, Linearization, Spectra):
         variance in their G), all owned by the source.
 
         ``dcolor`` ([block (F, G, C, D)], :meth:`_distortion_colors`): the colored part of the
-        distortion of a colored source, owned by the nonlinearity beside its white part ``dstd``."""
+        distortion of a colored source, owned by the nonlinearity beside its white part ``dstd``.
+
+        State order: plant (+ lag), the actuator blocks, the sensor-bias states; noise columns:
+        the actuator blocks', the distortion's, the state-noise sources', the sensor states'."""
         mdl = self.model
-        g = np.ones(mdl.m) if g is None else np.asarray(g, float)
-        G = np.diag(g)
-        shadow = shadow or {}
-        # per actuator block (its own states, then its shadow's): (F, G, C, D, gain matrix)
+        act, act_ids = self._actuator_blocks(g, shadow or {}, dcolor)
+        blocks = [b for bl in act for b in bl]
+        sen = [e.sensor_linear() for e in self._sen_lin]
+        F, na = self._transition(blocks, sen)
+        n_s, nx = F.shape[0], mdl.n_x
+        cols = _Columns(n_s, mdl.p)
+        gain = mdl.out_gain[:, None]
+        CyBc = mdl.Cy @ mdl.Bc
+        a0 = 0
+        for eid, bl in zip(act_ids, act):
+            for _, Ga, _, Da, Gi in bl:
+                k, ka = Da.shape[1], Ga.shape[0]
+                col = np.zeros((n_s, k))
+                col[:nx] = mdl.Bd @ Gi @ Da
+                col[nx + a0:nx + a0 + ka] = Ga
+                a0 += ka
+                cols.add(eid, col, gain * (mdl.Dy @ Gi @ Da), gain * (CyBc @ Gi @ Da))
+        if self._nonlin and dstd is not None:
+            Dd = np.diag(np.asarray(dstd, float))
+            col = np.zeros((n_s, mdl.m))
+            col[:nx] = mdl.Bd @ Dd
+            cols.add(self._distortion_owner(), col, gain * (mdl.Dy @ Dd), gain * (CyBc @ Dd))
+        for eid, sl in mdl.proc_columns.items():              # x_{k+1} += S e_k per state-noise source
+            if sl.stop > sl.start:
+                col = np.zeros((n_s, sl.stop - sl.start))
+                col[:nx] = mdl.S_proc[:, sl]
+                cols.add(eid, col)
+        s0 = 0
+        for e, (Fi, Gi, Hi) in zip(self._sen_lin, sen):
+            col = np.zeros((n_s, Gi.shape[1]))
+            col[nx + na + s0:nx + na + s0 + Gi.shape[0]] = Gi
+            s0 += Gi.shape[0]
+            cols.add(e.id, col)
+        H, Hd = self._output_rows(blocks, sen, n_s, na)
+        Gam, J, Jd = cols.stacked()
+        return LinearSystem(F, Gam, H, J, Hd, Jd, cols.owners, nx, slice(0, mdl.plant.n), na)
+
+    def _actuator_blocks(self, g, shadow: dict, dcolor) -> tuple[list, list]:
+        """Per actuator source (and the distortion's colored part): its blocks (F, G, C, D, gain
+        matrix), its own states then its shadow's; and the owner of each."""
+        mdl = self.model
+        G = np.diag(np.ones(mdl.m) if g is None else np.asarray(g, float))
         act = []
         for i, (Fi, Ga, Ci, Da) in enumerate(self._act_blocks):
             if i in shadow:
@@ -238,13 +307,16 @@ class Predictor(MeanResponses, Linearization, Spectra):
         if self._nonlin and dcolor:
             act.append([(*blk, np.eye(mdl.m)) for blk in dcolor])
             act_ids.append(self._distortion_owner())
-        blocks = [b for bl in act for b in bl]
+        return act, act_ids
+
+    def _transition(self, blocks: list, sen: list) -> tuple[np.ndarray, int]:
+        """F of s = [plant (+ lag), actuator blocks' states, sensor states], and the actuator
+        states' count: the plant driven by each block's output through B_d times its gain."""
+        mdl = self.model
         na = sum(b[0].shape[0] for b in blocks)
-        sen = [e.sensor_linear() for e in self._sen_lin]
         Fs = block_diag(*[s[0] for s in sen]) if sen else np.zeros((0, 0))
-        ns_ = Fs.shape[0]
         nx = mdl.n_x
-        n_s = nx + na + ns_
+        n_s = nx + na + Fs.shape[0]
         F = np.zeros((n_s, n_s))
         F[:nx, :nx] = mdl.Ad
         a0 = 0
@@ -254,47 +326,14 @@ class Predictor(MeanResponses, Linearization, Spectra):
             F[nx + a0:nx + a0 + k, nx + a0:nx + a0 + k] = Fi
             a0 += k
         F[nx + na:, nx + na:] = Fs
-        cols, owners, Jc, Jdc = [], {}, [], []
+        return F, na
+
+    def _output_rows(self, blocks: list, sen: list, n_s: int, na: int) -> tuple[np.ndarray, np.ndarray]:
+        """H (y from s) and Hd (ydot from s, for the jitter), times the sensor gain."""
+        mdl = self.model
+        nx = mdl.n_x
         gain = mdl.out_gain[:, None]
         CyBc = mdl.Cy @ mdl.Bc
-        start = 0
-
-        def add(eid, col_block, j_block, jd_block):
-            nonlocal start
-            k = col_block.shape[1]
-            owners[eid] = np.concatenate([owners.get(eid, np.zeros(0, np.int64)), np.arange(start, start + k)])
-            start += k
-            cols.append(col_block)
-            Jc.append(j_block)
-            Jdc.append(jd_block)
-
-        a0 = 0
-        for eid, bl in zip(act_ids, act):
-            for _, Ga, _, Da, Gi in bl:
-                k, ka = Da.shape[1], Ga.shape[0]
-                col = np.zeros((n_s, k))
-                col[:nx] = mdl.Bd @ Gi @ Da
-                col[nx + a0:nx + a0 + ka] = Ga
-                a0 += ka
-                add(eid, col, gain * (mdl.Dy @ Gi @ Da), gain * (CyBc @ Gi @ Da))
-        if self._nonlin and dstd is not None:
-            Dd = np.diag(np.asarray(dstd, float))
-            col = np.zeros((n_s, mdl.m))
-            col[:nx] = mdl.Bd @ Dd
-            add(self._distortion_owner(), col, gain * (mdl.Dy @ Dd), gain * (CyBc @ Dd))
-        if "process.white" in mdl.effects and mdl.S_proc.shape[1]:
-            col = np.zeros((n_s, mdl.S_proc.shape[1]))
-            col[:nx] = mdl.S_proc
-            z = np.zeros((mdl.p, col.shape[1]))
-            add("process.white", col, z, z)
-        s0 = 0
-        for e, (Fi, Gi, Hi) in zip(self._sen_lin, sen):
-            col = np.zeros((n_s, Gi.shape[1]))
-            col[nx + na + s0:nx + na + s0 + Gi.shape[0]] = Gi
-            s0 += Gi.shape[0]
-            z = np.zeros((mdl.p, col.shape[1]))
-            add(e.id, col, z, z)
-        Gam = np.hstack(cols) if cols else np.zeros((n_s, 0))
         H = np.zeros((mdl.p, n_s))
         H[:, :nx] = gain * mdl.Cy
         H[:, nx + na:] = np.hstack([s[2] for s in sen]) if sen else np.zeros((mdl.p, 0))
@@ -306,9 +345,7 @@ class Predictor(MeanResponses, Linearization, Spectra):
             H[:, nx + a0:nx + a0 + k] = gain * (mdl.Dy @ Gi @ Ci)
             Hd[:, nx + a0:nx + a0 + k] = gain * (CyBc @ Gi @ Ci)
             a0 += k
-        J = np.hstack(Jc) if Jc else np.zeros((mdl.p, 0))
-        Jd = np.hstack(Jdc) if Jdc else np.zeros((mdl.p, 0))
-        return LinearSystem(F, Gam, H, J, Hd, Jd, owners, nx, slice(0, mdl.plant.n), na)
+        return H, Hd
 
     # -- primitives (non-state effects) ----------------------------------------------------------------
     def _primitives(self, mean: MeanResponse | None = None, jitter_ydot2: np.ndarray | None = None):
@@ -388,25 +425,63 @@ class Predictor(MeanResponses, Linearization, Spectra):
         mdl = self.model
         notes = []
         # the mean response over the horizon only where a term depends on the signal (the
-        # nonlinearities' gains, the jitter's slope, the quantizer's spread): at Ts <= 57 us the
-        # horizon is 10^6 samples, seconds and 100s of MB for a model that needs none of it
-        needs_mean = bool(self._nonlin) or "sensor.quantization" in mdl.effects or "sensor.jitter" in mdl.effects
+        # nonlinearities' gains, the effects' ``signal_dependent`` terms: the jitter's slope, the
+        # quantizer's spread): at Ts <= 57 us the horizon is 10^6 samples, seconds and 100s of MB
+        # for a model that needs none of it
+        needs_mean = bool(self._nonlin) or any(e.signal_dependent for e in mdl.effects.values())
         mean = self._own_mean() if needs_mean else None
         avg = self._own_averages(mean) if needs_mean else None
-        burn = min(mean.t.size // 2, _settle_samples(mdl)) if needs_mean else 0
-        # the gains after the transient (the drive noise's variance grows from zero at the start),
-        # over the samples held, the window of their spectral fits (_colors) too
-        g = np.sqrt(np.mean(mean.gain[burn:] ** 2, axis=0)) if self._nonlin else None
-        dstd = np.sqrt(np.mean(mean.distortion_var[burn:], axis=0)) if self._nonlin else None
-        shadow, dcolor = self._colors(mean, burn, dstd) if self._nonlin else ({}, {})
-        if self._nonlin:
-            notes.append("actuator nonlinearities linearized around the mean drive (seed section 7): "
-                         "rms gain " + ", ".join(f"{v:.4g}" for v in g) + ", distortion std "
-                         + ", ".join(f"{v:.3g}" for v in dstd)
-                         + (" treated as white" if not dcolor else "")
-                         + (f", over the first {mean.t.size * mdl.Ts:.4g} s of the command (the samples held at "
-                            f"once, HORIZON_MAX) of the {self.span * mdl.Ts:.4g} s horizon"
-                            if self.span > mean.t.size else ""))
+        ls = self._linearized_system(mean, notes) if self._nonlin else self.linear_system(None, None, {}, [])
+        plant_part = slice(0, ls.n_x + ls.n_act)
+        marginal, walk_y, walk_ydot = self._integrator_modes(ls, notes)
+        rad = np.max(np.abs(np.linalg.eigvals(ls.F[plant_part, plant_part])), initial=0.0)
+        stable = bool(rad < 1.0) and not marginal
+        marginal = marginal and bool(rad < 1.0)
+        contributions, Pj, Dj, Ptot, ydot_var = self._source_covariances(ls, stable, marginal, walk_y)
+        walk_rate = None
+        if marginal:
+            # the walk's part of y takes H Pi Gamma w_k per sample (Pi: :func:`unit_projector`)
+            HPi = ls.H @ unit_projector(ls.F)
+            walk_rate = sum((np.sum((HPi @ ls.Gam[:, c]) ** 2, axis=1) for c in ls.owners.values()),
+                            np.zeros(mdl.p)) / mdl.Ts
+        slope_ok = stable or (marginal and not walk_ydot.any())
+        ydot2 = avg.ydot2 if needs_mean else np.zeros(mdl.p)
+        rate = self._primitive_contributions(contributions, ydot2, ydot_var, slope_ok)
+        if needs_mean:
+            # from the measurement back up the chain (what reaches an effect after the sum first)
+            for e in reversed(list(mdl.effects.values())):
+                others = sum(v for k, v in contributions.items() if v is not None and k != e.id)
+                note = e.approximation_note(avg, others)
+                if note:
+                    notes.append(note)
+        var_y = None if any(v is None for v in contributions.values()) else \
+            sum(contributions.values(), np.zeros(mdl.p))
+        Pp = Ptot[ls.plant_block, ls.plant_block] if stable else None
+        # published whole, the cache last: a predictor shared by threads (the comparison's views) may
+        # compute its steady state in two at once, and each reads complete, equal dicts
+        self._Pj, self._Dj, self._ls = Pj, Dj, ls
+        self._steady_cache = Steady(var_y=var_y, P=Pp, contributions=contributions,
+                                    bias_var_rate=rate, stable=stable, notes=notes,
+                                    ydot_var=ydot_var if slope_ok else None, walk_var_rate=walk_rate)
+        return self._steady_cache
+
+    def _linearized_system(self, mean: MeanResponse, notes: list) -> LinearSystem:
+        """The augmented system with the actuator nonlinearities linearized around the model's own
+        mean drive (seed section 7), its notes appended to ``notes``: the gains after the transient
+        (the drive noise's variance grows from zero at the start), over the samples held, the
+        window of their spectral fits (:meth:`_colors`) too."""
+        mdl = self.model
+        burn = min(mean.t.size // 2, _settle_samples(mdl))
+        g = np.sqrt(np.mean(mean.gain[burn:] ** 2, axis=0))
+        dstd = np.sqrt(np.mean(mean.distortion_var[burn:], axis=0))
+        shadow, dcolor = self._colors(mean, burn, dstd)
+        notes.append("actuator nonlinearities linearized around the mean drive (seed section 7): "
+                     "rms gain " + ", ".join(f"{v:.4g}" for v in g) + ", distortion std "
+                     + ", ".join(f"{v:.3g}" for v in dstd)
+                     + (" treated as white" if not dcolor else "")
+                     + (f", over the first {mean.t.size * mdl.Ts:.4g} s of the command (the samples held at "
+                        f"once, HORIZON_MAX) of the {self.span * mdl.Ts:.4g} s horizon"
+                        if self.span > mean.t.size else ""))
         for ch, (wvar, comps) in dcolor.items():
             notes.append(f"the distortion of input {ch}'s colored noise is colored too (Hermite terms of the "
                          f"noise's correlation): white std {np.sqrt(wvar):.3g} and {len(comps)} damped cosines")
@@ -417,34 +492,44 @@ class Predictor(MeanResponses, Linearization, Spectra):
                          "time: its mean gain " + ", ".join(f"{v:.4g}" for v in gbar) + " on its own "
                          "spectrum, the gain's fluctuation (std " + ", ".join(f"{v:.3g}" for v in gf)
                          + f") on {len(comps)} wider ones (damped cosines fitted to its spectrum)")
-        ls = self.linear_system(g, dstd, shadow, [b for _, bl in dcolor.values() for b in bl])
-        nx, n_s = ls.n_x, ls.F.shape[0]
-        plant_part = slice(0, nx + ls.n_act)
-        marginal = False
-        walk_y = walk_ydot = np.zeros(mdl.p, bool)     # per output: the walk reaches it (its slope)
+        return self.linear_system(g, dstd, shadow, [b for _, bl in dcolor.values() for b in bl])
+
+    def _integrator_modes(self, ls: LinearSystem, notes: list) -> tuple[bool, np.ndarray, np.ndarray]:
+        """(marginal, walk_y, walk_ydot): whether the plant integrates (A with an eigenvalue 0), and
+        per output whether its walk reaches y (its slope). Such a plant's unit modes are made to
+        leak in ``ls.F`` (:func:`leak_unit_modes`), its notes appended to ``notes``."""
+        mdl = self.model
+        nx = ls.n_x
+        walk_y = walk_ydot = np.zeros(mdl.p, bool)
         leaked = leak_unit_modes(ls.F[:nx, :nx], mdl.Ac, mdl.Ts)
-        if leaked is not None:
-            # integrators (A with an eigenvalue 0): the plant's unit modes leak by LEAK per sample, so
-            # that every source has a (huge) stationary covariance whose increments are those of the
-            # exact walk. Only the plant's own modes: a noise state's near-unit pole is its own model.
-            ls.F[:nx, :nx], Vu = leaked
-            marginal = True
-            # the outputs (and slopes) the walk reaches have no steady-state variance; the others
-            # (a motor's speed beside its angle) keep theirs (Vu's columns are orthonormal Schur
-            # vectors: unit length)
-            walk_y = np.any(np.abs(ls.H[:, :nx] @ Vu) > 1e-9 * np.linalg.norm(ls.H), axis=1)
-            walk_ydot = np.any(np.abs(ls.Hd[:, :nx] @ Vu) > 1e-9 * np.linalg.norm(ls.Hd), axis=1)
-            if not walk_y.any():
-                notes.append("the plant integrates (an eigenvalue of A at 0), but no output sees its walk: "
-                             "the outputs keep their steady state")
-            else:
-                reached = "its output has" if mdl.p == 1 else \
-                    "output " + ", ".join(str(j) for j in np.flatnonzero(walk_y)) + f" (of 0..{mdl.p - 1}) has"
-                notes.append(f"the plant integrates (an eigenvalue of A at 0): {reached} no steady-state "
-                             "variance, only stationary increments (variogram, PSD of the differenced output)")
-        rad = np.max(np.abs(np.linalg.eigvals(ls.F[plant_part, plant_part])), initial=0.0)
-        stable = bool(rad < 1.0) and not marginal
-        marginal = marginal and bool(rad < 1.0)
+        if leaked is None:
+            return False, walk_y, walk_ydot
+        # the plant's unit modes leak by LEAK per sample, so that every source has a (huge)
+        # stationary covariance whose increments are those of the exact walk. Only the plant's own
+        # modes: a noise state's near-unit pole is its own model.
+        ls.F[:nx, :nx], Vu = leaked
+        # the outputs (and slopes) the walk reaches have no steady-state variance; the others
+        # (a motor's speed beside its angle) keep theirs (Vu's columns are orthonormal Schur
+        # vectors: unit length)
+        walk_y = np.any(np.abs(ls.H[:, :nx] @ Vu) > 1e-9 * np.linalg.norm(ls.H), axis=1)
+        walk_ydot = np.any(np.abs(ls.Hd[:, :nx] @ Vu) > 1e-9 * np.linalg.norm(ls.Hd), axis=1)
+        if not walk_y.any():
+            notes.append("the plant integrates (an eigenvalue of A at 0), but no output sees its walk: "
+                         "the outputs keep their steady state")
+        else:
+            reached = "its output has" if mdl.p == 1 else \
+                "output " + ", ".join(str(j) for j in np.flatnonzero(walk_y)) + f" (of 0..{mdl.p - 1}) has"
+            notes.append(f"the plant integrates (an eigenvalue of A at 0): {reached} no steady-state "
+                         "variance, only stationary increments (variogram, PSD of the differenced output)")
+        return True, walk_y, walk_ydot
+
+    def _source_covariances(self, ls: LinearSystem, stable: bool, marginal: bool, walk_y: np.ndarray):
+        """Per noise source of the augmented system, its stationary covariance P_j (Lyapunov) and
+        its share of Var(y): (contributions, P_j, D_j (marginal plants: (I - F) P_j), sum of P_j,
+        Var(ydot) of the noise). A source that drives an unstable plant contributes None."""
+        mdl = self.model
+        n_s = ls.F.shape[0]
+        plant_part = slice(0, ls.n_x + ls.n_act)
         contributions: dict = {}
         Ptot = np.zeros((n_s, n_s))
         ydot_var = np.zeros(mdl.p)
@@ -470,15 +555,15 @@ class Predictor(MeanResponses, Linearization, Spectra):
                 c = None if walk_y.all() else np.where(walk_y, np.nan, c)
             contributions[eid] = c
             ydot_var += np.einsum("ij,jk,ik->i", ls.Hd, Pk, ls.Hd) + np.sum(ls.Jd[:, cols] ** 2, axis=1)
-        walk_rate = None
-        if marginal:
-            # the walk's part of y takes H Pi Gamma w_k per sample (Pi: :func:`unit_projector`)
-            HPi = ls.H @ unit_projector(ls.F)
-            walk_rate = sum((np.sum((HPi @ ls.Gam[:, c]) ** 2, axis=1) for c in ls.owners.values()),
-                            np.zeros(mdl.p)) / mdl.Ts
-        slope_ok = stable or (marginal and not walk_ydot.any())
+        return contributions, Pj, Dj, Ptot, ydot_var
+
+    def _primitive_contributions(self, contributions: dict, ydot2: np.ndarray, ydot_var: np.ndarray,
+                                 slope_ok: bool) -> np.ndarray:
+        """The primitives' (:meth:`_primitives`) shares of Var(y) put into ``contributions``; returns
+        the walks' growth of Var(y) per second. A slope-modulated white noise's (``jitter``) is
+        s2 (E[ydot]^2 + Var(ydot)), None where the noise's slope has no steady state."""
+        mdl = self.model
         rate = np.zeros(mdl.p)
-        ydot2 = avg.ydot2 if needs_mean else np.zeros(mdl.p)
         for eid, kind, *prm in self._primitives():
             if kind == "white":
                 contributions[eid] = np.broadcast_to(prm[0], (mdl.p,)).copy()
@@ -488,30 +573,7 @@ class Predictor(MeanResponses, Linearization, Spectra):
                 contributions[eid] = prm[0] ** 2 / 2.0
             elif kind == "jitter":
                 contributions[eid] = prm[0] * (ydot2 + ydot_var) if slope_ok or not ydot_var.any() else None
-        q = mdl.effects.get("sensor.quantization")
-        if q is not None:
-            from .effects.sensor_quantization import uniform_model_error
-            spread = np.sqrt(avg.y_var + sum(
-                v for k, v in contributions.items() if v is not None and k != q.id))
-            err = uniform_model_error(spread, q.params["step"])
-            if np.any(err > 0.01):
-                notes.append("sensor.quantization: the signal spans few steps (std "
-                             + ", ".join(f"{s:.3g}" for s in spread) + " vs step "
-                             + ", ".join(f"{s:.3g}" for s in q.params["step"])
-                             + "): the uniform Delta^2/12 model may not hold")
-        if "sensor.jitter" in mdl.effects:
-            notes.append("sensor.jitter: first-order Taylor, variance std_s^2 E[ydot^2] averaged over "
-                         f"{avg.span_s:.3g} s of the model's command")
-        var_y = None if any(v is None for v in contributions.values()) else \
-            sum(contributions.values(), np.zeros(mdl.p))
-        Pp = Ptot[ls.plant_block, ls.plant_block] if stable else None
-        # published whole, the cache last: a predictor shared by threads (the comparison's views) may
-        # compute its steady state in two at once, and each reads complete, equal dicts
-        self._Pj, self._Dj, self._ls = Pj, Dj, ls
-        self._steady_cache = Steady(var_y=var_y, P=Pp, contributions=contributions,
-                                    bias_var_rate=rate, stable=stable, notes=notes,
-                                    ydot_var=ydot_var if slope_ok else None, walk_var_rate=walk_rate)
-        return self._steady_cache
+        return rate
 
     # -- the quantizer's correlated error (:mod:`.effects.sensor_quantization`) ----------------------------
     def motion(self, n: int, mean_y: np.ndarray | None = None, k0: int = 0) -> np.ndarray:
@@ -534,14 +596,19 @@ class Predictor(MeanResponses, Linearization, Spectra):
         """Ids of the effects that are spectral lines (deterministic in a record: random phase only)."""
         return {eid for eid, kind, *_ in self._primitives() if kind == "tone"}
 
+    def after_sum(self):
+        """The effect that acts on the measurement after every other term is summed
+        (``acts_after_sum``: a quantizer), the last in the chain; None without one."""
+        return next((e for e in reversed(list(self.model.effects.values())) if e.acts_after_sum), None)
+
     def before_quantizer(self, gam: dict) -> np.ndarray:
-        """The variogram (L, p) of the random part of the signal before the quantizer: the sum of
-        the effects' variograms ``gam`` ({id: (L, p)}) but the quantizer's own and the tones' (the
-        tones are deterministic: in :meth:`motion`)."""
-        q = "sensor.quantization"
-        tones = self.tone_ids()
+        """The variogram (L, p) of the random part of the signal before the effect acting after the
+        sum (:meth:`after_sum`): the sum of the effects' variograms ``gam`` ({id: (L, p)}) but its
+        own and the tones' (the tones are deterministic: in :meth:`motion`)."""
+        q = self.after_sum()
+        skip = self.tone_ids() | ({q.id} if q is not None else set())
         L = next(iter(gam.values())).shape[0]
-        return sum((v for eid, v in gam.items() if eid != q and eid not in tones and v is not None),
+        return sum((v for eid, v in gam.items() if eid not in skip and v is not None),
                    np.zeros((L, self.model.p)))
 
     def quantization_acf(self, gam: dict, motion: np.ndarray | None, cache: Memo | None = None,
@@ -551,21 +618,20 @@ class Predictor(MeanResponses, Linearization, Spectra):
         (:meth:`quantizer_moments`): the error's conditional mean is in the mean response; the part
         is then the covariance about it, the error's covariance with the noise included unless
         ``stein`` is False (the likelihood scales the noise's own parts instead)."""
-        from .effects.sensor_quantization import quantization_acf
-        step = self.model.effects["sensor.quantization"].params["step"]
+        q = self.after_sum()
         cross = None
         if moments is not None and stein:
             # c(d) of the stationary random part: a walk's covariance with the error (2 h times its
             # growing variance) is left out, and so are the tones (deterministic here, in the motion)
-            walks = {eid for eid, kind, *_ in self._primitives() if kind == "walk"}
+            walks = self.walk_ids()
             st = self.steady_state()
             stat = {eid: v for eid, v in gam.items() if eid not in walks}
-            keep = set(stat) - {"sensor.quantization"} - self.tone_ids()
+            keep = set(stat) - {q.id} - self.tone_ids()
             # (a source through a plant that integrates is left out where its walk reaches: NaN)
             sig2 = sum((np.nan_to_num(np.asarray(st.contributions[e], float)) for e in keep
                         if st.contributions.get(e) is not None), np.zeros(self.model.p))
             cross = sig2 - self.before_quantizer(stat)
-        return quantization_acf(step, self.before_quantizer(gam), motion, cache, moments, cross)
+        return q.error_acf(self.before_quantizer(gam), motion, cache, moments, cross)
 
     def quantizer_moments(self, mu: np.ndarray, k0: int = 0):
         """The quantizer's conditional moments (:func:`.effects.sensor_quantization.conditional_moments`)
@@ -577,24 +643,34 @@ class Predictor(MeanResponses, Linearization, Spectra):
         for a tone beside a coarse quantizer. A jitter counts at the model's own command's level.
         None without a quantizer or a stationary prediction, or when no output's error depends
         on mu."""
-        from .effects.sensor_quantization import conditional_moments
-        q = self.model.effects.get("sensor.quantization")
+        q = self.after_sum()
         if q is None:
             return None
         st = self.steady_state()
         if any(v is None or np.any(np.isnan(v)) for v in st.contributions.values()):
             return None
-        from .effects.sensor_quantization import mean_matters
         mu = np.asarray(mu, float).reshape(len(mu), -1)
         sig2 = sum((np.asarray(v, float) for e, v in st.contributions.items() if e != q.id), np.zeros(self.model.p))
-        walk0 = sum((e.init_std**2 for e in self.model.effects.values() if e.id == "sensor.bias_walk"),
-                    np.zeros(self.model.p))
+        walk0 = self.walk_initial_var()
         # the smallest variance (the record's start) decides whether any sample's mean is there
-        step = np.broadcast_to(np.asarray(q.params["step"], float), (self.model.p,))
-        if not np.any(mean_matters(step, sig2 + walk0)):
+        if not np.any(q.moments_matter(sig2 + walk0)):
             return None
         if np.any(st.bias_var_rate > 0) or np.any(walk0 > 0):
             t = (k0 + np.arange(mu.shape[0]))[:, None] * self.model.Ts
             sig2 = sig2 + walk0 + st.bias_var_rate * t
-        mo = conditional_moments(q.params["step"], mu, sig2)
-        return mo if mo.active.any() else None
+        mo = q.error_moments(mu, sig2)
+        return mo if mo is not None and mo.active.any() else None
+
+    def walk_initial_var(self) -> np.ndarray:
+        """(p,) Var(b_0) summed over the walks (their ``("walk", q, var0)`` primitives)."""
+        return sum((np.asarray(prm[1], float) for _, kind, *prm in self._primitives() if kind == "walk"),
+                   np.zeros(self.model.p))
+
+    def slope_modulated(self) -> dict:
+        """{effect id: s2} of the white noises whose variance follows the signal's slope,
+        s2 ydot_k^2 (their ``("jitter", s2)`` primitives)."""
+        return {eid: prm[0] for eid, kind, *prm in self._primitives() if kind == "jitter"}
+
+    def walk_ids(self) -> set:
+        """Ids of the effects that are walks (nonstationary: a growing variance, no ACF)."""
+        return {eid for eid, kind, *_ in self._primitives() if kind == "walk"}

@@ -193,9 +193,13 @@ class _Chain:
         self.act_src = [e for e in eff if hasattr(e, "actuator_terms")]
         self.act_nl = [e for e in eff if e.stage == "actuator" and hasattr(e, "apply")]
         self.sen_src = [e for e in eff if hasattr(e, "sensor_terms")]
-        self.jitter = model.effects.get("sensor.jitter")
-        self.quant = model.effects.get("sensor.quantization")
-        self.proc = self.slots.get("process.white")
+        # sampling-time errors (``time_errors``), static maps of the measurement after the sum
+        # (``acts_after_sum``), and the normals of the state-noise sources (columns of S_proc)
+        self.timing = [e for e in eff if hasattr(e, "time_errors")]
+        self.out_maps = [e for e in eff if e.acts_after_sum]
+        procs = [self.slots[e.id] for e in model.proc_sources if e.id in self.slots]
+        self.proc = None if not procs else procs[0] if len(procs) == 1 else \
+            np.concatenate([np.arange(sl.start, sl.stop) for sl in procs])
 
     def noise_terms(self, eps):
         """State-independent terms for a block of normals: actuator noises (trials, n, m) each,
@@ -208,7 +212,7 @@ class _Chain:
                 sen.append(e.sensor_terms(eps[..., self.slots[e.id]], self.states[e.id]))
             else:
                 sen.append(e.sensor_terms(None, self.states[e.id], n))
-        dt = self.jitter.time_errors(eps[..., self.slots[self.jitter.id]]) if self.jitter else None
+        dt = sum(e.time_errors(eps[..., self.slots[e.id]]) for e in self.timing) if self.timing else None
         return act, sen, dt
 
 
@@ -256,8 +260,8 @@ def simulate_blocks(model, n: int, *, seed=None, trials: int | None = None, comm
         if dt is not None:
             ydot = (_mul(x, CyAc.T) + _mul(drive, CyBc.T)) * model.out_gain
             y = y + ydot * dt
-        if chain.quant is not None:
-            y = chain.quant.apply(y)
+        for e in chain.out_maps:
+            y = e.apply(y)
         t = np.arange(k0, k0 + nb) * model.Ts
         yield Record(t=t, x=x[..., :n_plant], u=u, drive=drive, y=y)
 
@@ -281,7 +285,7 @@ class Stepper:
         self._end = 0                       # buffered samples cover k < self._end
         self.x = np.zeros((1, model.n_x))
         m = model
-        self._jit = self._chain.jitter is not None
+        self._jit = bool(self._chain.timing)
         # one product per sample: [x_k, drive_k, e_proc,k] @ M = [x_{k+1}, y_k (plant part), ydot_k]
         nx, p = m.n_x, m.p
         blocks = [[m.Ad.T, m.Cy.T * m.out_gain, (m.Cy @ m.Ac).T * m.out_gain],
@@ -295,7 +299,7 @@ class Stepper:
         self._nx, self._p = nx, p
         self._np = m.plant.n
         self._nl = [e.apply for e in self._chain.act_nl]
-        self._q = self._chain.quant.apply if self._chain.quant is not None else None
+        self._out_maps = [e.apply for e in self._chain.out_maps]
         self._cmd_k0, self._cmd = 0, np.empty((0, m.m))
 
     def _refill(self) -> None:
@@ -345,8 +349,8 @@ class Stepper:
             y = y + s_[i]
         if self._jit:
             y = y + out[:, self._nx + self._p:] * self._dt[i]
-        if self._q is not None:
-            y = self._q(y)
+        for f in self._out_maps:
+            y = f(y)
         self.x = out[:, :self._nx]
         self.k = k + 1
         return k * m.Ts, x[0, :self._np], u[0], y[0]

@@ -26,7 +26,8 @@ SHADOW_BLOCKS = 4         # at most so many blocks for a colored source's gain f
 
 class Spectra:
     """The spectra of a :class:`.predict.Predictor` (a mixin): per effect, from its steady state
-    (``steady_state``, ``_ls``, ``_Pj``, ``_Dj``), its primitives and its quantizer's correlated error."""
+    (``steady_state``, ``_ls``, ``_Pj``, ``_Dj``), its primitives and the correlated error of the
+    effect acting after the sum (``after_sum``, ``quantization_acf``: a quantizer)."""
 
     # -- spectra -------------------------------------------------------------------------------------
     def psd(self, f: np.ndarray) -> tuple[dict, list]:
@@ -116,10 +117,11 @@ class Spectra:
                 out[eid] = R
             elif kind == "tone":
                 out[eid] = prm[0] ** 2 / 2.0 * np.cos(2 * np.pi * d[:, None] * prm[1] * mdl.Ts)
-        if quantization and "sensor.quantization" in mdl.effects and all(v is not None for v in out.values()):
+        q = self.after_sum()
+        if quantization and q is not None and all(v is not None for v in out.values()):
             gam = {eid: R[0] - R for eid, R in out.items()}
             gam.update(self._walk_variograms(L))
-            out["sensor.quantization"] = self.quantization_acf(gam, self.motion(max(L, self.horizon)))
+            out[q.id] = self.quantization_acf(gam, self.motion(max(L, self.horizon)))
         return out
 
     def _walk_variograms(self, L: int) -> dict:
@@ -145,13 +147,14 @@ class Spectra:
             out.update(self._walk_variograms(L))
             return out
         # a plant that integrates: the sources through it from (I - F) P (no R(0) at the walk's scale)
+        q = self.after_sum()
         out = {eid: None if R is None else R[0] - R for eid, R in self.acf(L, False, skip=tuple(self._Dj)).items()
-               if eid != "sensor.quantization"}
+               if q is None or eid != q.id}
         out.update({eid: self._increments(eid, L) for eid in self._Dj})
         out.update(self._walk_variograms(L))
-        if quantization and "sensor.quantization" in self.model.effects:
+        if quantization and q is not None:
             R = self.quantization_acf(out, self.motion(max(L, self.horizon)))
-            out["sensor.quantization"] = R[0] - R
+            out[q.id] = R[0] - R
         return out
 
     def _increments(self, eid: str, L: int) -> np.ndarray:

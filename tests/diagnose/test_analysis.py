@@ -684,7 +684,7 @@ def test_drive_noise_var_equals_the_closed_form(text, name):
 def test_cached_predictions_give_the_uncached_numbers_and_stay_bounded():
     """compare() on records of growing length (what a live analyzer does while its window fills:
     the variogram is computed once for a generous length and sliced) gives exactly the floats of a
-    cold compare() of each record; the cache holds at most CACHE_MAX_BYTES, keeps one variogram
+    cold compare() of each record; the cache holds at most its byte bound, keeps one variogram
     per model, and a model whose text differs is a different entry."""
     from service.diagnose import compare as cm
 
@@ -693,9 +693,9 @@ def test_cached_predictions_give_the_uncached_numbers_and_stay_bounded():
     lengths = [3000, 3500, 5000, 7001, 12_000]
     cm.cache_clear()
     warm = [compare(mdl, rec.t[:n], rec.y[:n], rec.u[:n], burn=None) for n in lengths]
-    gammas = [k for k in cm._CACHE if k[1] == "gamma"]
-    assert len(gammas) == 1 and cm._CACHE[gammas[0]][0][0] >= 12_000 - transient_samples(mdl)
-    assert 0 < cm._cache_bytes <= cm.CACHE_MAX_BYTES
+    gammas = [v for k, v in cm.CACHE.items() if k[1] == "gamma"]
+    assert len(gammas) == 1 and gammas[0][0] >= 12_000 - transient_samples(mdl)
+    assert 0 < cm.CACHE.bytes <= cm.CACHE.nbytes
     for n, w in zip(lengths, warm):
         cm.cache_clear()
         cold = compare(mdl, rec.t[:n], rec.y[:n], rec.u[:n], burn=None)
@@ -704,13 +704,13 @@ def test_cached_predictions_give_the_uncached_numbers_and_stay_bounded():
             assert np.array_equal(a.predicted, b.predicted) and np.array_equal(a.z, b.z), (n, a.name)
     # a byte bound smaller than one variogram: computed, used, not kept; the bound holds
     other = load_model("seed-nominal")
-    old = cm.CACHE_MAX_BYTES
+    old = cm.CACHE.nbytes
     try:
-        cm.CACHE_MAX_BYTES = 64 * 1024
+        cm.CACHE.nbytes = 64 * 1024
         c_small = compare(other, rec.t, rec.y, rec.u, burn=None)
-        assert cm._cache_bytes <= cm.CACHE_MAX_BYTES
+        assert cm.CACHE.bytes <= cm.CACHE.nbytes
     finally:
-        cm.CACHE_MAX_BYTES = old
+        cm.CACHE.nbytes = old
     cm.cache_clear()
     assert compare(other, rec.t, rec.y, rec.u, burn=None).error == c_small.error
 

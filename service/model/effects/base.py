@@ -33,9 +33,31 @@ Prediction hooks (implemented by the effects they concern; defaults contribute n
 * ``augment()``: continuous states added to the plant (actuator lag).
 * ``process_factor()``: the per-sample state-noise factor S (x_{k+1} += S e_k).
 * ``sensor_linear()``: a sensor source with states (Gauss-Markov bias): (F, G, H), y += H s.
-* ``spectral()``: non-state contributions as primitives: ``("white", var)``, ``("walk", q, var0)``,
-  ``("tone", amplitude, frequency_hz)``.
+* ``spectral()``: non-state contributions as primitives: ``("white", var)``, ``("walk", q, var0)``
+  (increment variance q per sample, initial variance var0 = Var(b_0)), ``("tone", amplitude,
+  frequency_hz)``, ``("jitter", s2)`` (white noise whose variance follows the signal's slope,
+  s2 ydot_k^2: the comparison widens its estimators' spreads for that modulation).
 * ``output_gain()``: a multiplicative modifier of the plant output (scale factor).
+* ``time_errors(e)``: a sampling-time error dt_k per sample, entering y as ydot_k dt_k (jitter).
+
+Prediction hooks that say how an effect takes part (class attributes and methods in the
+"prediction hooks" section of :class:`Effect`, whose defaults contribute nothing):
+
+* ``signal_dependent``: its prediction depends on the model's own mean response over the horizon
+  (the jitter's slope, the quantizer's spread): the predictor computes that mean response only
+  for a model with such an effect (or an actuator nonlinearity).
+* ``acts_after_sum``: a static map of the measurement after every other term is summed
+  (quantization, through ``apply(y)`` in the simulation). Its part of the second-order predictions
+  is not independent of the others: :meth:`Effect.error_acf` forms it from the other effects'
+  variogram and the deterministic motion, :meth:`Effect.error_moments` gives its conditional
+  moments over a record's mean (its action on the mean), :meth:`Effect.moments_matter` whether a
+  noise of a given variance leaves it any. At most one such effect is predicted (the last in the
+  chain).
+* ``without_plant``: why the effect cannot exist in a sensor-only model beyond its stage (process
+  and actuator effects need a plant by their stage), or None.
+* ``approximation_note(avg, others_var)``: one sentence on the approximation its prediction makes
+  for this model (``avg``: the horizon averages of the mean response, ``others_var``: the variance
+  the other effects add), or None.
 
 Diagnosis hooks (how the effect is found and fitted from a residual, :mod:`service.diagnose`).
 The diagnosis never names an effect: it asks these, and each default contributes nothing.
@@ -182,6 +204,29 @@ class Effect:
     def init_state(self, static_rng: np.random.Generator, trials: int) -> dict:
         """Per-run state (trials, ...). ``static_rng`` draws the run's static randoms."""
         return {}
+
+    # -- prediction hooks (see the module docstring; the defaults contribute nothing) ------------
+    signal_dependent: ClassVar[bool] = False
+    acts_after_sum: ClassVar[bool] = False
+    without_plant: ClassVar[str | None] = None
+
+    def approximation_note(self, avg, others_var: np.ndarray) -> str | None:
+        """A sentence on the approximation the prediction makes for this model; none by default."""
+
+    def error_acf(self, gamma: np.ndarray, motion: np.ndarray | None, cache=None, moments=None,
+                  cross: np.ndarray | None = None) -> np.ndarray:
+        """R(d) (L, p) of an effect acting after the sum, from the variogram ``gamma`` (L, p) of the
+        random part of the signal before it and the deterministic ``motion``; zero by default."""
+        return np.zeros_like(np.asarray(gamma, float))
+
+    def error_moments(self, mu: np.ndarray, sigma2: np.ndarray):
+        """Conditional moments of an effect acting after the sum over a record whose mean before it
+        is ``mu`` (n, p) and the random part's variance ``sigma2``; None by default."""
+
+    def moments_matter(self, sigma2: np.ndarray) -> np.ndarray:
+        """Per output, whether a noise of variance ``sigma2`` before this effect leaves it a
+        conditional mean (:meth:`error_moments`); never by default."""
+        return np.zeros(np.shape(sigma2), bool)
 
     # -- description ------------------------------------------------------------------------
     def param_dict(self) -> dict:

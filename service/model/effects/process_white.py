@@ -71,8 +71,10 @@ class ProcessWhite(Effect):
                              "(psd or the plant's A Ts too large for float64)")
         return discretize.psd_sqrt(Qd)
 
-    def bind(self, Ac: np.ndarray, L: np.ndarray) -> None:
+    def bind(self, Ac: np.ndarray, L: np.ndarray) -> np.ndarray:
+        """The factor of the assembled plant (``Ac``, ``L``), kept for :meth:`n_normals` and returned."""
         self._S = self.process_factor(Ac, L)
+        return self._S
 
     def n_normals(self) -> int:
         return self._S.shape[1]

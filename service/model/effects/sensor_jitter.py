@@ -43,3 +43,12 @@ class SensorJitter(Effect):
     def spectral(self, mean_sq_ydot=None):
         # filled in by the predictor, which knows E[ydot^2]
         return [("jitter", self.params["std_s"] ** 2)]
+
+    # -- prediction hooks (:mod:`.base`) ----------------------------------------------------------
+    signal_dependent = True           # its variance is std_s^2 E[ydot^2] over the command
+    without_plant = ("a sampling-time error dt shows as dy/dt * dt, and the reference is held over each sample "
+                     "(dy/dt = 0 between samples), so it adds nothing")
+
+    def approximation_note(self, avg, others_var):
+        return ("sensor.jitter: first-order Taylor, variance std_s^2 E[ydot^2] averaged over "
+                f"{avg.span_s:.3g} s of the model's command")

@@ -77,6 +77,34 @@ class SensorQuantization(Effect):
     def spectral(self):
         return [("white", self.params["step"] ** 2 / 12.0)]
 
+    # -- prediction hooks (:mod:`.base`) ----------------------------------------------------------
+    signal_dependent = True           # the uniform model's validity follows the signal's spread
+    acts_after_sum = True             # Q(sum of every other term)
+
+    def approximation_note(self, avg, others_var):
+        """The uniform Delta^2/12 model's validity (:func:`uniform_model_error`) for the spread of the
+        signal before the quantizer: the mean response's over the horizon and the other effects'."""
+        spread = np.sqrt(avg.y_var + others_var)
+        err = uniform_model_error(spread, self.params["step"])
+        if not np.any(err > 0.01):
+            return None
+        return ("sensor.quantization: the signal spans few steps (std " + ", ".join(f"{s:.3g}" for s in spread)
+                + " vs step " + ", ".join(f"{s:.3g}" for s in self.params["step"])
+                + "): the uniform Delta^2/12 model may not hold")
+
+    def error_acf(self, gamma, motion, cache=None, moments=None, cross=None):
+        """:func:`quantization_acf` of this quantizer's step."""
+        return quantization_acf(self.params["step"], gamma, motion, cache, moments, cross)
+
+    def error_moments(self, mu, sigma2):
+        """:func:`conditional_moments` of this quantizer's step."""
+        return conditional_moments(self.params["step"], mu, sigma2)
+
+    def moments_matter(self, sigma2):
+        """:func:`mean_matters` of this quantizer's step (per output)."""
+        step = np.broadcast_to(np.asarray(self.params["step"], float), np.shape(sigma2))
+        return mean_matters(step, sigma2)
+
 
 def uniform_model_error(sigma: np.ndarray, step: np.ndarray) -> np.ndarray:
     """Relative error bound of Delta^2/12 for a Gaussian input of std ``sigma`` (first term of
