@@ -1,47 +1,22 @@
-"""Turn a recording into regularly sampled arrays for the analysis, saying what was wrong with it.
+"""Any recording as a series for the analysis, saying what was wrong with it.
 
 :func:`load_recording` is the one entry: it tells a noiselab recording, a foreign JSON MCAP and a
 ROS bag apart and calls the loader of each.
 
-* noiselab recordings: the device's ``measurement`` (and ``command``, ``truth`` when present),
-  aligned by seq; t = the payload's ``t``.
-* foreign recordings: ``--measurement TOPIC:FIELD`` picks a field (dotted path, ``[i]`` for list
-  items, a final ``.*`` for every numeric field below, e.g. ``/imu:linear_acceleration.x``,
-  ``/joint_states:position[2]``, ``/imu:angular_velocity.*``); several FIELDs may be given
-  comma-separated for a vector. One parser (:func:`parse_field_path`) serves both kinds:
-  - a JSON MCAP: time from a field (``--time FIELD``, seconds, or ``FIELD_ns`` style integer ns
-    when the name ends in ``_ns``, or a ``{sec, nanosec}`` stamp object, exact integer ns) or
-    from the MCAP publish_time. A file's message is untrusted: parsed within the wire decoders'
-    bounds (:func:`wire.loads`: size, nesting; NaN and Infinity are not JSON), its fields numbers
-    within float64 (times in ns within int64), else one line naming the topic, the sample and
-    the field. ``.*`` expands on the first message, in its key order.
-  - a ROS bag (rosbag2 MCAP or SQLite3, a bag directory, a ROS 1 bag): decoded by
-    :mod:`.rosbag_in` (rosbags), time from ``header.stamp`` when the message has one,
-    else ``--time FIELD``, else the bag's log time.
-  Both then pass the same checks (magnitude, NaN, order, regular timing, the longest gap-free run).
-  Without a model (``Ts`` None: the ``allan`` command) the sample period is the record's median
-  step, said in a note; :attr:`Series.Ts` is the period the series was checked against.
+* noiselab recordings (:func:`load_noiselab`): the device's ``measurement`` (and ``command``,
+  ``truth`` when present), aligned by seq; t = the payload's ``t``.
+* foreign recordings (:func:`.foreign.load_foreign`): ``--measurement TOPIC:FIELD[,FIELD...]``
+  picks fields (:mod:`.fieldpaths`) of a JSON MCAP or a ROS bag.
 
-Gaps (a missing seq, or a time step over 1.5 Ts) are never silently ignored: the analysis uses
-the longest gap-free run and the notes say what was left out. A noiselab stream whose source
-restarted (its seq went back: :class:`.recording.TopicData` segments) is analysed one stream
-segment at a time: the one with the longest gap-free run unless ``segment`` names another, and a
-note gives every segment's length and when it began. Repeated messages (same seq, same sample) are
-counted once and noted; the reader refuses a seq twice with different data that no restart explains. Without a
-recorded command the analysis runs the model's own ``[command]``: ``Series.command`` and a note
-say which. Irregular timing (steps that differ
-from Ts by more than 0.1 % of Ts, or by more than 4 resolutions of the time field when that is
-coarser) is reported; a recording whose median step differs from the model's Ts by more than 1 %
-is rejected (wrong model or wrong field), noiselab recordings (payload ``t``) included.
-Integer-ns times (publish_time, ``*_ns`` fields) stay integers until the first stamp is
-subtracted (STYLE 13: epoch ns through float64 would keep only ~0.24 us).
-
-Every value the analysis uses (measurement, command, truth) is at most
-:data:`~service.bounds.MAGNITUDE_MAX` (1e50) in magnitude, the one bound of every number
-noiselab computes with (a model file's too): the estimators square the data, sum the squares
-over the record and square again (the spread of a variance estimate, the likelihood of a fit),
-which must stay finite in float64. A larger value is refused here, naming the topic, the field
-and the seq, instead of an overflow deep in an estimator.
+Every series then passes the checks of :mod:`.series` (magnitude, period, regular timing, the
+longest gap-free run). A noiselab stream whose source restarted (its seq went back:
+:class:`.recording.TopicData` segments) is analysed one stream segment at a time: the one with
+the longest gap-free run unless ``segment`` names another, and a note gives every segment's
+length and when it began. Repeated messages (same seq, same sample) are counted once and noted;
+the reader refuses a seq twice with different data that no restart explains. Without a recorded
+command the analysis runs the model's own ``[command]``: ``Series.command`` and a note say which.
+A recording whose median step differs from the model's Ts by more than 1 % is rejected (wrong
+model or wrong field), noiselab recordings (payload ``t``) included.
 """
 
 from __future__ import annotations
