@@ -59,7 +59,6 @@ def _read_span(f, offset: int, length: int) -> bytes | None:
     return f.read(length)
 
 
-
 def chunk_records(f, ci, path: str) -> bytes:
     """The decompressed, CRC-checked records of the chunk that ``ci`` (a ChunkIndex) points to."""
     buf = _read_span(f, ci.chunk_start_offset, ci.chunk_length)

@@ -49,6 +49,5 @@ class RecordingExistsError(FileExistsError):
         return f"{self.filename}: already exists; pass force=True (--force) to overwrite it"
 
 
-
 class SeriesError(ValueError):
     """A recording that cannot be turned into a series for the analysis (one-line message)."""

@@ -69,7 +69,6 @@ def finished_file(f, size: int) -> tuple[bool, str]:
     return True, ""
 
 
-
 def scan(path: str, topics: Iterable[str] | None, report: ScanReport, *, stream: bool = False
           ) -> Iterator[tuple[Schema | None, Channel, Message]]:
     """Messages of ``path`` in file order, with metadata collected into ``report``.

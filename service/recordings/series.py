@@ -28,6 +28,9 @@ from .errors import SeriesError
 
 @dataclass
 class Series:
+    """A recording made regular for the analysis and the diagnosis (the module docstring): the
+    longest gap-free run of samples, times in s from its first one."""
+
     t: np.ndarray                  # (N,) s, from the first kept sample's clock
     y: np.ndarray                  # (N, p)
     u: np.ndarray | None           # (N, m) recorded command or None
@@ -39,7 +42,6 @@ class Series:
     names: list | None = None      # a foreign recording's field per column of y (``.*`` expanded)
     units: list | None = None      # their units where the message type fixes them (ROS: REP 103), else None
     Ts: float | None = None        # s: the period the timing was checked against (the model's, or the median step)
-
 
 
 ASSUMED_COMMAND = "no command topic in the recording: the analysis assumes"
@@ -88,7 +90,6 @@ def check_magnitude(values: np.ndarray, where: str, field, index: np.ndarray, la
                         "a corrupted sample?)")
 
 
-
 def best_run(seq: np.ndarray) -> tuple[int, int]:
     """(start, stop) of the longest run of consecutive seqs (the first of equal ones)."""
     breaks = np.flatnonzero(np.diff(seq) != 1)
@@ -117,7 +118,6 @@ def record_step(t: np.ndarray, where: str, what: str, notes: list) -> float:
                             "period; give --time FIELD or --model")
     notes.append(f"{what}: no model: the sample period is the record's median step, Ts = {step:.6g} s")
     return step
-
 
 
 def check_period(dt: np.ndarray, Ts: float, what: str, notes: list) -> None:
