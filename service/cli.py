@@ -53,15 +53,16 @@ def _loaded(module: str, name: str):
 def _bad_input_types():
     """The error classes the CLI prints as one line with exit 2. A class whose module no command
     imported cannot have been raised, and is not imported here to be caught (:class:`_Lazy`)."""
-    McapIoError = _loaded("service.nodes.mcapio", "McapIoError")
-    RecordingExistsError = _loaded("service.nodes.mcapio", "RecordingExistsError")
+    McapIoError = _loaded("service.recordings.errors", "McapIoError")
+    RecordingExistsError = _loaded("service.recordings.errors", "RecordingExistsError")
+    SeriesError = _loaded("service.recordings.errors", "SeriesError")
     TransportError = _loaded("service.nodes.transport", "TransportError")
-    WireError = _loaded("service.nodes.wire", "WireError")
+    WireError = _loaded("service.wire", "WireError")
     AnalysisError = _loaded("service.diagnose.results", "AnalysisError")
     DemoError = _loaded("service.demo", "DemoError")
     StatsError = _loaded("service.stats.errors", "StatsError")
     return (ModelError, BadInput, WireError, McapIoError, RecordingExistsError, TransportError,
-            AnalysisError, StatsError, DemoError,
+            AnalysisError, SeriesError, StatsError, DemoError,
             FileNotFoundError, IsADirectoryError, PermissionError)
 
 
@@ -162,7 +163,7 @@ def cmd_simulate(args) -> int:
     n = int(round(args.duration / model.Ts))
     if n < 1:
         raise BadInput(f"--duration {args.duration:g} s is shorter than one sample (Ts = {model.Ts:g} s)")
-    from .nodes.simwrite import write_simulation
+    from .recordings.simulated import write_simulation
 
     ros2 = args.format == "ros2"
     out = Path(args.out) if args.out else Path("recordings") / (f"{model.name}-seed{args.seed}" + ("" if ros2 else ".mcap"))
@@ -248,9 +249,9 @@ def cmd_record(args) -> int:
 
 
 def cmd_recover(args) -> int:
-    from .nodes import mcapio
+    from .recordings.salvage import recover
 
-    st = mcapio.recover(args.broken, args.out, force=args.force)
+    st = recover(args.broken, args.out, force=args.force)
     rep = {"node": "recover", "input": args.broken, "output": args.out, "messages": st.messages,
            "total": st.total, "already_complete": st.already_complete, "note": st.note}
     lines = [f"recovered {st.total} messages from {args.broken} into {args.out}"
@@ -346,16 +347,17 @@ def load_series(args, model, truth: bool = True, read=None, steps=None):
     output format, besides the report's notes and its ``command`` field. ``steps``: the
     command's :class:`~service.progress.Steps`, told of the reading (its phase ends when the
     next begins)."""
-    from .diagnose import load as dload
+    from .recordings.load import load_recording
+    from .recordings.series import command_note
 
     path = args.recording
     _check_recording(path)
     if steps is not None:
         steps(f"reading {Path(path).name}")
-    series = dload.load_recording(path, spec=args.measurement, time_field=args.time, device=args.device,
-                                  Ts=model.Ts, model=model, segment=args.segment, truth=truth,
-                                  rec=None if read is None else read.result())
-    note = dload.command_note(series)
+    series = load_recording(path, spec=args.measurement, time_field=args.time, device=args.device,
+                            Ts=model.Ts, model=model, segment=args.segment, truth=truth,
+                            rec=None if read is None else read.result())
+    note = command_note(series)
     if note is not None:
         if steps is not None:
             steps.close()                   # the note on a line of its own, not inside a bar
@@ -376,14 +378,14 @@ def _read_early(args, truth: bool):
         _check_recording(args.recording)
     except BadInput:
         return None
-    from .nodes.rosbag import bag_kind
+    from .recordings.rosbag_in import bag_kind
     if bag_kind(args.recording) is not None:
         return None
     from . import parallel
-    from .diagnose.load import noiselab_kinds
-    from .nodes import mcapio
+    from .recordings.load import noiselab_kinds
+    from .recordings.reader import read_recording
     path, kinds = args.recording, noiselab_kinds(truth)
-    return parallel.fork_call(lambda: mcapio.read_recording(path, kinds=kinds))
+    return parallel.fork_call(lambda: read_recording(path, kinds=kinds))
 
 
 def _reading_early(args, body) -> int:

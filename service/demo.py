@@ -94,11 +94,11 @@ def run_demo(out_dir: Path, *, duration: float, speed: float, seed: int, force: 
     beside the narrative lines (the live run's time, the reading, each phase of the diagnosis
     with its fits counted, the files), or None."""
     from .diagnose.diagnose import diagnose
-    from .diagnose.load import load_noiselab
     from .diagnose.report import diagnosis_json
     from .model import load_model
     from .nodes.runner import run_pipeline
     from .outfiles import writing
+    from .recordings.load import load_noiselab
 
     outs = outputs(out_dir)
     if not force:

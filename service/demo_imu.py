@@ -43,12 +43,12 @@ def run_imu_demo(out_dir: Path, *, duration: float, speed: float, seed: int, for
     from .commands.export import kalibr_values, kalibr_yaml
     from .demo import DemoError
     from .diagnose.diagnose import diagnose
-    from .diagnose.load import load_noiselab
     from .diagnose.report import diagnosis_json
     from .model import load_model, parse_model
     from .model.coefficients import model_coefficients
     from .nodes.runner import run_pipeline
     from .outfiles import writing
+    from .recordings.load import load_noiselab
 
     outs = outputs(out_dir)
     if not force:

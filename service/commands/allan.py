@@ -18,7 +18,7 @@ TOPIC:FIELD[,FIELD...]`` of a foreign one):
 The data are taken as recorded (no mean response removed: a sensor at rest); the model's curve is
 that of its noise, so a model with a command says so in a note. Units are the model's ``[outputs]``
 units when a model is given; otherwise the output is named by its field, in the unit its ROS message
-type fixes (REP 103, :data:`service.nodes.rosbag.FIELD_UNITS`) or else the field name standing for
+type fixes (REP 103, :data:`service.recordings.rosbag_in.FIELD_UNITS`) or else the field name standing for
 the unit. Ts is the model's, else the median step of the recording's times.
 
 Output: the table on stdout; ``--json`` the same as one JSON document (keys below, stable);
@@ -72,8 +72,8 @@ def register(sub) -> None:
 # -- reading --------------------------------------------------------------------------------------
 def _load(args, model):
     """(series, output names, units, Ts) of the recording, through the one loader."""
-    from ..diagnose.load import load_recording
     from ..model.outputs import DEFAULT_UNIT
+    from ..recordings.load import load_recording
 
     if args.measurement and args.device:
         raise BadInput("--device names a device of a noiselab recording; with --measurement give the topic")

@@ -1,4 +1,5 @@
-"""Zenoh nodes (emulator, recorder, analyzer, replayer) and the wire contract.
+"""Zenoh nodes (emulator, recorder, analyzer, replayer).
 
-wire.py holds keys, payloads, schemas and time; mcapio.py reads and writes recordings.
+The wire contract (keys, payloads, schemas, time) is :mod:`service.wire`; recordings are read and
+written by :mod:`service.recordings`.
 """

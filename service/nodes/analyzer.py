@@ -44,12 +44,14 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import wire
 from ..diagnose.compare import AnalysisError, compare, transient_samples
 from ..errors import BadInput
 from ..model import ModelError, load_model
 from ..outfiles import check_out, png_path, writing
+from ..recordings.errors import shown
 from ..signals import stop_on_signals
-from . import mcapio, seqgate, transport, wire
+from . import seqgate, transport
 
 READY_MARK = "noiselab analyze: live on"
 HISTORY_MAX = 8192         # error-history entries kept (then thinned: ~2 h at 2 Hz before the first thinning)
@@ -141,7 +143,7 @@ class LiveAnalyzer:
         self.bad += n
         if reason not in self.said:
             self.said.add(reason)
-            print(f"noiselab analyze: skipped a message (further ones counted in 'malformed'): {mcapio.shown(text)}",
+            print(f"noiselab analyze: skipped a message (further ones counted in 'malformed'): {shown(text)}",
                   file=self.log, flush=True)
 
     def drain(self) -> None:

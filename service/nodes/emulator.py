@@ -51,7 +51,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import zenoh
 
-from . import mcapio, transport, wire
+from .. import wire
+from ..recordings.errors import shown
+from . import transport
 
 SPIN_NS = 300_000          # spin the last 0.3 ms before a deadline (sleep overshoots ~0.1 ms)
 
@@ -103,7 +105,7 @@ class _Control:
             self.bad += 1
             if self.bad == 1:
                 print(f"noiselab emulate: {self.name}: rejected a control, the previous command stays "
-                      f"(further ones counted in 'rejected_controls'): {mcapio.shown(exc)}", file=self.log, flush=True)
+                      f"(further ones counted in 'rejected_controls'): {shown(exc)}", file=self.log, flush=True)
             return
         with self.lock:
             self.u = u
@@ -282,5 +284,5 @@ def _report_end(name: str, end: dict, counts: dict, timeout: float, log) -> None
     for ack in end["acks"]:
         short = {kind: t["missing"] for kind, t in ack["topics"].items() if kind in counts and t["missing"]}
         if short:
-            print(f"noiselab emulate: {name}: recorder {mcapio.shown(ack['out'])} lacks "
+            print(f"noiselab emulate: {name}: recorder {shown(ack['out'])} lacks "
                   + ", ".join(f"{n} {kind}" for kind, n in short.items()), file=log, flush=True)

@@ -71,7 +71,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import zenoh
 
-from . import mcapio, seqgate, transport, wire
+from .. import wire
+from ..recordings.errors import McapIoError, McapWriteError, shown
+from ..recordings.writer import RecordingWriter
+from . import seqgate, transport
 
 CAPACITY = 16384     # samples the zenoh channel holds before zenoh stops reading the link
 BATCH = 4096         # samples taken from the channel per batch, at most
@@ -193,7 +196,7 @@ class RecorderSummary:
                        + ", ".join(f"{n} on {k}" for k, n in sorted(self.malformed_topics.items())) + ")")
         for prefix in sorted(self.unended):
             out.append(f"  {prefix}: {_unended_text(self.unended[prefix])}")
-        return [mcapio.shown(line) for line in out]
+        return [shown(line) for line in out]
 
 
 def _unended_text(last: dict) -> str:
@@ -227,7 +230,7 @@ class Ingest:
     """Decode, check, write and book batches of received samples (the recorder's main-thread
     work, without the transport: tests/bench calls it in-process)."""
 
-    def __init__(self, writer: "mcapio.RecordingWriter", out: str = "", log=sys.stderr,
+    def __init__(self, writer: "RecordingWriter", out: str = "", log=sys.stderr,
                  metadata: dict[str, str] | None = None):
         self.w = writer
         self.out = out
@@ -249,7 +252,7 @@ class Ingest:
         self.dropped_at_join: dict[str, tuple[int, int, int]] = {}   # topic -> (count, first, last seq)
 
     def _say(self, text: str) -> None:
-        print(f"noiselab record: {mcapio.shown(text)}", file=self.log, flush=True)
+        print(f"noiselab record: {shown(text)}", file=self.log, flush=True)
 
     def _skip(self, key: str, exc: Exception, n: int = 1, once: str | None = None) -> None:
         """Count ``n`` messages of ``key`` skipped; say the first few, and the first of a reason
@@ -478,9 +481,9 @@ class Ingest:
         """Write one message that has passed every check, and book it."""
         try:
             self.w.write(key, kind, seq, wire.anchored_ns(self._start(key, t, rx_ns), t), rx_ns, payload)
-        except mcapio.McapWriteError:
+        except McapWriteError:
             raise                                # the file takes no more: not a bad message
-        except (mcapio.McapIoError, wire.WireError) as exc:   # this message cannot be written (its times)
+        except (McapIoError, wire.WireError) as exc:   # this message cannot be written (its times)
             self._skip(key, exc)
             return
         if end is not None:
@@ -608,7 +611,7 @@ def run_recorder(session: "zenoh.Session", key_expr: str, out: str, *, duration:
     stop = stop or threading.Event()
     t_start = time.monotonic()
     meta = {"generator": "noiselab record", "key_expr": key_expr, "started_unix_ns": str(time.time_ns())}
-    with mcapio.RecordingWriter(out, force=force, chunk_size=chunk_size) as w:
+    with RecordingWriter(out, force=force, chunk_size=chunk_size) as w:
         ing = Ingest(w, str(out), log, metadata=meta)
         # the queryable first: a source that sees the subscriber has seen it too
         queries = session.declare_queryable(key_expr, zenoh.handlers.FifoChannel(256))

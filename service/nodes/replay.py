@@ -4,14 +4,14 @@ with congestion control BLOCK, so everything downstream works on recorded data a
 
 Messages go out in publish_time order across topics (the order a live source published them:
 for one sample truth, command, measurement), each topic in its recorded order, whatever order
-the file holds them in: :func:`mcapio.iter_time_ordered` merges the topics as it reads (a
+the file holds them in: :func:`iter_time_ordered` merges the topics as it reads (a
 streaming k-way merge, memory about one chunk per topic). A file written with large per-topic
 blocks (``noiselab simulate`` before it interleaved, or a foreign writer) thus replays like the
 live stream it describes instead of one topic after another.
 
 A ROS bag (rosbag2 directory, ``.mcap`` with the ``ros2`` profile or ``.db3``, ROS 1 ``.bag``:
-:func:`rosbag.bag_kind`) is replayed too: each message of every topic, decoded by rosbags
-(:func:`rosbag.iter_json`), is published as a JSON object of its fields by their ROS names
+:func:`rosbag_in.bag_kind`) is replayed too: each message of every topic, decoded by rosbags
+(:func:`rosbag_in.iter_json`), is published as a JSON object of its fields by their ROS names
 (nested messages as objects, so ``header.stamp`` is ``{"sec": ..., "nanosec": ...}``; arrays as
 lists; NaN and infinities as null) under the topic without its leading '/', in log-time order and
 paced by the bag's log time (the recorder's receive time, ns). Every message type is checked
@@ -34,7 +34,11 @@ from dataclasses import dataclass
 
 import zenoh
 
-from . import mcapio, rosbag, transport, wire
+from .. import wire
+from ..recordings import rosbag_in
+from ..recordings.merge import iter_time_ordered
+from ..recordings.scan import ScanReport, channel_topics, iter_messages
+from . import transport
 
 
 @dataclass
@@ -121,13 +125,13 @@ def replay_topics(path: str) -> list[str]:
     """The topics (without a leading ``/``) of a recording, from its summary (raises NotMcapError
     for a file that is not MCAP); an unfinished file is read for the topics of its intact messages.
     Payloads are not decoded: replay republishes them as recorded, whatever they hold. A ROS bag's
-    topics, once every message type is known decodable (:func:`rosbag.bag_topics`)."""
-    if rosbag.bag_kind(path) is not None:
-        return rosbag.bag_topics(path)
-    topics = mcapio.channel_topics(path)
+    topics, once every message type is known decodable (:func:`rosbag_in.bag_topics`)."""
+    if rosbag_in.bag_kind(path) is not None:
+        return rosbag_in.bag_topics(path)
+    topics = channel_topics(path)
     if topics is not None:
         return topics
-    return sorted({channel.topic.lstrip("/") for _, channel, _ in mcapio.iter_messages(path)})
+    return sorted({channel.topic.lstrip("/") for _, channel, _ in iter_messages(path)})
 
 
 def _device_of(key: str) -> str | None:
@@ -165,20 +169,20 @@ def _seq_matches(data: bytes, sequence: int | None) -> bool:
         return False
 
 
-def _messages(path: str, report: mcapio.ScanReport):
+def _messages(path: str, report: ScanReport):
     """(topic, pacing time ns, MCAP sequence or None, payload, Zenoh encoding or None) of every
     message in publish order: an MCAP file's as recorded, paced by publish_time, its channel's
     encoding (:func:`_encoding`); a ROS bag's as JSON, paced by log time, ``application/json;<type>``."""
-    if rosbag.bag_kind(path) is not None:
-        with rosbag.open_bag(path) as reader:
-            types = rosbag.topics(reader)
+    if rosbag_in.bag_kind(path) is not None:
+        with rosbag_in.open_bag(path) as reader:
+            types = rosbag_in.topics(reader)
         encodings = {topic: f"{wire.ZENOH_JSON};{msgtype}" if "/" in msgtype else wire.ZENOH_JSON
                      for topic, msgtype in types.items()}         # a ROS type has a '/'; "several types" none
-        for topic, log_ns, data in rosbag.iter_json(path):
+        for topic, log_ns, data in rosbag_in.iter_json(path):
             yield topic, log_ns, None, data, encodings.get(topic, wire.ZENOH_JSON)
         return
     encodings: dict[int, str | None] = {}
-    for schema, channel, message in mcapio.iter_time_ordered(path, report=report):
+    for schema, channel, message in iter_time_ordered(path, report=report):
         enc = encodings.get(channel.id, "")
         if enc == "":
             enc = encodings[channel.id] = _encoding(channel.message_encoding, schema.name if schema else None)
@@ -190,7 +194,7 @@ def run_replay(session: zenoh.Session, path: str, *, speed: float | None = 1.0, 
                log=sys.stderr) -> ReplaySummary:
     """Publish every message of ``path``; ``speed`` None = as fast as possible."""
     stop = stop or threading.Event()
-    report = mcapio.ScanReport()
+    report = ScanReport()
     pubs: dict[str, zenoh.Publisher] = {}
     kinds: dict[str, str | None] = {}     # topic -> its noiselab kind (its publisher says the encoding), or None
     anchors = _Anchors(speed)

@@ -23,8 +23,9 @@ from pathlib import Path
 
 import zenoh
 
+from .. import wire
 from ..args import DEFAULT_ENDPOINT, DEFAULT_PORT, add_transport_args  # noqa: F401  (the flags: stdlib only)
-from . import mcapio, wire
+from ..recordings.errors import shown
 
 ROLES = ("source", "sink", "router")
 
@@ -213,7 +214,7 @@ def recorder_ack(ack) -> bool:
 
 def _cut(text: str, n: int = 200) -> str:
     """A peer's error text as one line of at most ``n`` characters."""
-    text = mcapio.shown(text)
+    text = shown(text)
     return text if len(text) <= n else text[:n] + "..."
 
 

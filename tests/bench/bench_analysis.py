@@ -21,7 +21,7 @@ Parts (ratios against a named peer measured in the same run):
    every view: variance, acf, psd, allan) as a subprocess, wall time best and median of
    ``--repeat`` runs (target < 10 s); the same with ``--rrd`` (Rerun file + PNG, which also reads
    the truth topic) as information. Then in this process, the split:
-   ``service.diagnose.load.load_noiselab`` (without truth, as ``--json``; with truth, as ``--rrd``),
+   ``service.recordings.load.load_noiselab`` (without truth, as ``--json``; with truth, as ``--rrd``),
    ``compare()`` cold (its prediction caches cleared: what a fresh CLI process pays) and warm,
    ``viewers.rerun_log.log_comparisons`` (.rrd) and ``viewers.summary_png.write_summary_png``, and
    the interpreter start-up + imports of the CLI (``python -c "import service.cli, ..."``).
@@ -250,7 +250,7 @@ def peer_read(rec: Path, topics: list[str] | None) -> int:
 def bench_offline(model: Path, rec: Path, repeat: int, peer_repeat: int, rrd_repeat: int, workdir: Path,
                   wait: float | None, prof: bool) -> dict:
     from service.diagnose.compare import compare
-    from service.diagnose.load import load_noiselab
+    from service.recordings.load import load_noiselab
     from service.model import load_model
     from viewers.rerun_log import log_comparisons
     from viewers.summary_png import write_summary_png
@@ -287,8 +287,8 @@ def bench_offline(model: Path, rec: Path, repeat: int, peer_repeat: int, rrd_rep
     imp = []
     for _ in range(repeat):
         t0 = time.perf_counter()
-        subprocess.run([sys.executable, "-c", "import service.cli, service.diagnose.compare, service.diagnose.load, "
-                        "service.model, service.nodes.mcapio"], check=True, cwd=REPO, env=child_env())
+        subprocess.run([sys.executable, "-c", "import service.cli, service.diagnose.compare, service.recordings.load, "
+                        "service.model, service.recordings.reader"], check=True, cwd=REPO, env=child_env())
         imp.append(time.perf_counter() - t0)
     res["startup_imports"] = summary(imp)
     # in-process split
@@ -409,7 +409,8 @@ def _pump(stream, sink: list, mark: str | None = None, ev: threading.Event | Non
 
 def bench_live(model: Path, rec: Path, duration: float, window: float, update: float, source: str,
                wait: float | None, profile_to: Path | None = None, fill_s: float = 124.0) -> dict:
-    from service.nodes import transport, wire
+    from service.nodes import transport
+    from service import wire
     from service.nodes.runner import free_port
 
     wait_quiet(wait, "live")
@@ -597,7 +598,8 @@ def live_phases(model: Path, rec: Path, update: float, window: float, at: list[f
     at the stream times ``at``, as p50 / p90 / max while the window fills and once the ring buffer
     is full, and (``steady``) that many consecutive updates after the fill."""
     from service.diagnose.compare import compare  # noqa: F401  (import cost outside the timing)
-    from service.nodes import mcapio, wire
+    from service import wire
+    from service.recordings.scan import iter_messages
     from service.nodes.analyzer import LiveAnalyzer
 
     clear_compare_caches()
@@ -606,7 +608,7 @@ def live_phases(model: Path, rec: Path, update: float, window: float, at: list[f
     an.warm()
     warm_s = time.perf_counter() - t0
     keys = {wire.key(NAME, k) for k in ("measurement", "command")}
-    msgs = [(ch.topic, m.data, m.publish_time) for _s, ch, m in mcapio.iter_messages(str(rec)) if ch.topic in keys]
+    msgs = [(ch.topic, m.data, m.publish_time) for _s, ch, m in iter_messages(str(rec)) if ch.topic in keys]
     msgs.sort(key=lambda r: (r[2], r[0].endswith("measurement")))     # sample order, command first
     pub0 = msgs[0][2]
     step_ns = int(round(update * 1e9))

@@ -17,7 +17,7 @@ Parts (every ratio is against a named peer measured in the same run):
 
 1. ``pipeline``: ``noiselab record --listen P`` and ``noiselab emulate MODEL(Ts=1 ms) --duration
    60 --connect P --wait-subscribers 10 --json``. The emulator's --json summary gives deadline
-   lateness p50/p99/max and overruns; the recording is read back (``mcapio.read_recording``) and
+   lateness p50/p99/max and overruns; the recording is read back (``read_recording``) and
    each topic's message count is compared with the samples published (60,000), with its gaps,
    seqs missing at the start and at the end. The emulator exits once the recorder has acknowledged
    its end of stream; the recorder is then stopped with SIGINT, as ``noiselab run`` does
@@ -432,8 +432,8 @@ def stop_recorder(rec: Child, timeout: float = 300) -> tuple[dict, float]:
 
 def recording_books(path: Path, samples: int) -> dict:
     """Per topic of the recording file: count, gaps, missing at start / in gaps / at the end."""
-    from service.nodes import mcapio
-    recd = mcapio.read_recording(path)
+    from service.recordings.reader import read_recording
+    recd = read_recording(path)
     dev = recd.devices.get(NAME)
     out = {"complete": recd.complete, "note": recd.note, "topics": {}}
     for kind in ("truth", "command", "measurement"):
@@ -554,7 +554,7 @@ def bench_sweep(periods: list[float], duration: float, workdir: Path, linger: fl
 def make_messages(n_samples: int) -> list[tuple[str, str, int, int, bytes]]:
     """(topic, kind, seq, publish_ns, payload) of ``n_samples`` samples x 3 topics, interleaved."""
     from service.model.model import load_model
-    from service.nodes import wire
+    from service import wire
     model = load_model("seed")
     r = model.simulate(n_samples, seed=1)
     t, pub = wire.sample_times(0, n_samples, 0.001)
@@ -570,7 +570,7 @@ def make_messages(n_samples: int) -> list[tuple[str, str, int, int, bytes]]:
 
 def write_raw(msgs, path: Path) -> None:
     from mcap.writer import CompressionType, Writer
-    from service.nodes import wire
+    from service import wire
     with open(path, "wb") as f:
         w = Writer(f, chunk_size=64 * 1024, compression=CompressionType.ZSTD)
         w.start(profile="", library="bench")
@@ -588,8 +588,8 @@ def write_raw(msgs, path: Path) -> None:
 
 
 def write_ours(msgs, path: Path) -> None:
-    from service.nodes import mcapio
-    with mcapio.RecordingWriter(path, force=True, chunk_size=64 * 1024, compression="zstd") as w:
+    from service.recordings.writer import RecordingWriter
+    with RecordingWriter(path, force=True, chunk_size=64 * 1024, compression="zstd") as w:
         for topic, kind, seq, p, data in msgs:
             w.write(topic, kind, seq, p, p, data)
 
@@ -598,9 +598,10 @@ def write_recorder_loop(msgs, path: Path) -> None:
     """What run_recorder's main thread does with what it takes from its channel, minus zenoh:
     ``recorder.Ingest.add`` on batches of ``recorder.BATCH`` (key, payload) pairs (group by
     topic, decode, check, write, book)."""
-    from service.nodes import mcapio, recorder
+    from service.nodes import recorder
+    from service.recordings.writer import RecordingWriter
     items = [(topic, data) for topic, _kind, _seq, _p, data in msgs]
-    with mcapio.RecordingWriter(path, force=True, chunk_size=64 * 1024, compression="zstd") as w:
+    with RecordingWriter(path, force=True, chunk_size=64 * 1024, compression="zstd") as w:
         ing = recorder.Ingest(w, str(path))
         for i in range(0, len(items), recorder.BATCH):
             ing.add(items[i:i + recorder.BATCH], time.time_ns())
@@ -621,7 +622,8 @@ def blast_child(endpoint: str, n_samples: int, end: bool) -> None:
     emulator's publisher options, then (``end``) end the stream as the emulator does
     (``transport.end_stream``: end message, wait for the recorder's acknowledgement) and close;
     without ``end``, close right after the last put (the behaviour before the fix)."""
-    from service.nodes import transport, wire
+    from service.nodes import transport
+    from service import wire
     msgs = make_messages(n_samples)
     args = argparse.Namespace(connect=[endpoint], listen=None, config=None, mode=None, connect_timeout=10.0)
     with transport.open_session(args, "source") as session:
@@ -782,7 +784,7 @@ def latsub_child(endpoint: str) -> None:
 def latpub_child(endpoint: str, variant: str, seconds: float) -> None:
     """Publisher process of part 4: 3 puts every 1 ms with the send time as attachment."""
     import zenoh
-    from service.nodes import wire
+    from service import wire
     conf = zenoh.Config()
     conf.insert_json5("mode", '"peer"')
     conf.insert_json5("scouting/multicast/enabled", "false")
@@ -889,7 +891,8 @@ def bench_phases(seconds: float, workdir: Path, periods: list[float] = (0.001,),
     and off alternate (``rounds`` times each; every run is a row) at each period."""
     import zenoh
     from service.model.model import load_model
-    from service.nodes import transport, wire
+    from service.nodes import transport
+    from service import wire
     res: dict = {"load_start": loadavg(), "seconds": seconds, "order": []}
     meter = CpuMeter()
     plan = [(Ts, express, i) for Ts in periods for i in range(rounds) for express in (True, False)]

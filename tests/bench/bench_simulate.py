@@ -373,7 +373,7 @@ def bench_write(n: int, repeat: int) -> list[dict]:
     import shutil
     import tempfile
 
-    from service.nodes.simwrite import write_simulation
+    from service.recordings.simulated import write_simulation
 
     model = load_model("seed")
     rows = []
@@ -415,7 +415,7 @@ def bench_write(n: int, repeat: int) -> list[dict]:
 def profile_write(n: int) -> str:
     import tempfile
 
-    from service.nodes.simwrite import write_simulation
+    from service.recordings.simulated import write_simulation
 
     buf = io.StringIO()
     model = load_model("seed")

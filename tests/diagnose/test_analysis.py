@@ -3,7 +3,7 @@ model, clearly larger when an effect is left out, the regions localize the misma
 holds exactly the numbers of compare(), bad input is one line and exit 2, and foreign
 recordings (leading-slash topic, header stamps, gaps, irregular timing) are analysed honestly.
 
-Real files only: recordings written by ``noiselab simulate``, by mcapio.RecordingWriter or by the
+Real files only: recordings written by ``noiselab simulate``, by RecordingWriter or by the
 raw ``mcap`` writer; the CLI runs as a subprocess; the .rrd is read back with
 rerun.chunk.RrdReader (rerun-sdk 0.41: ``.stream()`` -> Chunk, ``.to_record_batch()``). Every
 random draw has a fixed seed.
@@ -23,7 +23,8 @@ import pytest
 from models_for_tests import ALL_LINEAR, load
 from service.diagnose.compare import compare, transient_samples
 from service.model import load_model, parse_model
-from service.nodes import mcapio, wire
+from service import wire
+from service.recordings.writer import RecordingWriter
 
 ROOT = Path(__file__).resolve().parents[2]
 VIEWS = ("variance", "acf", "psd", "allan")
@@ -391,7 +392,7 @@ def bad_inputs(tmp_path_factory, seed_recording) -> dict:
     rec = seed.simulate(2000, seed=1)
     # a recording with only a truth-like topic
     truth_only = d / "truth_only.mcap"
-    with mcapio.RecordingWriter(truth_only) as w:
+    with RecordingWriter(truth_only) as w:
         t, pub = wire.sample_times(0, 2000, seed.Ts)
         w.write_batch("noiselab/seed/truth", "truth", 0, pub, pub,
                       wire.encode_batch("truth", 0, t, rec.x, topic="noiselab/seed/truth"))
@@ -439,7 +440,7 @@ def bad_inputs(tmp_path_factory, seed_recording) -> dict:
     topic = "noiselab/a\nb/measurement"
     y = rec.y.copy()
     y[7, 0] = 1e60
-    with mcapio.RecordingWriter(odd) as w:
+    with RecordingWriter(odd) as w:
         t, pub = wire.sample_times(0, 2000, seed.Ts)
         w.write_batch(topic, "measurement", 0, pub, pub, wire.encode_batch("measurement", 0, t, y, topic=topic))
     imu = ["--measurement", "/imu:linear_acceleration.x", "--time", "header.stamp_ns"]
@@ -518,7 +519,7 @@ def test_a_model_ts_slightly_off_the_records_is_noted(seed_recording, tmp_path):
             assert notes == [], notes
 
 
-def _record_of(w: mcapio.RecordingWriter, model, n: int, seed: int, kinds=("truth", "command", "measurement"),
+def _record_of(w: RecordingWriter, model, n: int, seed: int, kinds=("truth", "command", "measurement"),
                start_ns: int = 0) -> None:
     """``n`` samples of ``model`` from rest (seq 0) on the topics ``kinds``, written by ``w`` as
     ``simulate`` writes them; publish times from ``start_ns`` (a stream started later)."""
@@ -538,7 +539,7 @@ def test_the_command_analysed_is_named_in_the_json_and_an_assumed_one_on_stderr(
     with a command topic gives source "recording" and its topic, and nothing on stderr."""
     seed = load_model("seed")
     bare = tmp_path / "no_command.mcap"
-    with mcapio.RecordingWriter(bare) as w:
+    with RecordingWriter(bare) as w:
         _record_of(w, seed, 3000, 11, kinds=("truth", "measurement"))
     said = "no command topic in the recording: the analysis assumes the model's own command ([command] kind = 'sine'"
     for command, extra in (("analyze", []), ("diagnose", ["--max-effects", "1"])):
@@ -564,7 +565,7 @@ def test_a_restarted_source_is_analysed_one_segment_at_a_time_chosen_with_segmen
     foreign recording, is one line and exit 2 (analyze and diagnose)."""
     seed = load_model("seed")
     path = tmp_path / "restarted.mcap"
-    with mcapio.RecordingWriter(path) as w:
+    with RecordingWriter(path) as w:
         _record_of(w, seed, 1500, 3)
         _record_of(w, seed, 3000, 4, start_ns=60 * 10**9)
     for segment, n, s in ((None, 3000, 4), (1, 1500, 3), (2, 3000, 4)):

@@ -331,19 +331,21 @@ def test_a_forked_map_computes_here_what_the_child_did_not_deliver():
 _READ = """
     import json, sys
     import numpy as np
-    sys.path.insert(0, "tests/nodes")
+    sys.path.insert(0, "tests/recordings")
     from test_mcapio import raw_file, write_sample
     from service import parallel
-    from service.nodes import mcapio, wire
+    from service import wire
+    from service.recordings import reader
+    from service.recordings.reader import read_recording
 
-    mcapio.PARALLEL_DECODE = 1000              # the threshold, not the parser, is what is small here
+    reader.PARALLEL_DECODE = 1000              # the threshold, not the parser, is what is small here
     d = sys.argv[1]
     write_sample(d + "/a.mcap", n=3000, name="a")
     out = {}
     for on in (True, False):
         parallel.ENABLED = on
         before = dict(parallel.FORKS)
-        rec = mcapio.read_recording(d + "/a.mcap")
+        rec = read_recording(d + "/a.mcap")
         got = {}
         for name, dev in rec.devices.items():
             for kind, td in dev.streams.items():
@@ -372,7 +374,7 @@ _READ = """
     for on in (True, False):
         parallel.ENABLED = on
         try:
-            mcapio.read_recording(d + "/both.mcap")
+            read_recording(d + "/both.mcap")
             errors[str(on)] = None
         except wire.WireError as exc:
             errors[str(on)] = str(exc)

@@ -24,10 +24,12 @@ from pathlib import Path
 import pytest
 import zenoh
 
+from service import wire
 from service.diagnose.compare import compare
 from service.model import load_model
-from service.nodes import mcapio, wire
 from service.nodes.runner import free_port
+from service.recordings.scan import iter_messages
+from service.recordings.writer import RecordingWriter
 
 pytestmark = pytest.mark.slow   # live end-to-end runs: real processes and sessions
 
@@ -91,7 +93,7 @@ def write_blocks(model, n: int, seed: int, out: Path, block: int = 10) -> None:
     with a large one it is how ``noiselab simulate`` wrote before it interleaved (65,536-sample
     blocks per topic), which the replay must still publish in sample order."""
     rec = model.simulate(n, seed=seed)
-    with mcapio.RecordingWriter(out) as w:
+    with RecordingWriter(out) as w:
         for k0 in range(0, n, block):
             nb = min(block, n - k0)
             t, pub = wire.sample_times(k0, nb, model.Ts)
@@ -229,7 +231,7 @@ def test_replay_interleaves_the_topics_of_a_file(tmp_path, spawn, layout):
     else:
         write_blocks(load_model("seed"), n, FILE_SEED, path, block=700)
     in_file = {}
-    for _, c, m in mcapio.iter_messages(path):
+    for _, c, m in iter_messages(path):
         in_file.setdefault(c.topic, []).append(m.data)
     got: list[tuple[str, int, bytes]] = []
     cond = threading.Condition()
@@ -266,7 +268,7 @@ def test_live_ranking_names_the_missing_effect_like_the_offline_diagnosis(tmp_pa
     a replay of a file (window longer than the file), its final ranking is the offline diagnosis'
     first step on the same samples (same floats), and the summaries on Zenoh carry it."""
     from service.diagnose.diagnose import diagnose
-    from service.diagnose.load import load_noiselab
+    from service.recordings.load import load_noiselab
 
     rec_path = tmp_path / "ar1.mcap"
     r = cli("simulate", "hidden/actuator.ar1", "--duration", "60", "--seed", FILE_SEED, "--out", rec_path)

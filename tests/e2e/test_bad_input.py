@@ -41,7 +41,11 @@ from service.model import ModelError, dumps_toml, load_model, parse_model, scena
 from service.model.effects import CATALOGUE
 from service.model.model import TS_MAX, TS_MIN, _from_data, scenario_text
 from service.model.predict import HORIZON_MAX
-from service.nodes import mcapio, transport, wire
+from service.nodes import transport
+from service import wire
+from service.recordings.output import PARTIAL_SUFFIX
+from service.recordings.reader import read_recording
+from service.recordings.writer import RecordingWriter
 from service.nodes.runner import READY_MARK, free_port
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -186,7 +190,7 @@ def write_record(path, model, n: int, seed: int, edit=None) -> None:
     if edit is not None:
         edit(x, u, y)
     t, pub = wire.sample_times(0, n, model.Ts)
-    with mcapio.RecordingWriter(path) as w:
+    with RecordingWriter(path) as w:
         w.write_interleaved([(wire.key(model.name, kind), kind, 0, pub, pub,
                               wire.encode_batch(kind, 0, t, arr, topic=wire.key(model.name, kind)))
                              for kind, arr in (("truth", x), ("command", u), ("measurement", y))])
@@ -356,7 +360,7 @@ def test_the_demo_meets_a_full_disk_in_one_line(name, tmp_path):
                        capture_output=True, text=True, cwd=ROOT, timeout=600)
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr[-3000:]
     assert r.stderr.splitlines()[-1] == f"noiselab: {tmp_path / name}: cannot write it (No space left on device)"
-    assert mcapio.read_recording(tmp_path / "demo-seed.mcap").complete
+    assert read_recording(tmp_path / "demo-seed.mcap").complete
 
 
 def test_simulate_that_runs_out_of_space_keeps_the_recording_it_replaces(tmp_path):
@@ -395,7 +399,7 @@ def test_record_that_runs_out_of_space_keeps_what_reached_the_disk(tmp_path):
     assert rec.returncode == 2 and "Traceback" not in err, err[-3000:]
     last = err.splitlines()[-1]
     assert last.startswith(f"noiselab: {out}: cannot write it (File too large)"), err[-3000:]
-    got = mcapio.read_recording(out)
+    got = read_recording(out)
     assert not got.complete
     seq = got.device("seed").measurement.seq
     assert seq.size > 100 and np.array_equal(seq, np.arange(seq.size))
@@ -403,7 +407,7 @@ def test_record_that_runs_out_of_space_keeps_what_reached_the_disk(tmp_path):
     r = subprocess.run([sys.executable, "-m", "service.cli", "recover", out, "-o", fixed], capture_output=True,
                        text=True, cwd=ROOT, timeout=120)
     assert r.returncode == 0, r.stderr
-    back = mcapio.read_recording(fixed)
+    back = read_recording(fixed)
     assert back.complete and np.array_equal(back.device("seed").measurement.seq, seq)
 
 
@@ -414,17 +418,17 @@ def test_record_over_a_file_names_the_file_it_fills(spawn, tmp_path):
     old = tmp_path / "run.mcap"
     write_record(old, load_model("seed"), 100, 1)
     before = old.read_bytes()
-    partial = Path(f"{old}{mcapio.PARTIAL_SUFFIX}")
+    partial = Path(f"{old}{PARTIAL_SUFFIX}")
     rec = spawn("record", "record", "--listen", f"tcp/127.0.0.1:{free_port()}", "--out", old, "--force", "--json")
     line = rec.wait_line(READY_MARK)
     assert line == f"{READY_MARK} to noiselab/**, writing {partial} (it replaces {old} once the recording is finished)"
     assert partial.exists() and old.read_bytes() == before
     assert rec.interrupt() == 0
-    assert not partial.exists() and old.read_bytes() != before and mcapio.read_recording(old).complete
+    assert not partial.exists() and old.read_bytes() != before and read_recording(old).complete
     new = tmp_path / "new.mcap"
     rec = spawn("record", "record", "--listen", f"tcp/127.0.0.1:{free_port()}", "--out", new, "--json")
     assert rec.wait_line(READY_MARK) == f"{READY_MARK} to noiselab/**, writing {new}"
-    assert rec.interrupt() == 0 and mcapio.read_recording(new).complete
+    assert rec.interrupt() == 0 and read_recording(new).complete
 
 
 # -- 4. numeric flags of every command ------------------------------------------------------------------------

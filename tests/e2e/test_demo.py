@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from conftest import readme_main_command, run_noiselab
-from service.diagnose.load import load_noiselab
+from service.recordings.load import load_noiselab
 from service.model import load_model, parse_model
 
 pytestmark = pytest.mark.slow   # live end-to-end runs: real processes and sessions

@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 from conftest import ROOT, run_once
 
-from service.diagnose.load import load_noiselab
 from service.model import load_model
+from service.recordings.load import load_noiselab
 
 pytestmark = pytest.mark.slow   # live end-to-end runs: real processes and sessions
 

@@ -22,9 +22,13 @@ import pytest
 import zenoh
 
 from livechild import ROOT
-from service.diagnose.load import load_noiselab
+from service.recordings.load import load_noiselab
 from service.model import load_model
-from service.nodes import mcapio, recorder, transport, wire
+from service.nodes import recorder, transport
+from service import wire
+from service.recordings.errors import McapWriteError
+from service.recordings.reader import read_recording
+from service.recordings.writer import RecordingWriter
 from service.nodes.analyzer import READY_MARK as ANALYZER_READY
 from service.nodes.analyzer import LiveAnalyzer
 from service.nodes.recorder import Ingest, RecorderSummary
@@ -75,7 +79,7 @@ def test_recorder_skips_what_does_not_continue_its_stream(tmp_path):
     results = []
     for mode in ("batch", "one by one"):
         path = tmp_path / f"{mode}.mcap"
-        with mcapio.RecordingWriter(path) as w, open(tmp_path / f"{mode}.log", "w") as log:
+        with RecordingWriter(path) as w, open(tmp_path / f"{mode}.log", "w") as log:
             ing = Ingest(w, str(path), log=log)
             if mode == "batch":
                 ing.add(items, 1_000)
@@ -94,7 +98,7 @@ def test_recorder_skips_what_does_not_continue_its_stream(tmp_path):
     tb = books["noiselab/d/truth"]
     assert (tb["count"], tb["gaps"], tb["last_seq"], tb["missing_at_end"]) == (6, [[4, 4]], 9, 0)
     assert messages == 37 + 6 + 1
-    rec = mcapio.read_recording(tmp_path / "batch.mcap")
+    rec = read_recording(tmp_path / "batch.mcap")
     assert rec.device("d").measurement.values.shape == (37, 1)
     text = (tmp_path / "batch.log").read_text()
     assert "y has 2 elements at seq 0; the stream's have 1" in text
@@ -107,12 +111,12 @@ def test_recorder_tells_a_bad_message_from_a_file_that_takes_none():
     stream's start) is skipped and counted; a file that takes no more (a full disk: /dev/full)
     stops the recorder with McapWriteError instead of counting every later message as
     malformed."""
-    with mcapio.RecordingWriter("/dev/full", force=True, chunk_size=1024) as w:
+    with RecordingWriter("/dev/full", force=True, chunk_size=1024) as w:
         ing = Ingest(w, "/dev/full", log=open(os.devnull, "w"))
         ing.add([("noiselab/d/measurement", b'{"seq":0,"t":-1.0,"y":[0.5]}'),
                  ("noiselab/d/measurement", sample("measurement", 1, [0.5]))], 1_000)
         assert (ing.malformed, ing.messages) == (1, 1)
-        with pytest.raises(mcapio.McapWriteError, match="No space left"):
+        with pytest.raises(McapWriteError, match="No space left"):
             for k in range(2, 1000):
                 ing.add([("noiselab/d/measurement", sample("measurement", k, [0.5]))], 1_000)
         assert ing.malformed == 1
@@ -145,7 +149,7 @@ def test_recorder_says_which_sources_vanished_without_an_end_of_stream(spawn, tm
     summary = rec.json()
     assert summary["unended"] == {"noiselab/gone": {"measurement": 49, "command": 29}}
     assert summary["malformed"] == 0
-    meta = mcapio.read_recording(out).metadata["noiselab.recorder"]
+    meta = read_recording(out).metadata["noiselab.recorder"]
     assert json.loads(meta["unended"]) == summary["unended"]
 
 
@@ -153,7 +157,7 @@ def ingest(tmp_path, items, mode: str = "batch", name: str = "rec"):
     """``items`` through the recorder's Ingest (one batch, or one message per batch), finished:
     ``(ingest, file, log text)``."""
     path, log = tmp_path / f"{name}.mcap", io.StringIO()
-    with mcapio.RecordingWriter(path) as w:
+    with RecordingWriter(path) as w:
         ing = Ingest(w, str(path), log=log)
         for batch in ([items] if mode == "batch" else [[item] for item in items]):
             ing.add(batch, 1_000)
@@ -173,7 +177,7 @@ def test_a_forged_first_message_fixes_neither_the_length_nor_the_start(tmp_path,
     items = [(key, sample("measurement", 0, [0.1, 0.2])), (key, sample("measurement", 10**12, [0.3]))] + genuine
     ing, path, log = ingest(tmp_path, items, mode)
     assert (ing.messages, ing.malformed, ing.malformed_topics) == (200, 2, {key: 2})
-    td = mcapio.read_recording(path).device("dev").measurement
+    td = read_recording(path).device("dev").measurement
     assert td.seq.tolist() == list(range(200)) and td.gaps() == [] and td.segments == [(0, 200)]
     assert [m.data for _, _, m in file_messages(path)[key]] == [p for _, p in genuine]
     assert "y has 2 elements at seq 0; the stream's have 1" in log
@@ -196,7 +200,7 @@ def test_a_forged_past_or_repeated_seq_never_reaches_the_file(tmp_path, forged, 
     assert (ing.messages, ing.malformed, ing.malformed_topics) == (230, 1, {key: 1})
     book = ing.books[key].as_dict()
     assert (book["gaps"], book["restarts"]) == ([], [[199, 0]])
-    td = mcapio.read_recording(path).device("dev").measurement
+    td = read_recording(path).device("dev").measurement
     assert td.segments == [(0, 200), (200, 230)] and td.gaps() == []
     assert 9.0 not in td.values
     assert f"seq {forged} " in log
@@ -235,7 +239,7 @@ def test_an_end_of_stream_that_cannot_be_the_sources_is_not_taken(tmp_path):
         return [(end_key, wire.encode_end(0, (n - 1) * 0.01, n, {"measurement": n}, "stopped"))]
 
     path, log = tmp_path / "ends.mcap", io.StringIO()
-    with mcapio.RecordingWriter(path) as w:
+    with RecordingWriter(path) as w:
         ing = Ingest(w, str(path), log=log)
         ing.add(meas[:100] + end(5), 1_000)
         assert ing.live == {"noiselab/d"} and ing.ends == {} and ing.books[key].expected is None
@@ -267,7 +271,7 @@ def test_a_join_point_from_any_peer_does_not_hold_the_recording(tmp_path, monkey
     monkeypatch.setattr(recorder, "CAPACITY", 64)
     far, near = "noiselab/d/measurement", "noiselab/d/command"
     path, log = tmp_path / "join.mcap", io.StringIO()
-    with mcapio.RecordingWriter(path) as w:
+    with RecordingWriter(path) as w:
         ing = Ingest(w, str(path), log=log)
         ing.join = {far: 2**62, near: 64}
         for k0 in range(0, 64, 16):
@@ -286,7 +290,7 @@ def test_recorder_prints_a_hostile_key_on_one_line(tmp_path):
     key = "noiselab/a\nb\x1b[2J/measurement"
     items = [(key, b"{")] + [(key, sample("measurement", k, [0.5])) for k in range(3)]
     path, log = tmp_path / "keys.mcap", io.StringIO()
-    with mcapio.RecordingWriter(path) as w:
+    with RecordingWriter(path) as w:
         ing = Ingest(w, str(path), log=log)
         ing.add(items, 1_000)
         ing.finish()
@@ -494,7 +498,7 @@ def test_analyze_of_a_recording_nested_deep_is_one_line_exit_2(tmp_path):
     n = 1000
     sim = model.simulate(n, seed=1)
     path = tmp_path / "deep.mcap"
-    with mcapio.RecordingWriter(path) as w:
+    with RecordingWriter(path) as w:
         for k in range(n):
             pub = wire.publish_time_ns(k, wire.period_ns(model.Ts))
             for kind, values in (("command", sim.u), ("measurement", sim.y)):
@@ -761,7 +765,7 @@ def test_fuzz_hostile_messages_into_a_live_closed_loop(spawn, tmp_path):
         f"recorder counted {rs['malformed_topics']}, sent {per_topic}"
     assert rs["unended"] == {}
     assert sum("not waited for" in ln for ln in rec.err) == len(joins) - 1, rec.stderr_text()
-    dev = mcapio.read_recording(out).device("loop")
+    dev = read_recording(out).device("loop")
     for kind in ("truth", "command", "measurement"):
         assert np.array_equal(dev.streams[kind].seq, np.arange(n)) and dev.streams[kind].segments == [(0, n)], kind
     assert not (dev.measurement.values == MARK).any()
@@ -817,7 +821,7 @@ def test_replay_of_a_file_with_a_deep_payload_republishes_it(tmp_path):
     deep is republished as it is, that payload included (a replay does not judge payloads: the
     sinks do), and replay exits 0."""
     path = tmp_path / "deep-first.mcap"
-    with mcapio.RecordingWriter(path) as w:
+    with RecordingWriter(path) as w:
         w.write("noiselab/d/measurement", "measurement", 0, 0, 0, b'{"seq":0,"t":0.0,"y":' + deep(100_000) + b"}")
         for k in range(1, 5):
             w.write("noiselab/d/measurement", "measurement", k, k * 10**7, k * 10**7, sample("measurement", k, [0.5]))

@@ -24,7 +24,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("service", "viewers")
 # modules below the command line: none of them imports it (the CLI imports them)
-BELOW_CLI = ("service.nodes", "service.diagnose", "service.model", "service.stats", "service.commands", "viewers")
+BELOW_CLI = ("service.nodes", "service.diagnose", "service.model", "service.stats", "service.commands",
+             "service.recordings", "service.wire", "viewers")
+# the recordings (and the wire contract they are written in) sit below these: none of them is imported by them
+ABOVE_RECORDINGS = ("service.diagnose", "service.nodes", "service.commands", "service.cli", "service.demo", "viewers")
 # third-party libraries a command loads when it runs, never to read its flags
 HEAVY = ("numpy", "scipy", "zenoh", "mcap", "rerun", "matplotlib", "rosbags")
 
@@ -115,6 +118,17 @@ def test_nothing_below_the_command_line_imports_it():
     graph = import_graph()
     offenders = sorted(m for m, deps in graph.items()
                        if m.startswith(BELOW_CLI) and any(d == "service.cli" for d in deps))
+    assert offenders == [], offenders
+
+
+def test_the_recordings_sit_below_the_analysis_and_the_nodes():
+    """Reading, writing and salvaging recordings and turning one into a series
+    (``service.recordings``, in the wire contract ``service.wire``) import neither the analysis,
+    the diagnosis, a node, a command nor the CLI: those take a series, never a file."""
+    graph = import_graph()
+    lower = sorted(m for m in graph if m == "service.wire" or m.startswith("service.recordings."))
+    assert "service.recordings.reader" in lower and "service.wire" in graph["service.recordings.reader"]
+    offenders = sorted((m, d) for m in lower for d in graph[m] if d.startswith(ABOVE_RECORDINGS))
     assert offenders == [], offenders
 
 

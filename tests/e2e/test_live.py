@@ -35,7 +35,12 @@ import zenoh
 from livechild import Child
 from models_for_tests import LOOP_TOML
 from service.model import load_model
-from service.nodes import mcapio, transport, wire
+from service.nodes import transport
+from service import wire
+from service.recordings.errors import NotMcapError
+from service.recordings.reader import read_recording
+from service.recordings.scan import iter_messages
+from service.recordings.writer import RecordingWriter
 from service.nodes.recorder import Ingest, TopicBook
 from service.nodes.runner import READY_MARK, free_port
 
@@ -126,8 +131,8 @@ def on_disk(path, name: str) -> dict[str, int]:
     """Per data kind, the last seq of device ``name`` that a recording being written already holds
     intact on disk (-1: none yet, nor before the file has its header)."""
     try:
-        dev = mcapio.read_recording(path).devices.get(name)
-    except (FileNotFoundError, mcapio.NotMcapError):
+        dev = read_recording(path).devices.get(name)
+    except (FileNotFoundError, NotMcapError):
         dev = None
     return {kind: int(dev.streams[kind].seq[-1]) if dev is not None and kind in dev.streams
             and len(dev.streams[kind]) else -1 for kind in DATA_KINDS}
@@ -152,7 +157,7 @@ def expected_payloads(model, path: dict[str, np.ndarray], kind: str, n: int) -> 
 def file_messages(path) -> dict[str, list]:
     """(schema, channel, message) per topic, in file order, from the MCAP file itself."""
     out: dict[str, list] = defaultdict(list)
-    for schema, channel, message in mcapio.iter_messages(path):
+    for schema, channel, message in iter_messages(path):
         out[channel.topic].append((schema, channel, message))
     return dict(out)
 
@@ -160,7 +165,7 @@ def file_messages(path) -> dict[str, list]:
 def recorded_start(path, name: str) -> int:
     """The wall-clock start of device ``name``'s stream in a recording: the file's start_time_ns
     (metadata record ``noiselab``), which the recorder took from the source (``stated``)."""
-    meta = mcapio.read_recording(path).metadata
+    meta = read_recording(path).metadata
     start = int(meta["noiselab"]["start_time_ns"])
     assert json.loads(meta["noiselab.recorder"]["starts"]) == {
         f"noiselab/{name}": {"start_time_ns": start, "stated": True}}
@@ -195,7 +200,7 @@ def check_recording(path, model, seed: int, n: int, *, batch: bool = True, start
         want = expected_payloads(model, steps, kind, n)
         bad = [k for k, (_, _, m) in enumerate(got) if m.data != want[k]]
         assert not bad, f"{topic}: {len(bad)} payloads differ from the step API, first at seq {bad[0]}"
-    rec = mcapio.read_recording(path)
+    rec = read_recording(path)
     assert rec.complete, rec.note
     dev = rec.device(name)
     for kind in DATA_KINDS:
@@ -313,7 +318,7 @@ def test_separate_record_and_emulate_processes(separate_recording, fast_model):
     check_summary_topics(rec_summary["topics"], "fast", N_FAST)
     check_end_acknowledged(emu_summary, "fast", N_FAST)
     check_recording(path, fast_model, SEED_FAST, N_FAST, start_time_ns=emu_summary["start_time_ns"])
-    meta = mcapio.read_recording(path).metadata["noiselab.recorder"]
+    meta = read_recording(path).metadata["noiselab.recorder"]
     assert json.loads(meta["topics"]) == rec_summary["topics"]
 
 
@@ -351,7 +356,7 @@ def test_replay_paced_and_prefixed(spawn, tmp_path):
     before the replay was started (CLOCK_MONOTONIC is the machine's, shared by both processes), and
     the arrivals spread over less than real time; --prefix P publishes under P/noiselab/...,
     nothing under noiselab/... ."""
-    from service.nodes.simwrite import write_simulation
+    from service.recordings.simulated import write_simulation
 
     f = tmp_path / "paced.toml"
     f.write_text(model_text("paced", 0.04))
@@ -431,7 +436,7 @@ def test_replay_puts_say_their_encoding_and_the_replays_own_start(separate_recor
     MCAP channel says its message encoding and schema (JSON), or Zenoh's default for an encoding
     Zenoh has no name for; none of these carries a start."""
     from service.nodes.replay import run_replay
-    from service.nodes.simwrite import write_simulation
+    from service.recordings.simulated import write_simulation
 
     path, _, emu = separate_recording
     bag = tmp_path / "bag"
@@ -621,7 +626,7 @@ def test_closed_loop_with_a_p_controller(spawn, tmp_path):
     assert not any("stale" in ln for ln in emu.err), emu.stderr_text()
     assert ctl.json()["controls"] >= LOOP_N - 1 and ctl.json()["bad"] == 0
 
-    dev = mcapio.read_recording(out).device("loop")
+    dev = read_recording(out).device("loop")
     for kind in DATA_KINDS:
         assert np.array_equal(dev.streams[kind].seq, np.arange(LOOP_N)), kind
     y = dev.measurement.values[:, 0]
@@ -773,7 +778,7 @@ def test_sigkilled_recorder_is_recovered_up_to_what_it_had_written(fast_model_fi
     samples = emu.json()["samples"]
     assert samples > s_kill
 
-    broken_rec = mcapio.read_recording(broken)
+    broken_rec = read_recording(broken)
     assert broken_rec.complete is False and "incomplete" in broken_rec.note
     fixed = tmp_path / "fixed.mcap"
     r = subprocess.run([sys.executable, "-m", "service.cli", "recover", str(broken), "-o", str(fixed), "--json"],
@@ -783,7 +788,7 @@ def test_sigkilled_recorder_is_recovered_up_to_what_it_had_written(fast_model_fi
     assert rep["already_complete"] is False
 
     msgs = file_messages(fixed)
-    assert mcapio.read_recording(fixed).complete
+    assert read_recording(fixed).complete
     last = {topic: len(items) - 1 for topic, items in msgs.items()}
     steps = step_path(fast_model, 21, max(last.values()) + 1)
     for kind in DATA_KINDS:
@@ -918,7 +923,7 @@ def test_recorder_starts_each_topic_where_its_stream_has_no_hole(tmp_path):
     items += enc("truth", (0, 1)) + enc("measurement", (0, 1))                            # restarted source
     path = tmp_path / "join.mcap"
     log = tmp_path / "log.txt"
-    with mcapio.RecordingWriter(path) as w, open(log, "w") as f:
+    with RecordingWriter(path) as w, open(log, "w") as f:
         ing = Ingest(w, str(path), log=f)
         ing.join = {"noiselab/d/truth": 15, "noiselab/d/command": 12, "noiselab/d/measurement": 30,
                     "noiselab/d/health": 3, "noiselab/e/truth": 50}
@@ -1049,7 +1054,7 @@ def test_end_of_stream_is_answered_after_the_data_and_a_shortfall_is_a_gap(spawn
     assert pub == [pub[0] + k * 1_000_000 for k in range(n)]
     assert pub[0] == msgs["noiselab/src/measurement"][0][2].log_time
     assert summary["starts"] == {"noiselab/src": {"start_time_ns": pub[0], "stated": False}}
-    assert mcapio.read_recording(out).metadata["noiselab"]["start_time_ns"] == str(pub[0])
+    assert read_recording(out).metadata["noiselab"]["start_time_ns"] == str(pub[0])
     (schema, channel, end_msg), = msgs["noiselab/src/end"]
     assert schema.name == "noiselab.End" and wire.decode_end(end_msg.data)["counts"] == claimed
     assert "noiselab/src/truth" not in msgs
@@ -1099,7 +1104,7 @@ def test_recorder_batches_equal_message_by_message(tmp_path):
     books, files = [], []
     for mode in ("batch", "one by one"):
         path = tmp_path / f"{mode}.mcap"
-        with mcapio.RecordingWriter(path) as w:
+        with RecordingWriter(path) as w:
             ing = Ingest(w, str(path), log=open(os.devnull, "w"))
             if mode == "batch":
                 ing.add(items, 1_000)

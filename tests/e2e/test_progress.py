@@ -25,8 +25,8 @@ import pytest
 
 from service import parallel
 from service.model import load_model
-from service.nodes.simwrite import write_simulation
 from service.progress import Progress, Steps, wanted
+from service.recordings.simulated import write_simulation
 
 ROOT = Path(__file__).resolve().parents[2]
 T_RUN = 300                  # an upper bound on a command's run: a test never passes on it

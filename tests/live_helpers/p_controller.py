@@ -25,7 +25,8 @@ import signal
 import sys
 import threading
 
-from service.nodes import transport, wire
+from service import wire
+from service.nodes import transport
 
 READY = "p_controller: ready"
 

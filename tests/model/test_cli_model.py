@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
+from service import wire
 from service.cli import main
 from service.model import load_model
-from service.nodes import mcapio, wire
+from service.recordings.reader import read_recording
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -60,7 +61,7 @@ def test_simulate_writes_the_wire_contract(tmp_path, capsys):
     assert main(["simulate", "seed", "--duration", "3", "--seed", "5", "--out", str(out), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["samples"] == 300
-    rec = mcapio.read_recording(out)
+    rec = read_recording(out)
     assert rec.complete
     dev = rec.device("seed")
     batch = load_model("seed").simulate(300, seed=5)
@@ -102,7 +103,7 @@ def test_simulate_refuses_existing_and_shows_progress(tmp_path):
                           "--out", str(out), "--force", "--progress"], capture_output=True, text=True, env=env)
     assert res.returncode == 0, res.stderr
     assert "100%" in res.stderr and "200/200" in res.stderr and "samples/s" in res.stderr
-    assert mcapio.read_recording(out).device("seed").measurement.seq.size == 200
+    assert read_recording(out).device("seed").measurement.seq.size == 200
 
 
 def test_predict_json_integrating_plant_gives_its_walk_rate(capsys):

@@ -12,8 +12,8 @@ import socket
 
 import pytest
 
-from service.diagnose.load import load_noiselab
 from service.nodes import runner
+from service.recordings.load import load_noiselab
 
 GYRO = """
 name = "taken"

@@ -21,7 +21,9 @@ from mcap.records import Message, Metadata
 from mcap.stream_reader import StreamReader
 
 from service.model import parse_model
-from service.nodes import emulator, mcapio, wire
+from service.nodes import emulator
+from service import wire
+from service.recordings.writer import RecordingWriter
 from service.nodes.recorder import Ingest
 from service.nodes.runner import free_port
 
@@ -105,7 +107,7 @@ def test_recorder_anchors_publish_time_at_the_stated_start_and_records_it_first(
     files = []
     for mode in ("run", "one by one"):
         path = tmp_path / f"{mode}.mcap"
-        with mcapio.RecordingWriter(path) as w:
+        with RecordingWriter(path) as w:
             ing = Ingest(w, str(path), log=io.StringIO(), metadata={"generator": "test"})
             ing.state("noiselab/a/measurement", wire.encode_anchor(start))
             ing.state("noiselab/b/measurement", b'{"start_time_ns":-5}')      # not an anchor

@@ -8,8 +8,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from service.nodes import wire
-from service.nodes.wire import WireError
+from service import wire
+from service.wire import WireError
 
 from models_for_tests import LOOP_TOML
 
@@ -593,18 +593,19 @@ def test_one_magnitude_bound_from_the_wire_to_the_analysis(tmp_path):
     by the largest control the wire accepts, for one sample, gives a recording the loader
     analyses."""
     from service import bounds
-    from service.diagnose import load
     from service.model import parse_model, schema
-    from service.nodes import mcapio
+    from service.recordings import load
+    from service.recordings.series import MAGNITUDE_MAX as SERIES_MAX
+    from service.recordings.writer import RecordingWriter
 
-    assert wire.MAGNITUDE_MAX is bounds.MAGNITUDE_MAX is schema.MAGNITUDE_MAX is load.MAGNITUDE_MAX
+    assert wire.MAGNITUDE_MAX is bounds.MAGNITUDE_MAX is schema.MAGNITUDE_MAX is SERIES_MAX
     with pytest.raises(WireError, match="exceeds 1e\\+50"):
         wire.decode(b'{"seq":0,"t":0.0,"u":[1e60]}', "control")
     model = parse_model(LOOP_TOML, "loop")
     largest = wire.decode(wire.encode(0, 0.0, [wire.MAGNITUDE_MAX], kind="control"), "control")["u"]
     stepper = model.stepper(seed=1)
     path = tmp_path / "u-max.mcap"
-    with mcapio.RecordingWriter(path) as w:
+    with RecordingWriter(path) as w:
         for k in range(400):
             _, x, u, y = stepper.step(largest if k == 200 else [0.0])
             pub = wire.publish_time_ns(k, wire.period_ns(model.Ts))

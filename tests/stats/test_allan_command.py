@@ -19,7 +19,7 @@ from test_analysis import _raw_json_mcap
 from test_stats_allan import BOUNDS_RTOL, half_unit, ocxo_y, read_stable32
 
 from service.cli import main
-from service.diagnose.load import load_noiselab
+from service.recordings.load import load_noiselab
 from service.stats import StatsError
 from service.stats.allan import oadev, oadev_from_phase
 
@@ -305,13 +305,13 @@ def test_ros2_bag(tmp_path, capsys):
     """A rosbag2 bag of sensor_msgs/Imu (the emulator's own ROS 2 writer), read through the one
     loader: the bag directory, the six axes by two '.*' paths, time from header.stamp."""
     from service.model import load_model
-    from service.nodes import rosbag
-    from service.nodes.simwrite import write_simulation
+    from service.recordings import rosbag_in
+    from service.recordings.simulated import write_simulation
 
     bag = tmp_path / "imu_bag"
     write_simulation(load_model("imu-nominal"), 20_000, 5, bag, fmt="ros2")
-    with rosbag.open_bag(str(bag)) as reader:
-        (topic,) = [t for t, msgtype in rosbag.topics(reader).items() if msgtype == "sensor_msgs/msg/Imu"]
+    with rosbag_in.open_bag(str(bag)) as reader:
+        (topic,) = [t for t, msgtype in rosbag_in.topics(reader).items() if msgtype == "sensor_msgs/msg/Imu"]
     spec = f"{topic}:angular_velocity.*,linear_acceleration.*"
     code, out, err = run(capsys, bag, "--measurement", spec, "--model", "imu-nominal", "--json")
     assert code == 0, err

@@ -1,6 +1,6 @@
 """Property tests of the MCAP reader (hypothesis): whatever file it is given, every way of reading
 it (read_recording, iter_messages, iter_time_ordered, recover, and the analysis' load_noiselab)
-returns a result or raises a ValueError (McapIoError, WireError, AnalysisError: the CLI's exit 2)
+returns a result or raises a ValueError (McapIoError, WireError, SeriesError: the CLI's exit 2)
 whose message is one line; never another exception. And what recover writes is a finished file
 that reads back with the count it reported.
 
@@ -19,8 +19,16 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from mcap.writer import CompressionType, Writer
 
-from service.diagnose.load import load_noiselab
-from service.nodes import mcapio, wire
+from service import wire
+from service.recordings.errors import McapIoError, NotMcapError
+from service.recordings.load import load_noiselab
+from service.recordings.mcapformat import MAGIC
+from service.recordings.merge import iter_time_ordered
+from service.recordings.reader import read_recording
+from service.recordings.recording import Recording
+from service.recordings.salvage import RecoverStats, recover
+from service.recordings.scan import ScanReport, iter_messages
+from service.recordings.writer import RecordingWriter
 
 SETTINGS = settings(max_examples=60, deadline=None, derandomize=True,
                     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
@@ -30,11 +38,11 @@ def read_every_way(path, out):
     """Each reader on ``path``: its result, or the ValueError it raised (checked to be one line).
     Any other exception fails the test where it is raised."""
     readers = {
-        "read_recording": lambda: mcapio.read_recording(path),
-        "iter_messages": lambda: sum(1 for _ in mcapio.iter_messages(path)),
-        "iter_time_ordered": lambda: sum(1 for _ in mcapio.iter_time_ordered(path)),
+        "read_recording": lambda: read_recording(path),
+        "iter_messages": lambda: sum(1 for _ in iter_messages(path)),
+        "iter_time_ordered": lambda: sum(1 for _ in iter_time_ordered(path)),
         "load_noiselab": lambda: load_noiselab(str(path)),
-        "recover": lambda: mcapio.recover(path, out, force=True),
+        "recover": lambda: recover(path, out, force=True),
     }
     got = {}
     for name, read in readers.items():
@@ -45,9 +53,9 @@ def read_every_way(path, out):
             assert msg.strip() and "\n" not in msg and "\r" not in msg, (name, msg)
             got[name] = e
     stats = got["recover"]
-    if isinstance(stats, mcapio.RecoverStats):    # recover's output is finished and whole
-        report = mcapio.ScanReport()
-        assert sum(1 for _ in mcapio.iter_messages(out, report=report)) == stats.total
+    if isinstance(stats, RecoverStats):    # recover's output is finished and whole
+        report = ScanReport()
+        assert sum(1 for _ in iter_messages(out, report=report)) == stats.total
         assert report.complete and not report.note
     return got
 
@@ -59,11 +67,11 @@ def read_every_way(path, out):
 @given(body=st.binary(max_size=600), magic=st.booleans(), closing=st.booleans())
 def test_arbitrary_bytes(tmp_path, body, magic, closing):
     path = tmp_path / "any.mcap"
-    blob = (mcapio.MAGIC if magic else b"") + body + (mcapio.MAGIC if closing else b"")
+    blob = (MAGIC if magic else b"") + body + (MAGIC if closing else b"")
     path.write_bytes(blob)
     got = read_every_way(path, tmp_path / "out.mcap")
-    if not blob.startswith(mcapio.MAGIC):
-        assert all(isinstance(got[k], mcapio.NotMcapError) for k in got if k != "load_noiselab")
+    if not blob.startswith(MAGIC):
+        assert all(isinstance(got[k], NotMcapError) for k in got if k != "load_noiselab")
 
 
 # ------------------------------------------------------------------------ real files, mutated
@@ -72,7 +80,7 @@ def test_arbitrary_bytes(tmp_path, body, magic, closing):
 def noiselab_file(path, compression, chunk_size, n=60):
     rng = np.random.default_rng(3)
     t, pub = wire.sample_times(0, n, 0.01)
-    with mcapio.RecordingWriter(path, force=True, compression=compression, chunk_size=chunk_size,
+    with RecordingWriter(path, force=True, compression=compression, chunk_size=chunk_size,
                                 metadata={"model": "seed"}) as w:
         w.write_interleaved([(wire.key("dev", kind), kind, 0, pub, pub + 7,
                               wire.encode_batch(kind, 0, t, rng.standard_normal((n, dim))))
@@ -82,8 +90,8 @@ def noiselab_file(path, compression, chunk_size, n=60):
 
 def records(blob: bytes) -> list[tuple[int, int]]:
     """(start, end) of the top-level records of a finished file (after the opening magic)."""
-    out, pos = [], len(mcapio.MAGIC)
-    while pos + 9 <= len(blob) - len(mcapio.MAGIC):
+    out, pos = [], len(MAGIC)
+    while pos + 9 <= len(blob) - len(MAGIC):
         (length,) = struct.unpack_from("<Q", blob, pos + 1)
         out.append((pos, pos + 9 + length))
         pos += 9 + length
@@ -175,12 +183,12 @@ def test_cut_noiselab_files_keep_a_prefix(tmp_path, which, at):
     blob, _ = base(which)
     whole = tmp_path / "whole.mcap"
     whole.write_bytes(blob)
-    full = [(c.topic, m.sequence, m.data) for _, c, m in mcapio.iter_messages(whole)]
+    full = [(c.topic, m.sequence, m.data) for _, c, m in iter_messages(whole)]
     path = tmp_path / "cut.mcap"
     path.write_bytes(blob[:int(at * len(blob))])
     got = read_every_way(path, tmp_path / "out.mcap")
     if isinstance(got["iter_messages"], int):
-        kept = [(c.topic, m.sequence, m.data) for _, c, m in mcapio.iter_messages(path)]
+        kept = [(c.topic, m.sequence, m.data) for _, c, m in iter_messages(path)]
         assert kept == full[:len(kept)]
         rec = got["read_recording"]
         n_meas = sum(t.endswith("/measurement") for t, _, _ in kept)
@@ -263,18 +271,18 @@ def test_repeated_and_restarted_seqs(tmp_path, seqs, same):
     (segment, seq) once, sorted inside each segment, or refuses a seq that comes twice with
     different data."""
     path = tmp_path / "seqs.mcap"
-    with mcapio.RecordingWriter(path, force=True) as w:
+    with RecordingWriter(path, force=True) as w:
         for i, s in enumerate(seqs):
             value = float(s) if same[i] else float(s) + 0.5
             w.write("noiselab/d/measurement", "measurement", s, s, i,
                     wire.encode(s, s * 0.01, [value], kind="measurement"))
     got = read_every_way(path, tmp_path / "out.mcap")
     rec = got["read_recording"]
-    if isinstance(rec, mcapio.Recording):
+    if isinstance(rec, Recording):
         m = rec.device("d").measurement
         assert len(m) == len(seqs) - m.duplicates
         for a, b in m.segments:
             assert np.all(np.diff(m.seq[a:b]) > 0)
         assert sorted(m.log_ns.tolist()) == sorted(set(m.log_ns.tolist()))
     else:
-        assert isinstance(rec, mcapio.McapIoError) and "comes twice with different data" in str(rec)
+        assert isinstance(rec, McapIoError) and "comes twice with different data" in str(rec)

@@ -31,7 +31,7 @@ each topic (``<name>`` as a ROS 2 name token, :func:`ros_token`: ``imu-nominal``
     ``effort`` = u, ``position`` and ``velocity`` empty.
 
 Every message's ``header.stamp`` is the sample's time anchored at the run's wall-clock start,
-``start_time_ns + round(k * Ts * 1e9)`` ns (:mod:`service.nodes.simwrite`), and the
+``start_time_ns + round(k * Ts * 1e9)`` ns (:mod:`.simulated`), and the
 bag's receive timestamp is the same instant; ``header.frame_id`` is :data:`FRAME_ID`
 (``imu_link``) on every topic. The run's description (generator, model name, the model as TOML,
 Ts, seed, samples, ``start_time_ns``) is the bag's rosbag2 ``custom_data`` (in

@@ -1,5 +1,5 @@
-"""`simulate`'s output: the rosbag2 bag (service.nodes.rosout) and the wall-clock anchor of both
-formats (service.nodes.simwrite). Real files: written, then read back with rosbags and mcap."""
+"""`simulate`'s output: the rosbag2 bag (service.recordings.rosbag_out) and the wall-clock anchor of both
+formats (service.recordings.simulated). Real files: written, then read back with rosbags and mcap."""
 
 from __future__ import annotations
 
@@ -16,10 +16,11 @@ from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 from ruamel.yaml import YAML
 
+from service import wire
 from service.errors import BadInput
 from service.model import load_model, parse_model
-from service.nodes import rosout, wire
-from service.nodes.simwrite import write_simulation
+from service.recordings import rosbag_out
+from service.recordings.simulated import write_simulation
 
 STORE = get_typestore(Stores.ROS2_JAZZY)
 START = 1_700_000_000_123_456_789           # a wall-clock anchor, ns since the Unix epoch
@@ -91,10 +92,10 @@ def test_imu_block_is_rosbags_cdr(frame, sec, data):
     cg = data.draw(st.lists(_f64, min_size=3, max_size=3))
     ca = data.draw(st.lists(_f64, min_size=3, max_size=3))
     vals = np.array(data.draw(st.lists(_f64, min_size=6 * n, max_size=6 * n))).reshape(n, 6)
-    lay = rosout.imu_layout(cg, ca, frame)
+    lay = rosbag_out.imu_layout(cg, ca, frame)
     got = lay.encode(np.array(sec), np.array(nanosec), angular_velocity=vals[:, :3],
                      linear_acceleration=vals[:, 3:])
-    V3, Q, Imu = T["geometry_msgs/msg/Vector3"], T["geometry_msgs/msg/Quaternion"], T[rosout.MSG_IMU]
+    V3, Q, Imu = T["geometry_msgs/msg/Vector3"], T["geometry_msgs/msg/Quaternion"], T[rosbag_out.MSG_IMU]
     for i in range(n):
         oc = np.zeros(9)
         oc[0] = -1.0
@@ -113,9 +114,9 @@ def test_joint_state_block_is_rosbags_cdr(frame, names, field, sec, data):
     n, d = len(sec), len(names)
     nanosec = data.draw(st.lists(st.integers(0, 999_999_999), min_size=n, max_size=n))
     vals = np.array(data.draw(st.lists(_f64, min_size=n * d, max_size=n * d))).reshape(n, d)
-    lay = rosout.joint_state_layout(names, field, frame)
+    lay = rosbag_out.joint_state_layout(names, field, frame)
     got = lay.encode(np.array(sec), np.array(nanosec), **({field: vals} if d else {}))
-    JS = T[rosout.MSG_JOINT_STATE]
+    JS = T[rosbag_out.MSG_JOINT_STATE]
     empty = np.zeros(0)
     for i in range(n):
         arrays = {f: (vals[i] if f == field else empty) for f in ("position", "velocity", "effort")}
@@ -167,7 +168,7 @@ def test_imu_bag_round_trip_is_exact(tmp_path):
         "/imu6/command": ("sensor_msgs/msg/JointState", n)}
     for g in got.values():
         assert np.array_equal(np.array(g["ts"]), stamps) and np.array_equal(np.array(g["stamp"]), stamps)
-        assert {m.header.frame_id for m in g["msgs"]} == {rosout.FRAME_ID}
+        assert {m.header.frame_id for m in g["msgs"]} == {rosbag_out.FRAME_ID}
 
     meas = got["/imu6/measurement"]["msgs"]
     gyro = np.array([[m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z] for m in meas])
@@ -221,7 +222,7 @@ def test_plain_model_bag_is_joint_state(tmp_path):
 
 
 def test_topic_names_are_ros_2_names(tmp_path):
-    assert [rosout.ros_token(x) for x in ("imu-nominal", "seed", "a--b__c", "9axis")] == \
+    assert [rosbag_out.ros_token(x) for x in ("imu-nominal", "seed", "a--b__c", "9axis")] == \
         ["imu_nominal", "seed", "a_b_c", "_9axis"]
     model = parse_model(IMU.replace('name = "imu6"', 'name = "imu-6"'), "imu-6.toml")
     write_simulation(model, 5, 0, tmp_path / "bag", fmt="ros2")
@@ -229,12 +230,12 @@ def test_topic_names_are_ros_2_names(tmp_path):
 
 
 def test_imu_axes_convention():
-    assert rosout.imu_axes(["gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z"]) == \
+    assert rosbag_out.imu_axes(["gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z"]) == \
         ([0, 1, 2], [3, 4, 5])
-    assert rosout.imu_axes(["accel_x", "gyro_x", "accel_y", "gyro_y", "accel_z", "gyro_z"]) == \
+    assert rosbag_out.imu_axes(["accel_x", "gyro_x", "accel_y", "gyro_y", "accel_z", "gyro_z"]) == \
         ([1, 3, 5], [0, 2, 4])
-    assert rosout.imu_axes(["gyro_x", "gyro_y", "gyro_z"]) is None              # not a 6-axis IMU
-    assert rosout.imu_axes(["gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "temp"]) is None
+    assert rosbag_out.imu_axes(["gyro_x", "gyro_y", "gyro_z"]) is None              # not a 6-axis IMU
+    assert rosbag_out.imu_axes(["gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "temp"]) is None
 
 
 # -- the JSON MCAP's wall-clock anchor ---------------------------------------------------------------
@@ -370,7 +371,7 @@ def test_sensor_only_imu_has_no_truth_topic(tmp_path):
 def test_noiselab_reads_its_own_bag_back(tmp_path):
     """What `simulate --format ros2` writes, `analyze`/`diagnose` read back: the IMU's six axes bit
     for bit, the time from header.stamp (s from the first sample)."""
-    from service.diagnose.load import load_recording
+    from service.recordings.load import load_recording
 
     model = parse_model(IMU, "imu6.toml")
     n = 3000

@@ -9,7 +9,7 @@ with the ``ros2`` profile, or SQLite3 ``.db3``), a ROS 1 ``.bag``. :func:`bag_ki
 noiselab's own (JSON) MCAP files by their first bytes: the MCAP header's profile, the SQLite and
 ROS 1 magic strings.
 
-Field paths (parsed once, by the caller: ``diagnose.load``) are resolved against the message
+Field paths (parsed once, by the caller: :mod:`.foreign`) are resolved against the message
 definition before any message is read, so a wrong path fails at once naming the fields the message
 does have. ``name`` parts are fields, ``int`` parts index an array or a sequence, and a final
 :data:`WILDCARD` stands for every numeric field below it, in message-definition order (``x, y, z`` of a
@@ -44,9 +44,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import BadInput
+from .fieldpaths import WILDCARD
 
-WILDCARD = "*"
-"""The last part of a field path that stands for every numeric field below it (``.*``)."""
 
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
 SQLITE_MAGIC = b"SQLite format 3\x00"

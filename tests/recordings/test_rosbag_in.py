@@ -1,6 +1,6 @@
 """ROS bags in: rosbag2 (MCAP and SQLite3 storage, a bag directory, a split bag, one storage file)
 and ROS 1 bags, written here with rosbags' own writers, read by ``analyze``, ``diagnose``, the
-loader (``service.diagnose.load``) and ``replay``.
+loader (``service.recordings.load``) and ``replay``.
 
 What is checked: field paths (``a.b``, ``[i]``, a final ``.*``, comma lists), time (header.stamp
 in exact integer ns by default, ``--time`` on a Time or a numeric field, the log time without a
@@ -22,19 +22,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
+from conftest import assert_bad
+from conftest import cli_in_process as cli
 from rosbags.rosbag1 import Writer as Writer1
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from ruamel.yaml import YAML
 
-from conftest import assert_bad
-from conftest import cli_in_process as cli
-
 from service.cli import main
-from service.diagnose import load
-from service.nodes import rosbag
 from service.nodes.replay import replay_topics, run_replay
 from service.nodes.runner import free_port
+from service.recordings import load, rosbag_in, series
 
 TS_NS = 10_000_000                              # 100 Hz
 START_NS = 1_700_000_000_123_456_789            # an epoch stamp whose last digits float64 ns cannot hold
@@ -135,7 +133,7 @@ def bags(tmp_path_factory) -> dict:
     return out
 
 
-def read(path, spec: str, time_field: str | None = None, Ts: float | None = 0.01) -> load.Series:
+def read(path, spec: str, time_field: str | None = None, Ts: float | None = 0.01) -> series.Series:
     return load.load_recording(str(path), spec=spec, time_field=time_field, Ts=Ts)
 
 
@@ -143,16 +141,16 @@ def read(path, spec: str, time_field: str | None = None, Ts: float | None = 0.01
 def test_bag_kinds_are_told_from_their_first_bytes(bags, tmp_path):
     """A bag directory, its MCAP (ros2 profile) and SQLite3 files, a ROS 1 bag are ROS bags; a
     noiselab (JSON) MCAP, a directory without metadata.yaml, a missing file are not."""
-    assert rosbag.bag_kind(bags["mcap"]) == "rosbag2 directory"
-    assert rosbag.bag_kind(storage_file(bags["mcap"])) == "rosbag2 MCAP file"
-    assert rosbag.bag_kind(storage_file(bags["sqlite3"])) == "rosbag2 SQLite3 file"
+    assert rosbag_in.bag_kind(bags["mcap"]) == "rosbag2 directory"
+    assert rosbag_in.bag_kind(storage_file(bags["mcap"])) == "rosbag2 MCAP file"
+    assert rosbag_in.bag_kind(storage_file(bags["sqlite3"])) == "rosbag2 SQLite3 file"
     ros1 = write_ros1(tmp_path / "r.bag", 10)
-    assert rosbag.bag_kind(ros1) == "ROS 1 bag"
+    assert rosbag_in.bag_kind(ros1) == "ROS 1 bag"
     json_mcap = tmp_path / "j.mcap"
     assert main(["simulate", "seed", "--duration", "0.1", "--out", str(json_mcap)]) == 0
-    assert rosbag.bag_kind(json_mcap) is None
+    assert rosbag_in.bag_kind(json_mcap) is None
     (tmp_path / "empty_dir").mkdir()
-    assert rosbag.bag_kind(tmp_path / "empty_dir") is None and rosbag.bag_kind(tmp_path / "absent") is None
+    assert rosbag_in.bag_kind(tmp_path / "empty_dir") is None and rosbag_in.bag_kind(tmp_path / "absent") is None
 
 
 # -- 2. field paths and time ----------------------------------------------------------------------------------
@@ -163,7 +161,7 @@ def test_a_field_and_its_header_stamp_exactly(bags, storage, which):
     sec * 10^9 + nanosec in integer ns, exactly (the stamps carry odd ns a float64 epoch would
     round to 256 ns), with no note about time."""
     path = bags[storage] if which == "directory" else storage_file(bags[storage])
-    got = rosbag.read_fields(str(path), "/imu", [("angular_velocity.x", ("angular_velocity", "x"))])
+    got = rosbag_in.read_fields(str(path), "/imu", [("angular_velocity.x", ("angular_velocity", "x"))])
     assert got.time.dtype == np.int64 and np.array_equal(got.time, bags["stamps"])
     assert got.time_source == "header.stamp" and got.notes == []
     assert np.array_equal(got.values[:, 0], bags["arrays"]["gyro"][:, 0])
@@ -198,7 +196,7 @@ def test_time_from_a_field_or_the_log_time(bags):
     ns; on a float64 field: seconds; a message without a header: the bag's log time, said in a
     note; --time header.stamp named explicitly is the default's time."""
     st = bags["stamps"]
-    got = rosbag.read_fields(str(bags["mcap"]), "/sample", [("value", ("value",))], ("when", ("when",)))
+    got = rosbag_in.read_fields(str(bags["mcap"]), "/sample", [("value", ("value",))], ("when", ("when",)))
     assert got.time_ns and np.array_equal(got.time, st + 3)
     s = read(bags["mcap"], "/sample:value", "when")
     assert np.array_equal(s.t, (st - st[0]).astype(float) * 1e-9)
@@ -284,7 +282,7 @@ def test_a_ros1_bag(tmp_path):
     _, arrays = imu_messages(N, 0)
     s = read(bag, "/imu:angular_velocity.x,linear_acceleration.z")
     assert np.array_equal(s.y, np.column_stack([arrays["gyro"][:, 0], arrays["acc"][:, 2]]))
-    got = rosbag.read_fields(str(bag), "/imu", [("angular_velocity.x", ("angular_velocity", "x"))])
+    got = rosbag_in.read_fields(str(bag), "/imu", [("angular_velocity.x", ("angular_velocity", "x"))])
     assert got.time_source == "header.stamp" and np.array_equal(got.time, arrays["stamps"])
 
 
@@ -557,7 +555,7 @@ def test_a_cdr_mcap_without_the_ros2_profile_is_named(tmp_path, capsys):
             w.add_message(channel_id=cid, log_time=k, publish_time=k, sequence=k,
                           data=bytes(STORE.serialize_cdr(Float64(float(k)), "std_msgs/msg/Float64")))
         w.finish()
-    assert rosbag.bag_kind(path) is None
+    assert rosbag_in.bag_kind(path) is None
     model = tmp_path / "gyro.toml"
     model.write_text(GYRO_MODEL)
     assert_bad(cli(capsys, "analyze", path, "--measurement", "/plain:data", "--model", model),

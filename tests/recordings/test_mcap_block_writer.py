@@ -1,7 +1,7 @@
-"""mcapio's block writer writes the file mcap's own Writer writes, byte for byte.
+"""The recordings' block writer writes the file mcap's own Writer writes, byte for byte.
 
 ``RecordingWriter`` builds a whole block's Message and MessageIndex records at once
-(``mcapio._BlockWriter``) instead of calling ``mcap.writer.Writer.add_message`` per message. These
+(``service.recordings.blockwriter.BlockWriter``) instead of calling ``mcap.writer.Writer.add_message`` per message. These
 tests hold it to the reference: the same calls (schemas, channels, metadata, flushes, messages
 with extreme times and sequences, empty payloads) through both writers give identical bytes, for
 every compression and for chunk sizes from one byte (a chunk per message) to more than the file;
@@ -20,9 +20,13 @@ from mcap.records import Message
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
+from service import wire
 from service.model.model import load_model
-from service.nodes import mcapio, wire
-from service.nodes.simwrite import write_simulation
+from service.recordings.blockwriter import BlockWriter
+from service.recordings.mcapformat import COMPRESSIONS, DEFAULT_COMPRESSION
+from service.recordings.reader import read_recording
+from service.recordings.simulated import write_simulation
+from service.recordings.writer import RecordingWriter, library_id
 
 CT = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 
@@ -74,7 +78,7 @@ def _reference(ops, chunk_size, compression) -> bytes:
 
 def _ours(ops, chunk_size, compression, single: bool) -> bytes:
     buf = io.BytesIO()
-    w = mcapio._BlockWriter(buf, chunk_size=chunk_size, compression=compression, profile="prof",
+    w = BlockWriter(buf, chunk_size=chunk_size, compression=compression, profile="prof",
                             library="lib")
     for op in ops:
         if op[0] == "schema":
@@ -96,7 +100,7 @@ def _ours(ops, chunk_size, compression, single: bool) -> bytes:
     return buf.getvalue()
 
 
-@pytest.mark.parametrize("compression", mcapio.COMPRESSIONS)
+@pytest.mark.parametrize("compression", COMPRESSIONS)
 @pytest.mark.parametrize("chunk_size", [1, 97, 4096, 1 << 20])
 def test_the_block_writer_writes_the_bytes_of_mcaps_writer(compression, chunk_size):
     for seed in range(25):
@@ -121,7 +125,7 @@ def test_a_recording_writers_file_equals_mcaps_for_the_same_messages(tmp_path):
     pay = {k: wire.encode_batch(k, seq0, t, v) for k, v in vals.items()}
     key = {k: wire.key("dev", k) for k in vals}
     meta = {"model_name": "dev", "start_time_ns": "1"}
-    with mcapio.RecordingWriter(path, chunk_size=5000, metadata=meta) as w:
+    with RecordingWriter(path, chunk_size=5000, metadata=meta) as w:
         w.write(key["measurement"], "measurement", seq0, int(pub_i64[0]), int(log_u64[0]), pay["measurement"][0])
         w.write_batch(key["measurement"], "measurement", seq0 + 1, pub_i64[1:100], log_u64[1:100],
                       pay["measurement"][1:100])
@@ -129,8 +133,8 @@ def test_a_recording_writers_file_equals_mcaps_for_the_same_messages(tmp_path):
                              for k in ("truth", "command", "measurement")])
 
     buf = io.BytesIO()
-    ref = Writer(buf, chunk_size=5000, compression=CT[mcapio.DEFAULT_COMPRESSION])
-    ref.start(profile="", library=mcapio._library())
+    ref = Writer(buf, chunk_size=5000, compression=CT[DEFAULT_COMPRESSION])
+    ref.start(profile="", library=library_id())
     ref.add_metadata("noiselab", meta)
     cid = {}
 
@@ -181,7 +185,7 @@ def test_simulate_writes_the_single_message_encoders_payloads_readable_by_every_
         streamed = [r for r in StreamReader(f).records if isinstance(r, Message)]
     assert [(r.data, r.sequence, r.publish_time, r.log_time) for r in streamed] == \
         [(m.data, m.sequence, m.publish_time, m.log_time) for _t, m in seeking]
-    rec = mcapio.read_recording(out)
+    rec = read_recording(out)
     assert rec.complete
     for kind, values in vec.items():
         td = getattr(rec.device("seed"), kind)

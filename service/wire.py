@@ -29,7 +29,7 @@ Untrusted input (a payload comes from any peer on the network, or from a file)
     bound of :mod:`service.bounds`, 1e50, which the models, the emulator's output, the recordings'
     loader and the live analyzer share). What the bytes cannot tell (a vector's length, a seq
     that does not continue its stream) is judged by the node that knows the stream, with
-    :class:`.seqgate.SeqGate`.
+    :class:`service.nodes.seqgate.SeqGate`.
 
 Time (integer nanoseconds end to end, STYLE.md 13)
     ``Ts_ns = round(Ts * 1e9)`` once (:func:`period_ns`). The payload ``t`` is the float
@@ -70,7 +70,7 @@ from numbers import Real
 
 import numpy as np
 
-from ..bounds import MAGNITUDE_MAX
+from .bounds import MAGNITUDE_MAX
 
 __all__ = [
     "ALL_KINDS",

@@ -14,24 +14,30 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from mcap.reader import make_reader
-from mcap.stream_reader import breakup_chunk
-from mcap.records import Chunk, Message
 from mcap.data_stream import ReadDataStream
+from mcap.reader import make_reader
+from mcap.records import Chunk, Message
+from mcap.stream_reader import breakup_chunk
 from mcap.writer import Writer
 
-from service.diagnose.load import load_noiselab
-from service.diagnose.results import AnalysisError
-from service.nodes import mcapio, wire
-from service.nodes.mcapio import (
+from service import wire
+from service.recordings.errors import (
+    CorruptRecordingError,
+    McapIoError,
+    McapWriteError,
     NotMcapError,
     RecordingExistsError,
-    RecordingWriter,
-    gaps,
-    iter_messages,
-    read_recording,
-    recover,
+    SeriesError,
 )
+from service.recordings.load import load_noiselab
+from service.recordings.mcapformat import COMPRESSIONS
+from service.recordings.merge import iter_time_ordered
+from service.recordings.output import PARTIAL_SUFFIX
+from service.recordings.reader import read_recording
+from service.recordings.recording import gaps
+from service.recordings.salvage import recover
+from service.recordings.scan import ScanReport, iter_messages
+from service.recordings.writer import RecordingWriter
 
 REPO = Path(__file__).resolve().parents[2]
 Ts = 0.01
@@ -90,7 +96,7 @@ def messages(path):
 # ------------------------------------------------------------------------- round trip
 
 
-@pytest.mark.parametrize("compression", mcapio.COMPRESSIONS)
+@pytest.mark.parametrize("compression", COMPRESSIONS)
 def test_round_trip_is_exact(tmp_path, compression):
     path = tmp_path / "run.mcap"
     n = 200
@@ -152,9 +158,9 @@ def test_two_devices_and_metadata_records(tmp_path):
     assert rec.device("b").measurement.values.tolist() == [[2.0]] * 5
     assert rec.device("a").truth is None and rec.device("a").command is None
     assert rec.metadata == {"run": {"operator": "ci"}}
-    with pytest.raises(mcapio.McapIoError, match="2 devices"):
+    with pytest.raises(McapIoError, match="2 devices"):
         rec.device()
-    with pytest.raises(mcapio.McapIoError, match="no device 'c'"):
+    with pytest.raises(McapIoError, match="no device 'c'"):
         rec.device("c")
 
 
@@ -180,28 +186,28 @@ def test_exception_inside_with_still_finishes_the_file(tmp_path):
     rec = read_recording(path)
     assert rec.complete
     assert rec.device("dev").measurement.values.tolist() == [[3.0]]
-    with pytest.raises(mcapio.McapIoError, match="already finished"):
+    with pytest.raises(McapIoError, match="already finished"):
         w.write("noiselab/dev/measurement", "measurement", 1, 1, 6, b"{}")
 
 
 def test_writer_refuses_bad_topics_and_times(tmp_path):
     with RecordingWriter(tmp_path / "x.mcap") as w:
-        with pytest.raises(mcapio.McapIoError, match="<prefix>/measurement"):
+        with pytest.raises(McapIoError, match="<prefix>/measurement"):
             w.channel("noiselab/dev/truth", "measurement")
         w.channel("/noiselab/dev/truth", "truth")  # leading '/' dropped
-        with pytest.raises(mcapio.McapIoError, match="registered as truth"):
+        with pytest.raises(McapIoError, match="registered as truth"):
             w.channel("noiselab/dev/truth", "command")
-        with pytest.raises(mcapio.McapIoError, match="publish_time_ns=-1"):
+        with pytest.raises(McapIoError, match="publish_time_ns=-1"):
             w.write("noiselab/dev/truth", "truth", 0, -1, 0, b"{}")
-        with pytest.raises(mcapio.McapIoError, match="log_time_ns=1.5"):
+        with pytest.raises(McapIoError, match="log_time_ns=1.5"):
             w.write("noiselab/dev/truth", "truth", 0, 0, 1.5, b"{}")
-        with pytest.raises(mcapio.McapIoError, match=r"shape \(2,\)"):
+        with pytest.raises(McapIoError, match=r"shape \(2,\)"):
             w.write_batch("noiselab/dev/truth", "truth", 0, np.zeros(3, np.int64),
                           np.zeros(2, np.int64), [b"{}", b"{}"])
-        with pytest.raises(mcapio.McapIoError, match="must all be bytes"):
+        with pytest.raises(McapIoError, match="must all be bytes"):
             w.write_batch("noiselab/dev/truth", "truth", 0, np.zeros(1, np.int64),
                           np.zeros(1, np.int64), ['{"seq":0}'])
-    with pytest.raises(mcapio.McapIoError, match="'gzip'"):
+    with pytest.raises(McapIoError, match="'gzip'"):
         RecordingWriter(tmp_path / "y.mcap", compression="gzip")
     assert not (tmp_path / "y.mcap").exists()
     assert [c.topic for _, c, _ in iter_messages(tmp_path / "x.mcap")] == []
@@ -238,7 +244,7 @@ def test_a_forced_write_that_fails_leaves_the_old_file_as_it_was(tmp_path):
             raise RuntimeError("boom")
     assert path.read_bytes() == old
     partial = tmp_path / "run.mcap.partial"
-    assert w.writing_path == str(partial) == str(path) + mcapio.PARTIAL_SUFFIX
+    assert w.writing_path == str(partial) == str(path) + PARTIAL_SUFFIX
     rec = read_recording(partial)
     assert rec.complete and rec.device("d").measurement.values.tolist() == [[7.0]]
     assert any(str(partial) in note and "1 messages" in note for note in err.value.__notes__)
@@ -261,7 +267,7 @@ def test_an_unfinished_partial_of_an_earlier_run_is_not_overwritten(tmp_path):
     old = path.read_bytes()
     partial = tmp_path / "run.mcap.partial"
     partial.write_bytes(b"what a killed recorder left")
-    with pytest.raises(mcapio.McapIoError) as e:
+    with pytest.raises(McapIoError) as e:
         RecordingWriter(path, force=True)
     msg = str(e.value)
     assert "\n" not in msg and str(partial) in msg and f"noiselab recover {partial}" in msg
@@ -272,7 +278,7 @@ def test_disk_full_is_one_line_naming_the_file(tmp_path):
     """/dev/full fails every write with ENOSPC: an McapIoError (exit 2), and the device stays."""
     if not os.path.exists("/dev/full"):
         pytest.skip("no /dev/full")
-    with pytest.raises(mcapio.McapIoError) as e:
+    with pytest.raises(McapIoError) as e:
         with RecordingWriter("/dev/full", force=True, chunk_size=1024) as w:
             for k in range(2000):
                 one_message(w, float(k), seq=k)
@@ -280,8 +286,8 @@ def test_disk_full_is_one_line_naming_the_file(tmp_path):
     assert msg.startswith("/dev/full: cannot write it (No space left on device)") and "\n" not in msg
     assert "recover" not in msg                      # nothing of it is on any disk
     assert not Path("/dev/full").is_file() and os.path.exists("/dev/full")
-    assert isinstance(e.value, mcapio.McapWriteError)   # not a bad message: callers stop on it
-    with pytest.raises(mcapio.McapWriteError, match="No space left"):
+    assert isinstance(e.value, McapWriteError)   # not a bad message: callers stop on it
+    with pytest.raises(McapWriteError, match="No space left"):
         one_message(w, 0.0)                          # the writer stays ended, with the same reason
 
 
@@ -294,15 +300,17 @@ def test_write_errors_of_a_regular_file_keep_the_old_file_and_what_was_written(t
     old = path.read_bytes()
     script = textwrap.dedent(f"""
         import resource, signal, sys
-        from service.nodes import mcapio, wire
+        from service import wire
+        from service.recordings.errors import McapIoError
+        from service.recordings.writer import RecordingWriter
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)     # EFBIG instead of the signal
         resource.setrlimit(resource.RLIMIT_FSIZE, (20000, 20000))
         try:
-            with mcapio.RecordingWriter({str(path)!r}, force=True, chunk_size=1024) as w:
+            with RecordingWriter({str(path)!r}, force=True, chunk_size=1024) as w:
                 for k in range(5000):
                     w.write("noiselab/d/measurement", "measurement", k, k, k,
                             wire.encode(k, k * 0.01, [float(k)], kind="measurement"))
-        except mcapio.McapIoError as e:
+        except McapIoError as e:
             print(e)
             sys.exit(3)
     """)
@@ -329,9 +337,11 @@ def test_a_write_error_at_the_close_keeps_what_was_flushed(tmp_path):
     path = tmp_path / "run.mcap"
     script = textwrap.dedent(f"""
         import os, resource, signal, sys
-        from service.nodes import mcapio, wire
+        from service import wire
+        from service.recordings.errors import McapWriteError
+        from service.recordings.writer import RecordingWriter
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
-        w = mcapio.RecordingWriter({str(path)!r}, chunk_size=1 << 20)
+        w = RecordingWriter({str(path)!r}, chunk_size=1 << 20)
         for k in range(110):                  # the last chunk and the summary wait in the file's buffer
             w.write("noiselab/d/measurement", "measurement", k, k, k,
                     wire.encode(k, k * 0.01, [float(k)], kind="measurement"))
@@ -341,7 +351,7 @@ def test_a_write_error_at_the_close_keeps_what_was_flushed(tmp_path):
                 resource.setrlimit(resource.RLIMIT_FSIZE, (size + 50, size + 50))
         try:
             w.close()
-        except mcapio.McapWriteError as e:
+        except McapWriteError as e:
             print(e)
             sys.exit(3)
     """)
@@ -362,7 +372,7 @@ def test_bad_output_paths_are_one_line_errors(tmp_path):
         cases.append((Path("/sys/noiselab-test.mcap"), "Permission denied"))  # EACCES, even for root
     for path, why in cases:
         for force in (False, True):
-            with pytest.raises(mcapio.McapIoError) as e:
+            with pytest.raises(McapIoError) as e:
                 RecordingWriter(path, force=force)
             assert str(e.value).startswith(f"{path}: ") and why in str(e.value), (path, force)
             assert "\n" not in str(e.value)
@@ -379,8 +389,9 @@ def test_killed_forced_writer_leaves_the_old_file_and_a_recoverable_partial(tmp_
     script = textwrap.dedent(f"""
         import os, signal
         import numpy as np
-        from service.nodes import mcapio, wire
-        w = mcapio.RecordingWriter({str(path)!r}, force=True, chunk_size=1 << 20)
+        from service import wire
+        from service.recordings.writer import RecordingWriter
+        w = RecordingWriter({str(path)!r}, force=True, chunk_size=1 << 20)
         print(getattr(w, "writing_path", None), flush=True)
         t, pub = wire.sample_times(0, 65, 0.01)
         key = wire.key("dev", "measurement")
@@ -513,7 +524,7 @@ def test_a_seq_that_comes_twice_with_different_data_is_an_error(tmp_path, capsys
     items.insert(60, (40, 123.0))
     items.insert(80, (70, 7.5))
     write_stream(path, items)
-    with pytest.raises(mcapio.McapIoError) as e:
+    with pytest.raises(McapIoError) as e:
         read_recording(path)
     msg = str(e.value)
     assert msg.startswith(f"{path}: topic 'noiselab/dev/measurement': seq 40 comes twice with different data")
@@ -570,7 +581,7 @@ def test_analysis_of_a_restarted_recording_takes_one_segment_and_says_so(tmp_pat
     s1 = load_noiselab(str(path), segment=1)
     assert s1.y[:, 0].tolist() == [float(k) for k in range(300)] and s1.u[:, 0].tolist() == s1.y[:, 0].tolist()
     assert any(n.endswith("analysed segment 1 (--segment 1)") for n in s1.notes)
-    with pytest.raises(AnalysisError, match=r"segment 3 asked for, but noiselab/dev/measurement has 2 stream "
+    with pytest.raises(SeriesError, match=r"segment 3 asked for, but noiselab/dev/measurement has 2 stream "
                                             r"segments \(1\.\.2\)"):
         load_noiselab(str(path), segment=3)
 
@@ -638,7 +649,7 @@ def test_two_sources_side_by_side_on_one_key_are_refused(tmp_path):
     for name, items in cases.items():
         path = tmp_path / f"{name}.mcap"
         write_stream(path, items)
-        with pytest.raises(mcapio.McapIoError, match="comes twice with different data; |comes twice with "
+        with pytest.raises(McapIoError, match="comes twice with different data; |comes twice with "
                                                      r"different data \(and \d+ more such seqs\); "):
             read_recording(path)
             pytest.fail(name)
@@ -689,7 +700,7 @@ def test_without_a_command_topic_the_assumed_command_is_named(tmp_path):
                          "offset": 0.0, "phase_rad": 0.0}
     assert ("no command topic in the recording: the analysis assumes the model's own command ([command] "
             "kind = 'sine', amplitude = 0.8, frequency_hz = 0.7, offset = 0.0, phase_rad = 0.0)") in s.notes
-    from service.diagnose.load import load_foreign
+    from service.recordings.load import load_foreign
     s = load_foreign(str(bare), "noiselab/dev/measurement:y[0]", None, seed.Ts, model=seed)   # a foreign file
     assert s.u is None and s.command["source"] == "model" and any("assumes the model's own" in n for n in s.notes)
     full = tmp_path / "full.mcap"
@@ -738,9 +749,9 @@ def test_gaps_on_hand_made_sequences(seq, expected):
 
 
 def test_gaps_refuses_non_integer_input():
-    with pytest.raises(mcapio.McapIoError, match="1-D integer"):
+    with pytest.raises(McapIoError, match="1-D integer"):
         gaps([0.0, 1.0])
-    with pytest.raises(mcapio.McapIoError, match="1-D integer"):
+    with pytest.raises(McapIoError, match="1-D integer"):
         gaps([[0, 1]])
 
 
@@ -783,7 +794,7 @@ def expected_after_cut(chunks, cut):
     return whole, cut_chunk
 
 
-@pytest.mark.parametrize("compression", mcapio.COMPRESSIONS)
+@pytest.mark.parametrize("compression", COMPRESSIONS)
 def test_cut_file_reads_every_intact_message_and_recovers(tmp_path, compression):
     """A file cut anywhere (as a SIGKILL or a full disk leaves it): the reader and recover give
     every message of every whole chunk, and of the chunk the cut goes through its intact start
@@ -856,7 +867,7 @@ def test_cut_file_reads_every_intact_message_and_recovers(tmp_path, compression)
         assert n3 == sum(len(c[2]) for c in chunks[:4]) - 1 and len(chunks[3][2]) >= 3
 
 
-@pytest.mark.parametrize("compression", mcapio.COMPRESSIONS)
+@pytest.mark.parametrize("compression", COMPRESSIONS)
 def test_a_cut_single_chunk_file_says_it_is_unfinished_and_its_start_is_recovered(tmp_path, compression):
     """A one-chunk recording (simulate writes 1 MiB chunks) cut at several bytes: the reader gives
     the messages of the chunk's intact start and says the file is unfinished; an analysis that
@@ -888,7 +899,7 @@ def test_a_cut_single_chunk_file_says_it_is_unfinished_and_its_start_is_recovere
             s = load_noiselab(str(path))
             assert len(s.y) == n_meas and any("the recording is unfinished" in n for n in s.notes)
         elif n_meas == 0:
-            with pytest.raises(AnalysisError) as e:
+            with pytest.raises(SeriesError) as e:
                 load_noiselab(str(path))
             msg = str(e.value)
             assert "incomplete MCAP" in msg and "none of them is a measurement" in msg and "\n" not in msg
@@ -933,7 +944,7 @@ def test_damaged_chunk_in_finished_file(tmp_path):
     blob[(start + end) // 2] ^= 0x10
     bad = tmp_path / "bad.mcap"
     bad.write_bytes(bytes(blob))
-    with pytest.raises(mcapio.CorruptRecordingError, match=f"^{bad}: finished file") as err:
+    with pytest.raises(CorruptRecordingError, match=f"^{bad}: finished file") as err:
         read_recording(bad)
     # the message names the command that salvages it, as the user types it
     assert f"`noiselab recover {bad} --out FIXED.mcap`" in str(err.value)
@@ -953,7 +964,7 @@ def test_recover_refuses_existing_output_and_itself(tmp_path):
         recover(src, dst)
     assert dst.read_bytes() == b"keep"
     assert recover(src, dst, force=True).total == 15
-    with pytest.raises(mcapio.McapIoError, match="is the input"):
+    with pytest.raises(McapIoError, match="is the input"):
         recover(src, src, force=True)
     assert read_recording(src).complete
 
@@ -964,8 +975,9 @@ def test_killed_writer_process_keeps_what_was_flushed(tmp_path):
     script = textwrap.dedent(f"""
         import os, signal, sys
         import numpy as np
-        from service.nodes import mcapio, wire
-        w = mcapio.RecordingWriter({str(path)!r}, chunk_size=1 << 20)
+        from service import wire
+        from service.recordings.writer import RecordingWriter
+        w = RecordingWriter({str(path)!r}, chunk_size=1 << 20)
         t, pub = wire.sample_times(0, 65, 0.01)
         y = np.arange(65.0).reshape(65, 1)
         key = wire.key("dev", "measurement")
@@ -1178,11 +1190,11 @@ def test_iter_time_ordered_merges_blocked_topics_with_bounded_memory(tmp_path):
     got = {t: hashlib.sha256() for t in ref}
     seqs = {t: [] for t in ref}
     last = (-1, -1)
-    report = mcapio.ScanReport()
+    report = ScanReport()
     held = first = 0
     tracemalloc.start()
     base = tracemalloc.get_traced_memory()[0]
-    for i, (_, c, m) in enumerate(mcapio.iter_time_ordered(path, report=report)):
+    for i, (_, c, m) in enumerate(iter_time_ordered(path, report=report)):
         if i == 0:
             first = tracemalloc.get_traced_memory()[0] - base
         key = (m.publish_time, order[c.topic.rsplit("/", 1)[-1]])
@@ -1209,8 +1221,8 @@ def test_iter_time_ordered_on_an_unfinished_file(tmp_path):
     blob = full.read_bytes()
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(blob[: len(blob) // 2])
-    report = mcapio.ScanReport()
-    items = [(c.topic, m.publish_time, m.sequence) for _, c, m in mcapio.iter_time_ordered(cut, report=report)]
+    report = ScanReport()
+    items = [(c.topic, m.publish_time, m.sequence) for _, c, m in iter_time_ordered(cut, report=report)]
     assert not report.complete and items
     order = {"truth": 0, "command": 1, "measurement": 2}
     keys = [(p, order[t.rsplit("/", 1)[-1]]) for t, p, _ in items]
@@ -1226,11 +1238,11 @@ def test_iter_time_ordered_replays_a_restarted_source_one_stream_after_the_other
     items = [(k, float(k)) for k in range(30)] + [(k, 100.0 + k) for k in range(20)]
     write_stream(path, items, kinds=("truth", "command", "measurement"))
     recorded = [(c.topic, m.data) for _, c, m in iter_messages(path)]
-    assert [(c.topic, m.data) for _, c, m in mcapio.iter_time_ordered(path)] == recorded
+    assert [(c.topic, m.data) for _, c, m in iter_time_ordered(path)] == recorded
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(path.read_bytes()[:-100])
-    report = mcapio.ScanReport()
-    assert [(c.topic, m.data) for _, c, m in mcapio.iter_time_ordered(cut, report=report)] == recorded
+    report = ScanReport()
+    assert [(c.topic, m.data) for _, c, m in iter_time_ordered(cut, report=report)] == recorded
     assert not report.complete
 
 
@@ -1242,7 +1254,7 @@ def test_write_interleaved_puts_the_topics_of_a_sample_together(tmp_path):
     with RecordingWriter(path, chunk_size=512) as w:
         w.write_interleaved([(wire.key("dev", kind), kind, 0, data[kind][1], data[kind][2],
                               wire.encode_batch(kind, 0, data[kind][0], data[kind][3])) for kind in wire.KINDS])
-        with pytest.raises(mcapio.McapIoError, match="payloads where the other streams have"):
+        with pytest.raises(McapIoError, match="payloads where the other streams have"):
             w.write_interleaved([("noiselab/dev/truth", "truth", 40, np.zeros(1, np.int64), np.zeros(1, np.int64),
                                   [b"{}"]), ("noiselab/dev/command", "command", 40, np.zeros(0, np.int64),
                                              np.zeros(0, np.int64), [])])

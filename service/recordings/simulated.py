@@ -8,7 +8,7 @@ Two formats (``fmt``):
     ``t`` = k Ts in s since the start, written sample by sample (truth, command, measurement of k,
     then of k + 1) as the emulator publishes them.
 ``"ros2"``
-    A rosbag2 bag directory (:mod:`service.nodes.rosout`: ``sensor_msgs`` messages in CDR).
+    A rosbag2 bag directory (:mod:`.rosbag_out`: ``sensor_msgs`` messages in CDR).
 
 Times in both: the run is anchored at its wall-clock start ``start_time_ns`` (int ns since the
 Unix epoch, taken when the write begins unless given), so viewers show the real date: sample k's
@@ -61,7 +61,7 @@ def write_simulation(model, n: int, seed: int, out: Path, *, force: bool = False
 
     An existing ``out`` is refused without ``force``; with it, ``out`` is replaced only once the
     new file is finished, so a write that fails keeps the old one (:class:`RecordingWriter`,
-    :class:`~service.nodes.rosout.BagWriter`). Bad input is a one-line ``ValueError``."""
+    :class:`~.rosbag_out.BagWriter`). Bad input is a one-line ``ValueError``."""
     from ..errors import BadInput
 
     if fmt not in FORMATS:
@@ -84,9 +84,9 @@ def write_simulation(model, n: int, seed: int, out: Path, *, force: bool = False
 
 def _blocks(model, n: int, seed: int, start: int):
     """``(k0, t, stamp_ns, block)`` of consecutive blocks: ``t`` the payload times (s since the
-    start, :func:`service.nodes.wire.sample_times`), ``stamp_ns`` the anchored publish times
+    start, :func:`service.wire.sample_times`), ``stamp_ns`` the anchored publish times
     ``start + round(t * 1e9)`` (int64 ns; ``np.rint`` rounds half to even, as Python's ``round``)."""
-    from . import wire
+    from .. import wire
 
     k0 = 0
     for blk in model.simulate_blocks(n, seed=seed):
@@ -96,11 +96,12 @@ def _blocks(model, n: int, seed: int, start: int):
 
 
 def _write_mcap(model, n, seed, out, force, meta, start, bar) -> dict[str, int]:
-    from . import mcapio, wire
+    from .. import wire
+    from .writer import RecordingWriter
 
     topics = {kind: wire.key(model.name, kind) for kind in ("truth", "command", "measurement")}
     out.parent.mkdir(parents=True, exist_ok=True)
-    with mcapio.RecordingWriter(out, force=force, chunk_size=1 << 20, metadata=meta) as w:
+    with RecordingWriter(out, force=force, chunk_size=1 << 20, metadata=meta) as w:
         for k0, t, pub, blk in _blocks(model, n, seed, start):
             w.write_interleaved([(topics[kind], kind, k0, pub, pub,
                                   wire.encode_batch(kind, k0, t, arr, topic=topics[kind]))
@@ -111,7 +112,7 @@ def _write_mcap(model, n, seed, out, force, meta, start, bar) -> dict[str, int]:
 
 
 def _write_ros2(model, n, seed, out, force, meta, start, bar) -> dict[str, int]:
-    from .rosout import BagWriter
+    from .rosbag_out import BagWriter
 
     with BagWriter(out, model, meta, force=force) as w:
         for k0, _t, stamp, blk in _blocks(model, n, seed, start):
