@@ -1,4 +1,4 @@
 """Zenoh nodes (emulator, recorder, analyzer, replayer) and the wire contract.
 
-wire.py holds keys, payloads, schemas and time; mcapio.py reads and writes recordings.
+wire/ holds keys, payloads, schemas and time; mcapio.py reads and writes recordings.
 """
