@@ -27,7 +27,8 @@ from service.model import load_model
 from service.nodes import mcapio, recorder, transport, wire
 from service.nodes.analyzer import READY_MARK as ANALYZER_READY
 from service.nodes.analyzer import LiveAnalyzer
-from service.nodes.recorder import Ingest, RecorderSummary
+from service.nodes.recorder import Ingest
+from service.nodes.recorder_summary import RecorderSummary
 from service.nodes.runner import READY_MARK, free_port
 from test_live import (CONTROLLER, EMULATE_MARK, LOOP_TOML, ROUTER_MARK, Collector, check_summary_topics, ep,
                        file_messages, session_config, waited_for_subscribers)

@@ -36,7 +36,8 @@ from livechild import Child
 from models_for_tests import LOOP_TOML
 from service.model import load_model
 from service.nodes import mcapio, transport, wire
-from service.nodes.recorder import Ingest, TopicBook
+from service.nodes.recorder import Ingest
+from service.nodes.recorder_summary import TopicBook
 from service.nodes.runner import READY_MARK, free_port
 
 pytestmark = pytest.mark.slow   # live end-to-end runs: real processes and sessions
