@@ -14,7 +14,7 @@ import io
 
 import numpy as np
 
-from service.stats.allan import FLICKER_FLOOR
+from service.stats.ieee952 import FLICKER_FLOOR
 
 DPI = 100
 WIDTH_PX = 1100

@@ -29,9 +29,20 @@ import numpy as np
 
 from service.diagnose.results import VIEW_NAMES, View
 
-from .rerun_log import (COLORS, VIEW_COLORS, VIEW_TITLES, effect_color, effect_ids, has_truth, model_changes,
-                        model_title, output_label, output_names, recording_of, truth_label, validate_comparisons,
-                        view_unit, view_y_label)
+from .comparisons import (
+    effect_ids,
+    has_truth,
+    model_changes,
+    model_title,
+    output_label,
+    output_names,
+    recording_of,
+    truth_label,
+    validate_comparisons,
+    view_unit,
+    view_y_label,
+)
+from .style import COLORS, VIEW_COLORS, VIEW_TITLES, effect_color
 
 DPI = 100
 WIDTH_PX = 1600
@@ -222,7 +233,6 @@ def summary_figure(comparisons: list):
     prev = comps[-2] if len(comps) > 1 else None
     effects = effect_ids(comps)
     p = np.asarray(c.y).shape[1]
-    names = output_names(c)
     w_px, h_px = figure_size_px(p)
     fig = Figure(figsize=(w_px / DPI, h_px / DPI), dpi=DPI, layout="constrained")
     fig.get_layout_engine().set(w_pad=4 / DPI, h_pad=6 / DPI, wspace=0.03, hspace=0.04)
@@ -234,49 +244,70 @@ def summary_figure(comparisons: list):
     gs = fig.add_gridspec(2 * p + 1, 12, height_ratios=ratios)
     head, detail = _title(comps)
     fig.suptitle(head + "\n" + detail, fontsize=12, fontweight="bold")
-    t = np.asarray(c.t, float)
     for i in range(p):
-        lab = output_label(c, i)
-        ax = fig.add_subplot(gs[2 * i, 0:6] if has_level else gs[2 * i, 0:8])
-        mean, sd = np.asarray(c.y_mean, float)[:, i], np.asarray(c.y_sd, float)[:, i]
-        ax.fill_between(t, mean - 2 * sd, mean + 2 * sd, color=_c("band", 0.45), lw=0, label="mean +- 2 sd")
-        ax.plot(t, np.asarray(c.y, float)[:, i], lw=0.6, color=_c((110, 110, 110)), label=f"{names[i]} measured")
-        if has_truth(c, i):
-            ax.plot(t, np.asarray(c.truth, float)[:, i], lw=1.2, color=_c("truth"), label=truth_label(i))
-        ax.plot(t, mean, lw=1.4, color=_c("mean"), label="predicted mean")
-        ax.set_xlim(t[0], t[-1])
-        ax.set_xlabel("time [s]")
-        ax.set_ylabel(_wrap(lab, YLABEL_CHARS))
-        shown = "measurement, truth, predicted mean" if has_truth(c, i) else "measurement, predicted mean"
-        ax.set_title(lab if has_level else f"{lab}: {shown} with the 2-sigma band", fontsize=10, loc="left")
-        ax.grid(True, alpha=0.35)
-        ax.legend(fontsize=8, loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=4, frameon=False,
-                  borderaxespad=0.2)
+        _plot_series(fig.add_subplot(gs[2 * i, 0:6] if has_level else gs[2 * i, 0:8]), c, i, has_level)
         slots = {"variance": gs[2 * i, 8:12], "psd": gs[2 * i + 1, 0:4], "acf": gs[2 * i + 1, 4:8],
                  "allan": gs[2 * i + 1, 8:12]}
         if has_level:
             slots["level"] = gs[2 * i, 6:9]
             slots["variance"] = gs[2 * i, 9:12]
-        for name, slot in slots.items():
-            try:
-                v = c.view(name, i)
-            except KeyError:
-                continue
-            pv = None
-            if prev is not None:
-                try:
-                    pv = prev.view(name, i)
-                except KeyError:
-                    pv = None
-            regs = [rg for rg in c.regions if rg.view == name and rg.output == i]
-            n_fl = int(np.sum(v.flagged)) if v.flagged is not None else 0
-            _plot_view(fig.add_subplot(slot), v, pv, effects, regs,
-                       f"{VIEW_TITLES[name]} {names[i]}{' (log-log)' if v.log_x and v.log_y else ''}: "
-                       f"error {_fmt(v.error)}" + (f", {n_fl} flagged" if n_fl else ""), view_y_label(c, v),
-                       contributions=name not in ("variance", "level"))
+        _plot_views(fig, slots, c, prev, i, effects)
     last = gs[2 * p, :].subgridspec(1, 3, width_ratios=[1.0, 1.4, 0.6])
-    # error per revision
-    ax = fig.add_subplot(last[0, 0])
+    _plot_errors(fig.add_subplot(last[0, 0]), comps)
+    ax = fig.add_subplot(last[0, 1])
+    ax.axis("off")
+    ax.text(0.0, 1.0, _report_text(comps), va="top", ha="left", family="monospace", fontsize=8,
+            transform=ax.transAxes)
+    _shared_legend(fig.add_subplot(last[0, 2]), effects, prev is not None)
+    return fig
+
+
+def _plot_series(ax, c, i: int, has_level: bool) -> None:
+    """Output ``i``'s measurement (and truth) over time with the predicted mean and its 2-sigma band."""
+    t = np.asarray(c.t, float)
+    lab = output_label(c, i)
+    names = output_names(c)
+    mean, sd = np.asarray(c.y_mean, float)[:, i], np.asarray(c.y_sd, float)[:, i]
+    ax.fill_between(t, mean - 2 * sd, mean + 2 * sd, color=_c("band", 0.45), lw=0, label="mean +- 2 sd")
+    ax.plot(t, np.asarray(c.y, float)[:, i], lw=0.6, color=_c((110, 110, 110)), label=f"{names[i]} measured")
+    if has_truth(c, i):
+        ax.plot(t, np.asarray(c.truth, float)[:, i], lw=1.2, color=_c("truth"), label=truth_label(i))
+    ax.plot(t, mean, lw=1.4, color=_c("mean"), label="predicted mean")
+    ax.set_xlim(t[0], t[-1])
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel(_wrap(lab, YLABEL_CHARS))
+    shown = "measurement, truth, predicted mean" if has_truth(c, i) else "measurement, predicted mean"
+    ax.set_title(lab if has_level else f"{lab}: {shown} with the 2-sigma band", fontsize=10, loc="left")
+    ax.grid(True, alpha=0.35)
+    ax.legend(fontsize=8, loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=4, frameon=False,
+              borderaxespad=0.2)
+
+
+def _plot_views(fig, slots: dict, c, prev, i: int, effects: list) -> None:
+    """Output ``i``'s statistic panels, each in its grid slot (``slots``: view name -> slot), beside
+    the previous revision's prediction (``prev``) where there is one."""
+    names = output_names(c)
+    for name, slot in slots.items():
+        try:
+            v = c.view(name, i)
+        except KeyError:
+            continue
+        pv = None
+        if prev is not None:
+            try:
+                pv = prev.view(name, i)
+            except KeyError:
+                pv = None
+        regs = [rg for rg in c.regions if rg.view == name and rg.output == i]
+        n_fl = int(np.sum(v.flagged)) if v.flagged is not None else 0
+        _plot_view(fig.add_subplot(slot), v, pv, effects, regs,
+                   f"{VIEW_TITLES[name]} {names[i]}{' (log-log)' if v.log_x and v.log_y else ''}: "
+                   f"error {_fmt(v.error)}" + (f", {n_fl} flagged" if n_fl else ""), view_y_label(c, v),
+                   contributions=name not in ("variance", "level"))
+
+
+def _plot_errors(ax, comps: list) -> None:
+    """The model error per revision, overall (labelled) and per view, on a log axis with the line 1."""
     k = np.arange(len(comps))
     for n in VIEW_NAMES:
         ax.plot(k, [cc.error_per_view.get(n, np.nan) for cc in comps], "o-", lw=1.2, ms=4,
@@ -295,9 +326,3 @@ def summary_figure(comparisons: list):
     ax.set_title("model error per revision (overall and per view)", fontsize=10)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7, loc="upper right", framealpha=0.85)
-    ax = fig.add_subplot(last[0, 1])
-    ax.axis("off")
-    ax.text(0.0, 1.0, _report_text(comps), va="top", ha="left", family="monospace", fontsize=8,
-            transform=ax.transAxes)
-    _shared_legend(fig.add_subplot(last[0, 2]), effects, prev is not None)
-    return fig

@@ -8,7 +8,7 @@ TOPIC:FIELD[,FIELD...]`` of a foreign one):
   interval at 68.3 % (Greenhall & Riley 2003 equivalent degrees of freedom, SP 1065 eq. (45)); the
   noise type identified at each tau (lag-1 autocorrelation, Riley & Greenhall 2004, with at least
   30 averages; Stable32's B1 / R(n) rule below that), named as SP 1065 names the power laws;
-* the slope readings (:func:`service.stats.allan.ieee952_readings`): N at tau = 1 s on the -1/2
+* the slope readings (:func:`service.stats.ieee952.ieee952_readings`): N at tau = 1 s on the -1/2
   line, K at tau = 3 s on the +1/2 line, B = the floor / 0.664, each with the tau range it was
   read on, or null with the reason;
 * with ``--model``: the model's predicted Allan deviation at the same taus (the exact discrete
@@ -110,8 +110,9 @@ def allan_report(series, names, units, Ts: float, model=None, model_label: str |
     """The report (module docstring's JSON) of ``series`` (``y`` (N, p) rate data at ``Ts``)."""
     import numpy as np
 
-    from ..stats.allan import NOISE_NAMES, ieee952_readings, oadev
+    from ..stats.allan import oadev
     from ..stats.errors import StatsError
+    from ..stats.ieee952 import NOISE_NAMES, ieee952_readings
 
     notes = list(series.notes)
     results = []

@@ -86,13 +86,16 @@ class EmulatorSummary:
 class _Control:
     """Latest control input (zero-order hold), written by the Zenoh thread, read by the loop."""
 
-    def __init__(self, m: int, name: str, log):
+    def __init__(self, m: int, name: str, log, stale_s: float):
         self.lock = threading.Lock()
         self.u = np.zeros(m)
         self.rx_ns = None
         self.count = 0
         self.bad = 0
         self.name, self.log = name, log
+        self.stale_s, self.stale_ns = stale_s, stale_s * 1e9
+        self.stale = False               # the loop's view (its thread only): the last sample had no fresh control
+        self.stale_events = 0
 
     def on_sample(self, sample) -> None:
         key = str(sample.key_expr)
@@ -111,6 +114,25 @@ class _Control:
             self.u = u
             self.rx_ns = time.monotonic_ns()
             self.count += 1
+
+    def at(self, deadline: int, start_ns: int, k: int) -> np.ndarray:
+        """The input of sample ``k``, due at ``deadline`` (monotonic ns; the stream started at
+        ``start_ns``): the latest control, or zero before the first one and while it is stale.
+        Stale: older than the timeout at the sample's deadline (not at the time the loop, maybe
+        running late, gets to it). A change either way is said on the log."""
+        with self.lock:
+            rx, u_last = self.rx_ns, self.u
+        age_ns = deadline - (start_ns if rx is None else rx)
+        is_stale = age_ns > self.stale_ns
+        if is_stale and not self.stale:
+            self.stale_events += 1
+            age = "no control received yet" if rx is None else f"last control {age_ns / 1e9:.3f} s old"
+            print(f"noiselab emulate: {self.name}: control input stale ({age}, timeout {self.stale_s:g} s): "
+                  f"applying zero from sample {k}", file=self.log, flush=True)
+        elif self.stale and not is_stale:
+            print(f"noiselab emulate: {self.name}: control input back at sample {k}", file=self.log, flush=True)
+        self.stale = is_stale
+        return np.zeros(u_last.size) if (is_stale or rx is None) else u_last
 
 
 def _percentiles(values_ns: list[int]) -> tuple[float, float, float]:
@@ -140,12 +162,8 @@ def run_emulator(model, session: "zenoh.Session", *, duration: float | None, see
     if not (speed > 0 and np.isfinite(speed)):
         raise ValueError(f"speed must be a finite number > 0, got {speed!r}")
     wall_ns = Ts_ns / speed                       # wall-clock period (float ns; deadlines rounded per sample)
-    n_total = None if duration is None else max(1, int(round(duration / Ts)))
-    keys = {kind: wire.key(name, kind) for kind in (*wire.KINDS, wire.HEALTH, wire.CONTROL, wire.END)}
-    pubs = {kind: transport.declare_stream(session, keys[kind], kind, **transport.DATA_QOS)
-            for kind in (*wire.KINDS, wire.END)}
-    health_pub = transport.declare_stream(session, keys[wire.HEALTH], wire.HEALTH,
-                                          congestion_control=zenoh.CongestionControl.DROP)
+    n_total = None if duration is None else max(1, round(duration / Ts))
+    keys, pubs, health_pub = _declare(session, name)
     started = [-1, -1]            # the last sample / health report whose puts have begun
     data_keys = [keys[kind] for kind in wire.KINDS]
 
@@ -154,24 +172,15 @@ def run_emulator(model, session: "zenoh.Session", *, duration: float | None, see
 
     join = transport.serve_join(session, name, first_seqs)
     external = model.command.kind == "external"
-    control = _Control(model.m, name, log) if external else None
+    control = _Control(model.m, name, log, stale_s) if external else None
     sub = session.declare_subscriber(keys[wire.CONTROL], control.on_sample) if external else None
-    if wait_peers > 0 and not transport.wait_peers(session, wait_peers, max(wait_subscribers, 5.0), stop):
-        if not stop.is_set():
-            print(f"noiselab emulate: fewer than {wait_peers} peers connected: starting anyway", file=log, flush=True)
-    if wait_subscribers > 0 and not transport.wait_matching([pubs["measurement"]], wait_subscribers, stop):
-        if not stop.is_set():
-            print(f"noiselab emulate: no subscriber matched within "
-                  f"{wait_subscribers:g} s: starting anyway", file=log, flush=True)
+    _wait_start(session, pubs["measurement"], wait_peers, wait_subscribers, stop, log)
     stepper = model.stepper(seed=seed)
     lat_all: list[int] = []
     lat_period: list[int] = []
     overruns = 0
-    stale_events = 0
-    stale = False
-    stale_ns = stale_s * 1e9
     diverged_at = None
-    health_every = max(1, int(round(speed / Ts)))   # about 1 Hz of wall time
+    health_every = max(1, round(speed / Ts))   # about 1 Hz of wall time
     health_seq = 0
     t0 = time.monotonic_ns() + 2_000_000          # first deadline 2 ms from now
     start_ns = t0
@@ -184,31 +193,10 @@ def run_emulator(model, session: "zenoh.Session", *, duration: float | None, see
         with np.errstate(over="ignore", invalid="ignore"):
             while not stop.is_set() and (n_total is None or k < n_total):
                 deadline = t0 + int(round(k * wall_ns))
-                now = mono()
-                if deadline - now > SPIN_NS:
-                    time.sleep((deadline - now - SPIN_NS) / 1e9)
-                while mono() < deadline:
-                    pass
-                late = mono() - deadline
+                late = _wait_until(deadline, mono)
                 lat_all.append(late)
                 lat_period.append(late)
-                u = None
-                if external:
-                    with control.lock:
-                        rx, u_last = control.rx_ns, control.u
-                    # the age of the last control at this sample's deadline (not at the time the loop,
-                    # maybe running late, gets to it)
-                    age_ns = deadline - (start_ns if rx is None else rx)
-                    is_stale = age_ns > stale_ns
-                    if is_stale and not stale:
-                        stale_events += 1
-                        age = "no control received yet" if rx is None else f"last control {age_ns / 1e9:.3f} s old"
-                        print(f"noiselab emulate: {name}: control input stale ({age}, timeout {stale_s:g} s): "
-                              f"applying zero from sample {k}", file=log, flush=True)
-                    elif stale and not is_stale:
-                        print(f"noiselab emulate: {name}: control input back at sample {k}", file=log, flush=True)
-                    stale = is_stale
-                    u = np.zeros(model.m) if (is_stale or rx is None) else u_last
+                u = control.at(deadline, start_ns, k) if external else None
                 t, x, u_applied, y = stepper.step(u)
                 beyond = _beyond(x, u_applied, y)
                 if beyond is not None:
@@ -217,21 +205,13 @@ def run_emulator(model, session: "zenoh.Session", *, duration: float | None, see
                           f"{wire.MAGNITUDE_MAX:g}: the plant has diverged; ending the stream here", file=log, flush=True)
                     break
                 tk = wire.sample_time(k, Ts)
-                p_truth = wire.encode(k, tk, x, kind="truth", topic=keys["truth"])
-                p_command = wire.encode(k, tk, u_applied, kind="command", topic=keys["command"])
-                p_measurement = wire.encode(k, tk, y, kind="measurement", topic=keys["measurement"])
-                started[0] = k
-                pubs["truth"].put(p_truth, attachment=anchor)
-                pubs["command"].put(p_command, attachment=anchor)
-                pubs["measurement"].put(p_measurement, attachment=anchor)
+                _put_sample(pubs, keys, k, tk, (x, u_applied, y), anchor, started)
                 if mono() > deadline + wall_ns:
                     overruns += 1
                 k += 1
                 if k % health_every == 0:
-                    p50, p99, mx = _percentiles(lat_period)
+                    stats = _health(k, lat_period, overruns, external and control.stale)
                     lat_period = []
-                    stats = {"k": k, "lateness_p50_us": p50, "lateness_p99_us": p99, "lateness_max_us": mx,
-                             "overruns": overruns, "late_control": int(stale)}
                     started[1] = health_seq
                     health_pub.put(wire.encode_health(health_seq, tk, stats), attachment=anchor)
                     health_seq += 1
@@ -240,19 +220,82 @@ def run_emulator(model, session: "zenoh.Session", *, duration: float | None, see
             sub.undeclare()
         join.undeclare()
     wall_s = (mono() - start_ns) / 1e9
-    counts = {kind: k for kind in wire.KINDS}
-    counts[wire.HEALTH] = health_seq
-    reason = "duration" if n_total is not None and k >= n_total else "stopped"
-    end = transport.end_stream(session, pubs[wire.END],
-                               wire.encode_end(0, wire.sample_time(max(k - 1, 0), Ts), k, counts, reason),
-                               end_timeout)
-    _report_end(name, end, counts, end_timeout, log)
+    end = _end_stream(session, pubs[wire.END], name, Ts, k, n_total, health_seq, end_timeout, log)
     p50, p99, mx = _percentiles(lat_all)
     return EmulatorSummary(name=name, samples=k, Ts=Ts, seed=seed, speed=speed,
                            lateness_us={"p50": p50, "p99": p99, "max": mx}, overruns=overruns,
-                           wall_s=wall_s, stale_control_events=stale_events,
+                           wall_s=wall_s, stale_control_events=control.stale_events if external else 0,
                            rejected_controls=control.bad if external else 0, diverged_at=diverged_at,
                            start_time_ns=start_time_ns, keys={k_: v for k_, v in keys.items()}, end=end)
+
+
+def _declare(session: zenoh.Session, name: str) -> tuple[dict, dict, object]:
+    """The device's keys by kind, its publishers (the data streams and the end of stream, with the
+    data QoS: reliable, blocking) and its health publisher (dropped under congestion: a health
+    report is never worth slowing the samples for)."""
+    keys = {kind: wire.key(name, kind) for kind in (*wire.KINDS, wire.HEALTH, wire.CONTROL, wire.END)}
+    pubs = {kind: transport.declare_stream(session, keys[kind], kind, **transport.DATA_QOS)
+            for kind in (*wire.KINDS, wire.END)}
+    health_pub = transport.declare_stream(session, keys[wire.HEALTH], wire.HEALTH,
+                                          congestion_control=zenoh.CongestionControl.DROP)
+    return keys, pubs, health_pub
+
+
+def _wait_start(session: zenoh.Session, measurement_pub, wait_peers: int, wait_subscribers: float,
+                stop: threading.Event, log) -> None:
+    """Before the first sample: wait for ``wait_peers`` peers, then for a subscriber of the
+    measurement (:func:`run_emulator`); either wait running out is said, and the run starts anyway."""
+    if wait_peers > 0 and not transport.wait_peers(session, wait_peers, max(wait_subscribers, 5.0), stop) \
+            and not stop.is_set():
+        print(f"noiselab emulate: fewer than {wait_peers} peers connected: starting anyway", file=log, flush=True)
+    if wait_subscribers > 0 and not transport.wait_matching([measurement_pub], wait_subscribers, stop) \
+            and not stop.is_set():
+        print(f"noiselab emulate: no subscriber matched within "
+              f"{wait_subscribers:g} s: starting anyway", file=log, flush=True)
+
+
+def _wait_until(deadline: int, mono) -> int:
+    """Sleep, then spin the last :data:`SPIN_NS`, until ``deadline`` (``mono()`` ns); how late the
+    wake-up was, ns."""
+    now = mono()
+    if deadline - now > SPIN_NS:
+        time.sleep((deadline - now - SPIN_NS) / 1e9)
+    while mono() < deadline:
+        pass
+    return mono() - deadline
+
+
+def _put_sample(pubs: dict, keys: dict, k: int, tk: float, vectors: tuple, anchor: bytes, started: list) -> None:
+    """Sample ``k`` (time ``tk`` s; ``vectors`` = x, u, y) on its three streams, in the order of
+    :data:`wire.KINDS`: the payloads are encoded first (a WireError sends none of them), then
+    ``started[0] = k`` (the join point :func:`transport.serve_join` answers), then the puts."""
+    payloads = [wire.encode(k, tk, v, kind=kind, topic=keys[kind]) for kind, v in zip(wire.KINDS, vectors)]
+    started[0] = k
+    for kind, payload in zip(wire.KINDS, payloads):
+        pubs[kind].put(payload, attachment=anchor)
+
+
+def _health(k: int, lat_period: list[int], overruns: int, stale: bool) -> dict:
+    """The health report after ``k`` samples (:data:`wire.HEALTH_FIELDS`): the lateness of the
+    report period's wake-ups (us), the overruns since the start, whether the control is stale."""
+    p50, p99, mx = _percentiles(lat_period)
+    return {"k": k, "lateness_p50_us": p50, "lateness_p99_us": p99, "lateness_max_us": mx,
+            "overruns": overruns, "late_control": int(stale)}
+
+
+def _end_stream(session: zenoh.Session, end_pub, name: str, Ts: float, k: int, n_total: int | None,
+                health_seq: int, end_timeout: float, log) -> dict:
+    """Publish the end of stream (``k`` samples of each data kind, ``health_seq`` health reports),
+    wait for the recorders' acknowledgements (:func:`transport.end_stream`) and say what went
+    wrong; what the acknowledgements said."""
+    counts = {kind: k for kind in wire.KINDS}
+    counts[wire.HEALTH] = health_seq
+    reason = "duration" if n_total is not None and k >= n_total else "stopped"
+    end = transport.end_stream(session, end_pub,
+                               wire.encode_end(0, wire.sample_time(max(k - 1, 0), Ts), k, counts, reason),
+                               end_timeout)
+    _report_end(name, end, counts, end_timeout, log)
+    return end
 
 
 def _beyond(*vectors) -> str | None:

@@ -66,7 +66,6 @@ import sys
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 
 import numpy as np
 import zenoh
@@ -75,6 +74,7 @@ from .. import wire
 from ..recordings.errors import McapIoError, McapWriteError, shown
 from ..recordings.writer import RecordingWriter
 from . import seqgate, transport
+from .recorder_summary import RecorderSummary, TopicBook, unended_text
 
 CAPACITY = 16384     # samples the zenoh channel holds before zenoh stops reading the link
 BATCH = 4096         # samples taken from the channel per batch, at most
@@ -86,122 +86,6 @@ DRAIN_MAX_S = 10.0   # on stop: finish after this long whatever is still arrivin
 SEQ_AHEAD = 1        # a seq more than this past its topic's last is held for confirmation (seqgate.SeqGate)
 VECTOR_KINDS = (*wire.KINDS, wire.CONTROL)
 _END_KEY = "/" + wire.END
-
-
-@dataclass
-class TopicBook:
-    """Sequence bookkeeping of one topic."""
-
-    first_seq: int | None = None
-    last_seq: int | None = None
-    count: int = 0
-    gaps: list = field(default_factory=list)        # (after_seq, missing)
-    restarts: list = field(default_factory=list)    # (from_seq, to_seq)
-    expected: int | None = None                      # messages the source says it published
-    missing_at_end: int = 0
-    end_gap: tuple | None = field(default=None, repr=False)   # the gap end() booked at the tail
-
-    def see(self, seq: int) -> None:
-        if self.first_seq is None:
-            self.first_seq = seq
-        elif seq > self.last_seq + 1:
-            self.gaps.append((self.last_seq, seq - self.last_seq - 1))
-        elif seq <= self.last_seq:
-            self.restarts.append((self.last_seq, seq))
-            self.expected, self.missing_at_end = None, 0      # a new stream: its end is to come
-        self.last_seq = seq
-        self.count += 1
-
-    def see_run(self, seq0: int, n: int) -> None:
-        """``n`` consecutive seqs from ``seq0`` (same as ``see`` on each)."""
-        self.see(seq0)
-        if n > 1:
-            self.last_seq = seq0 + n - 1
-            self.count += n - 1
-
-    def end(self, expected: int) -> int:
-        """The source published ``expected`` messages (seq 0..expected-1): book the tail that
-        did not arrive as a gap after the last seq; returns it. A topic of which nothing arrived
-        has all of them missing at start (a recorder started late cannot tell a loss from that)."""
-        self.expected = expected
-        self.missing_at_end = 0 if self.last_seq is None else max(0, expected - 1 - self.last_seq)
-        self.end_gap = None
-        if self.missing_at_end:
-            self.end_gap = (self.last_seq, self.missing_at_end)
-            self.gaps.append(self.end_gap)
-        return self.missing_at_end
-
-    def unend(self) -> None:
-        """Undo :meth:`end`: the stream went on after its end of stream."""
-        if self.end_gap is not None:
-            self.gaps.remove(self.end_gap)
-        self.expected, self.missing_at_end, self.end_gap = None, 0, None
-
-    @property
-    def missing(self) -> int:
-        """Seqs skipped inside the stream and, once the source has ended, after its last seq."""
-        return sum(m for _, m in self.gaps)
-
-    @property
-    def missing_at_start(self) -> int:
-        return self.first_seq if self.first_seq is not None else (self.expected or 0)
-
-    @property
-    def lacks(self) -> int:
-        """Every seq from 0 to the last one the source announced (or to the last seen) not recorded."""
-        return self.missing_at_start + self.missing
-
-    def as_dict(self) -> dict:
-        return {"first_seq": self.first_seq, "last_seq": self.last_seq, "count": self.count,
-                "missing_at_start": self.missing_at_start, "gaps": [list(g) for g in self.gaps],
-                "missing": self.missing, "restarts": [list(r) for r in self.restarts],
-                "expected": self.expected, "missing_at_end": self.missing_at_end}
-
-
-@dataclass
-class RecorderSummary:
-    out: str
-    topics: dict
-    messages: int
-    malformed: int
-    wall_s: float
-    ended: dict = field(default_factory=dict)
-    malformed_topics: dict = field(default_factory=dict)   # key -> messages skipped
-    unended: dict = field(default_factory=dict)            # prefix -> {kind: last seq}: no end of stream came
-    starts: dict = field(default_factory=dict)             # prefix -> {"start_time_ns": int, "stated": bool}
-    bad_anchors: int = 0                                   # attachments that broke the contract (ignored)
-
-    def as_dict(self) -> dict:
-        return {"node": "record", "out": self.out, "messages": self.messages, "malformed": self.malformed,
-                "malformed_topics": self.malformed_topics, "wall_s": self.wall_s,
-                "topics": {k: v.as_dict() for k, v in self.topics.items()}, "ended": self.ended,
-                "unended": self.unended, "starts": self.starts, "bad_anchors": self.bad_anchors}
-
-    def lines(self) -> list[str]:
-        out = [f"recorded {self.messages} messages to {self.out} in {self.wall_s:.1f} s"]
-        for topic, b in sorted(self.topics.items()):
-            d = b.as_dict()
-            text = f"  {topic}: " + (f"{b.count} messages, seq {b.first_seq}..{b.last_seq}" if b.count else
-                                     f"no messages (the source published {b.expected})")
-            if d["missing_at_start"] and b.count:
-                text += f", started at seq {b.first_seq} (seqs 0..{b.first_seq - 1} not recorded)"
-            text += f", {b.missing} missing in {len(b.gaps)} gaps" if b.gaps else ", no gaps"
-            if b.missing_at_end:
-                text += f" ({b.missing_at_end} at the end: the source published {b.expected})"
-            if b.restarts:
-                text += f", {len(b.restarts)} restarts (seq went back)"
-            out.append(text)
-        if self.malformed:
-            out.append(f"  {self.malformed} malformed payloads skipped ("
-                       + ", ".join(f"{n} on {k}" for k, n in sorted(self.malformed_topics.items())) + ")")
-        for prefix in sorted(self.unended):
-            out.append(f"  {prefix}: {_unended_text(self.unended[prefix])}")
-        return [shown(line) for line in out]
-
-
-def _unended_text(last: dict) -> str:
-    return ("no end of stream (the source vanished, or was still streaming at the stop); last seq "
-            + ", ".join(f"{kind} {seq}" for kind, seq in sorted(last.items())))
 
 
 def _kind_of_key(key: str) -> str | None:
@@ -585,7 +469,7 @@ class Ingest:
         """:meth:`unended`, each source said on the log (one line each)."""
         unended = self.unended()
         for prefix in sorted(unended):
-            self._say(f"{prefix}: {_unended_text(unended[prefix])}")
+            self._say(f"{prefix}: {unended_text(unended[prefix])}")
         return unended
 
     def ack(self, prefix: str) -> dict:
@@ -629,13 +513,7 @@ def run_recorder(session: "zenoh.Session", key_expr: str, out: str, *, duration:
             while True:
                 while (q := recv_query()) is not None:
                     pending.append([q, CAPACITY])     # what preceded it is in the channel, at most CAPACITY
-                items = []
-                while len(items) < BATCH and (s := recv()) is not None:
-                    key = str(s.key_expr)
-                    if (att := s.attachment) is not None and (att := att.to_bytes()) != anchors.get(key):
-                        anchors[key] = att
-                        ing.state(key, att)
-                    items.append((key, s.payload.to_bytes()))
+                items = _take(recv, ing, anchors)
                 empty = len(items) < BATCH            # the channel ran dry: what preceded the queries is in
                 now = time.monotonic()
                 if join is not None:
@@ -650,11 +528,7 @@ def run_recorder(session: "zenoh.Session", key_expr: str, out: str, *, duration:
                     ing.add(items, time.time_ns())
                     last_rx = now
                 if pending and join is None:
-                    for p in pending:
-                        p[1] -= len(items)
-                    for p in [p for p in pending if empty or p[1] <= 0]:
-                        pending.remove(p)
-                        _answer(p[0], ing)
+                    _answer_due(pending, len(items), empty, ing)
                 if now - last_flush >= flush_s:
                     w.flush()
                     last_flush = now
@@ -678,18 +552,49 @@ def run_recorder(session: "zenoh.Session", key_expr: str, out: str, *, duration:
             for p in pending:
                 _answer(p[0], ing)
             queries.undeclare()
-            unended = ing.say_unended()
-            summary = RecorderSummary(out=str(out), topics=ing.books, messages=ing.messages,
-                                      malformed=ing.malformed, wall_s=time.monotonic() - t_start,
-                                      ended={k: v["counts"] for k, v in ing.ends.items()},
-                                      malformed_topics=dict(ing.malformed_topics), unended=unended,
-                                      starts=ing.starts_dict(), bad_anchors=ing.bad_anchors)
-            w.add_metadata("noiselab.recorder", {
-                "topics": json.dumps({k: v.as_dict() for k, v in ing.books.items()}),
-                "messages": str(ing.messages), "malformed": str(ing.malformed),
-                "malformed_topics": json.dumps(ing.malformed_topics), "unended": json.dumps(unended),
-                "starts": json.dumps(ing.starts_dict()), "bad_anchors": str(ing.bad_anchors),
-                "stopped_unix_ns": str(time.time_ns())})
+            summary = _summary(w, ing, str(out), time.monotonic() - t_start)
+    return summary
+
+
+def _take(recv, ing: Ingest, anchors: dict[str, bytes]) -> list[tuple[str, bytes]]:
+    """Up to :data:`BATCH` samples from the channel (``recv``), as (key, payload). An attachment
+    that differs from the last one taken on its key (``anchors``, updated) is given to
+    :meth:`Ingest.state` first: most samples repeat their source's."""
+    items = []
+    while len(items) < BATCH and (s := recv()) is not None:
+        key = str(s.key_expr)
+        if (att := s.attachment) is not None and (att := att.to_bytes()) != anchors.get(key):
+            anchors[key] = att
+            ing.state(key, att)
+        items.append((key, s.payload.to_bytes()))
+    return items
+
+
+def _answer_due(pending: list[list], taken: int, empty: bool, ing: Ingest) -> None:
+    """Answer each pending end-of-stream query ([query, samples still to take before it]) whose
+    preceding samples are all taken: ``taken`` more were, or the channel ran dry (``empty``)."""
+    for p in pending:
+        p[1] -= taken
+    for p in [p for p in pending if empty or p[1] <= 0]:
+        pending.remove(p)
+        _answer(p[0], ing)
+
+
+def _summary(w: RecordingWriter, ing: Ingest, out: str, wall_s: float) -> RecorderSummary:
+    """The recording's summary, also stored in its metadata record ``noiselab.recorder``; each
+    source whose stream did not end is said on the log."""
+    unended = ing.say_unended()
+    summary = RecorderSummary(out=out, topics=ing.books, messages=ing.messages,
+                              malformed=ing.malformed, wall_s=wall_s,
+                              ended={k: v["counts"] for k, v in ing.ends.items()},
+                              malformed_topics=dict(ing.malformed_topics), unended=unended,
+                              starts=ing.starts_dict(), bad_anchors=ing.bad_anchors)
+    w.add_metadata("noiselab.recorder", {
+        "topics": json.dumps({k: v.as_dict() for k, v in ing.books.items()}),
+        "messages": str(ing.messages), "malformed": str(ing.malformed),
+        "malformed_topics": json.dumps(ing.malformed_topics), "unended": json.dumps(unended),
+        "starts": json.dumps(ing.starts_dict()), "bad_anchors": str(ing.bad_anchors),
+        "stopped_unix_ns": str(time.time_ns())})
     return summary
 
 

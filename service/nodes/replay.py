@@ -233,24 +233,13 @@ def run_replay(session: zenoh.Session, path: str, *, speed: float | None = 1.0, 
             and not stop.is_set():
         print(f"noiselab replay: no subscriber matched within {wait_subscribers:g} s: starting anyway",
               file=log, flush=True)
-    t_wall0 = None
-    pub0 = None
+    pacer = _Pacer(speed)
     n = 0
     start = time.monotonic()
     for topic, at_ns, sequence, data, enc in _messages(path, report):
         if stop.is_set():
             break
-        if speed is not None:
-            if t_wall0 is None:
-                t_wall0, pub0 = time.monotonic_ns(), at_ns
-                clock0 = time.time_ns()           # the wall clock beside the monotonic pacing
-            due = t_wall0 + int((at_ns - pub0) / speed)
-            due_wall = clock0 + (due - t_wall0)
-            delay = due - time.monotonic_ns()
-            if delay > 0:
-                time.sleep(delay / 1e9)
-        else:
-            due_wall = time.time_ns()
+        due_wall = pacer.wait(at_ns)
         pub = publisher(topic)
         key = str(pub.key_expr)
         if key in started:
@@ -262,12 +251,8 @@ def run_replay(session: zenoh.Session, path: str, *, speed: float | None = 1.0, 
             foreign.add(key)                 # no join point: not a counted stream, or its MCAP sequence is not its seq
         if (kind := kinds[topic]) is not None:
             pub.put(data, attachment=anchors.of(topic.lstrip("/"), kind, sequence, data, due_wall))
-        elif enc is None:
-            pub.put(data)
         else:
-            if enc not in encodings:
-                encodings[enc] = zenoh.Encoding(enc)
-            pub.put(data, encoding=encodings[enc])
+            _put_foreign(pub, data, enc, encodings)
         counts[topic] = counts.get(topic, 0) + 1
         n += 1
     for q in joins:
@@ -276,3 +261,37 @@ def run_replay(session: zenoh.Session, path: str, *, speed: float | None = 1.0, 
         print(f"noiselab replay: {path}: {report.note}", file=log, flush=True)
     return ReplaySummary(path=str(path), messages=n, topics=counts, wall_s=time.monotonic() - start,
                          complete=report.complete, starts=dict(anchors.starts))
+
+
+class _Pacer:
+    """The replay's pace: a message recorded at ``at_ns`` is put ``(at_ns - at_0) / speed`` after
+    the first one (monotonic clock), ``speed`` None: at once. :meth:`wait` returns the wall-clock
+    time (ns) it was due, beside the monotonic pacing: its stream's anchor."""
+
+    def __init__(self, speed: float | None):
+        self.speed = speed
+        self.t_wall0 = self.pub0 = self.clock0 = None
+
+    def wait(self, at_ns: int) -> int:
+        if self.speed is None:
+            return time.time_ns()
+        if self.t_wall0 is None:
+            self.t_wall0, self.pub0 = time.monotonic_ns(), at_ns
+            self.clock0 = time.time_ns()           # the wall clock beside the monotonic pacing
+        due = self.t_wall0 + int((at_ns - self.pub0) / self.speed)
+        due_wall = self.clock0 + (due - self.t_wall0)
+        delay = due - time.monotonic_ns()
+        if delay > 0:
+            time.sleep(delay / 1e9)
+        return due_wall
+
+
+def _put_foreign(pub: zenoh.Publisher, data: bytes, enc: str | None, encodings: dict[str, zenoh.Encoding]) -> None:
+    """A message of a topic that is not a noiselab stream, with its own encoding (a
+    ``zenoh.Encoding`` made once per string, kept in ``encodings``), or none."""
+    if enc is None:
+        pub.put(data)
+        return
+    if enc not in encodings:
+        encodings[enc] = zenoh.Encoding(enc)
+    pub.put(data, encoding=encodings[enc])

@@ -198,7 +198,7 @@ class RecordingWriter:
             if known[1] != kind:
                 raise McapIoError(f"topic {topic!r} is registered as {known[1]}, not {kind}")
             return known[0]
-        wire._check_kind(kind)
+        wire.check_kind(kind)
         parts = topic.split("/") if isinstance(topic, str) else []
         if len(parts) < 2 or parts[-1] != kind or not all(parts):
             raise McapIoError(f"topic {topic!r} must look like <prefix>/{kind} "

@@ -11,19 +11,10 @@ Riley & Greenhall 2004, Brockwell & Davis 1991).
 """
 
 from .acf import AcfEstimate, acf, bartlett_se
-from .allan import (
-    ONE_SIGMA_CONF,
-    AllanResult,
-    adev,
-    allan_taus,
-    chi2_bounds,
-    edf_greenhall,
-    mdev,
-    noise_id_lag1,
-    oadev,
-    oadev_from_phase,
-)
+from .allan import AllanResult, adev, allan_taus, mdev, oadev, oadev_from_phase
+from .edf import ONE_SIGMA_CONF, chi2_bounds, edf_greenhall
 from .errors import StatsError
+from .noise_id import noise_id_lag1
 from .psd import PsdEstimate, psd_band, psd_log_bins, welch
 from .rolling import RollingVariance, rolling_variance
 

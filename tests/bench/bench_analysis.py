@@ -586,7 +586,8 @@ def live_profile_split(path: Path) -> dict:
 
 
 # start-up frames that hold the whole run (left out of the cumulative table)
-_WRAPPERS = ("builtins.exec", "<string>", "runpy", "service/cli.py", "cmd_analyze_live")
+_WRAPPERS = ("builtins.exec", "<string>", "runpy", "service/cli.py", "service/commands/analyze.py",
+             "cmd_analyze_live")
 
 
 def live_phases(model: Path, rec: Path, update: float, window: float, at: list[float], steady: int,

@@ -15,7 +15,9 @@ import pyarrow as pa
 import pytest
 
 from service.diagnose.results import Comparison, Region, View
-from viewers.rerun_log import ViewerInputError, log_comparisons, report_markdown
+from viewers.comparisons import ViewerInputError
+from viewers.report import report_markdown
+from viewers.rerun_log import log_comparisons
 from viewers.summary_png import figure_size_px, write_summary_png
 
 N = 2000
@@ -427,7 +429,7 @@ def figure_texts(fig) -> list:
 
 
 def test_with_unit_replaces_the_units_placeholder():
-    from viewers.rerun_log import with_unit
+    from viewers.comparisons import with_unit
 
     assert with_unit("PSD [units^2/Hz]", "rad/s") == "PSD [(rad/s)^2/Hz]"
     assert with_unit("PSD [units^2/Hz]", "m") == "PSD [m^2/Hz]"

@@ -36,7 +36,8 @@ from hypothesis import strategies as st
 from conftest import assert_bad
 from conftest import cli_in_process as cli
 
-from service.cli import build_parser, predict_report
+from service.cli import build_parser
+from service.commands.predict import predict_report
 from service.model import ModelError, dumps_toml, load_model, parse_model, scenario_names
 from service.model.effects import CATALOGUE
 from service.model.model import TS_MAX, TS_MIN, _from_data, scenario_text

@@ -31,7 +31,8 @@ from service.recordings.reader import read_recording
 from service.recordings.writer import RecordingWriter
 from service.nodes.analyzer import READY_MARK as ANALYZER_READY
 from service.nodes.analyzer import LiveAnalyzer
-from service.nodes.recorder import Ingest, RecorderSummary
+from service.nodes.recorder import Ingest
+from service.nodes.recorder_summary import RecorderSummary
 from service.nodes.runner import READY_MARK, free_port
 from test_live import (CONTROLLER, EMULATE_MARK, LOOP_TOML, ROUTER_MARK, Collector, check_summary_topics, ep,
                        file_messages, session_config, waited_for_subscribers)

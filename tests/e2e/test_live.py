@@ -41,7 +41,8 @@ from service.recordings.errors import NotMcapError
 from service.recordings.reader import read_recording
 from service.recordings.scan import iter_messages
 from service.recordings.writer import RecordingWriter
-from service.nodes.recorder import Ingest, TopicBook
+from service.nodes.recorder import Ingest
+from service.nodes.recorder_summary import TopicBook
 from service.nodes.runner import READY_MARK, free_port
 
 pytestmark = pytest.mark.slow   # live end-to-end runs: real processes and sessions

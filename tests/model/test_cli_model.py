@@ -48,7 +48,7 @@ def test_predict_modifiers_report_the_change_they_cause(capsys):
     f = ROOT / "service" / "scenarios" / "seed-nominal.toml"
     text = f.read_text() + "\n[actuator.lag]\ntau_s = 0.5\n"
     mdl = load_model("seed-nominal")
-    from service.cli import predict_report
+    from service.commands.predict import predict_report
     from service.model import parse_model
     rep = predict_report(parse_model(text, "lagged"))
     base = mdl.predictor().steady_state().var_y[0]

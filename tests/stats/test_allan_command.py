@@ -3,7 +3,7 @@ recordings written by ``noiselab simulate`` (and a foreign JSON MCAP of real OCX
 
 Tolerances of the readings come from the estimator: each reading's interval is one sigma
 (conf 0.683) of the fitted line's offset, bounded as for fully correlated octaves
-(:func:`service.stats.allan.ieee952_readings`), so a right value lies within 3 of those sigmas.
+(:func:`service.stats.ieee952.ieee952_readings`), so a right value lies within 3 of those sigmas.
 """
 
 from __future__ import annotations
