@@ -122,8 +122,8 @@ def test_threaded_candidate_fits_share_the_parts_cache_while_it_evicts(monkeypat
     fillers were evicted, and the candidates' scores are bit-identical to the serial map's (a cache
     holds results, not choices)."""
     monkeypatch.setattr(parallel, "ENABLED", False)
-    monkeypatch.setattr(W, "PARTS_CACHE", 1000)
-    monkeypatch.setattr(W, "PARTS_CACHE_BYTES", 256 << 10)
+    monkeypatch.setattr(W.parts, "PARTS_CACHE", 1000)
+    monkeypatch.setattr(W.parts, "PARTS_CACHE_BYTES", 256 << 10)
     truth, nominal = load_model("hidden/sensor.bias_markov"), load_model("hidden/sensor.bias_markov-nominal")
     rec = truth.simulate(4000, seed=3)
     data = Data(rec.y, rec.u, truth.Ts, True, 0)

@@ -1,4 +1,4 @@
-"""The diagnosis' likelihood (service/diagnose/whittle.py): the expected tapered periodogram of the
+"""The diagnosis' likelihood (service/diagnose/whittle/): the expected tapered periodogram of the
 differenced residual, exact for a finite record that starts at rest, checked against Monte Carlo
 ensembles; the modal mean response against the predictor's."""
 
@@ -185,8 +185,8 @@ def test_the_parts_cache_drops_its_oldest_beyond_a_count_or_a_size(monkeypatch):
     """parts_cache: entries beyond PARTS_CACHE or beyond PARTS_CACHE_BYTES of arrays go, the oldest
     first (a re-put entry is new again); an entry larger than the whole budget is not kept, and the
     others stay."""
-    monkeypatch.setattr(W, "PARTS_CACHE", 4)
-    monkeypatch.setattr(W, "PARTS_CACHE_BYTES", 10_000)
+    monkeypatch.setattr(W.parts, "PARTS_CACHE", 4)
+    monkeypatch.setattr(W.parts, "PARTS_CACHE_BYTES", 10_000)
     c = W.parts_cache()
     c.update({i: np.zeros(10) for i in range(5)})
     assert c.keys() == [1, 2, 3, 4]                              # the count: 0 went
