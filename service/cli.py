@@ -364,7 +364,7 @@ def load_series(args, model, truth: bool = True, read=None, steps=None):
 
 
 def _read_early(args, truth: bool):
-    """A noiselab recording read in a forked child (:func:`service.parallel.fork_call`) while this
+    """A noiselab recording read in a forked child (:meth:`service.parallel.Pool.submit`) while this
     process imports the analysis and loads the model: on 10^6 samples the reading takes 3 s and
     the imports 1.2 s, one after the other before (the series ready 1.0 s sooner, 5.2 s -> 4.1 s
     over 6 paired runs; the pickled arrays' trip costs 0.3 s). None for foreign recordings and missing files;
@@ -383,7 +383,7 @@ def _read_early(args, truth: bool):
     from .diagnose.load import noiselab_kinds
     from .nodes import mcapio
     path, kinds = args.recording, noiselab_kinds(truth)
-    return parallel.fork_call(lambda: mcapio.read_recording(path, kinds=kinds))
+    return parallel.Pool().submit(lambda: mcapio.read_recording(path, kinds=kinds))
 
 
 def _reading_early(args, body) -> int:

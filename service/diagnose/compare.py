@@ -54,7 +54,6 @@ from __future__ import annotations
 
 import threading
 from collections import OrderedDict
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 from functools import lru_cache
 
@@ -63,6 +62,7 @@ from scipy import stats as sps
 from scipy.signal import get_window
 from scipy.special import digamma, polygamma
 
+from .. import parallel
 from ..model import ModelError
 from ..model.expected import (
     _welch_kernel,
@@ -1050,8 +1050,7 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
                                                       float(walk0[j]), float(walk_rate[j]), model, jkey=jkey))
     if r.size >= VIEW_THREADS_MIN and VIEW_THREADS > 1:
         # independent views: their transforms and array arithmetic release the GIL
-        with ThreadPoolExecutor(max_workers=VIEW_THREADS) as pool:
-            views = list(pool.map(lambda f: f(), jobs))
+        views = parallel.Pool().map(lambda f: f(), jobs, workers=VIEW_THREADS, processes=False)
     else:
         views = [f() for f in jobs]
     per_view = {}
