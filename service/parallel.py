@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import signal
 import sys
 import threading
 import time
@@ -66,6 +67,20 @@ def _run_job(key: int):
     """In a worker process: the job registered under ``key`` before the fork. A module-level
     function, so that the executor pickles only its name and the key."""
     return _JOBS[key]()
+
+
+def _die_with_parent(parent: int) -> None:
+    """In a worker process, before its first job: killed when its parent ends (Linux's
+    ``prctl(PR_SET_PDEATHSIG, SIGKILL)``, linux/prctl.h), so that the workers of a worker that was
+    stopped (a cancelled :meth:`Pool.submit` that had begun a map of its own) do not go on computing
+    and then wait for work forever. The parent is the single thread that forked (:func:`can_fork`)."""
+    try:
+        import ctypes
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)      # 1: PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        return
+    if os.getppid() != parent:              # the parent ended before the signal was armed
+        os._exit(1)
 
 
 def now(fn) -> Future:
@@ -129,7 +144,8 @@ class _Forked:
         before = set(multiprocessing.active_children())
         # with "fork" the executor starts its processes in the first submit(), before its own
         # threads: the children are copies of this single-threaded process
-        self._ex = ProcessPoolExecutor(max_workers=n, mp_context=multiprocessing.get_context("fork"))
+        self._ex = ProcessPoolExecutor(max_workers=n, mp_context=multiprocessing.get_context("fork"),
+                                       initializer=_die_with_parent, initargs=(os.getpid(),))
         try:
             self.futures = [self._ex.submit(_run_job, key) for _ in range(n)]
         except BaseException:

@@ -244,6 +244,24 @@ _TOY = """
         cancelled = "no error"
     except RuntimeError as exc:
         cancelled = str(exc)
+    # a call cancelled while its child runs a map of its own (in the child and a grandchild): both
+    # end (not only the child): every holder of ``dead_w``, an end this process then closes, is gone
+    ready_r, ready_w = os.pipe()
+    dead_r, dead_w = os.pipe()
+
+    def blocked(x):
+        os.write(ready_w, b"r")
+        return os.read(hold_r, 1)                                  # blocks until killed
+
+    nested = parallel.Pool().submit(lambda: parallel.Pool().map(blocked, [0, 1]))
+    started = b""
+    while len(started) < 2:                                        # the child's item and the grandchild's
+        started += os.read(ready_r, 2 - len(started))
+    nested.cancel()
+    os.close(dead_w)
+    nested_gone = os.read(dead_r, 1) == b""
+    for fd in (ready_r, ready_w, dead_r):
+        os.close(fd)
     # interrupted while it waits for the child (Ctrl-C): the child is killed and reaped at once, and
     # the caller's cancel() afterwards does nothing more
     slow = parallel.Pool().submit(lambda: os.read(hold_r, 1))
@@ -269,7 +287,7 @@ _TOY = """
     parallel.POOL = "processes"
     out["call"] = {{"child": got[0] != parent, "value": got[1] == list(range(100000)), "redone": once == parent,
                    "cancelled": cancelled, "disabled_here": here == parent, "interrupted": interrupted,
-                   "can_fork": parallel.can_fork(), **stats(before)}}
+                   "nested_gone": nested_gone, "can_fork": parallel.can_fork(), **stats(before)}}
 
     def parent_fails(x):
         if os.getpid() == parent:
@@ -329,7 +347,7 @@ def test_a_forked_map_computes_here_what_the_child_did_not_deliver():
     assert sd["values"] == [1, 2] and sd["errors"] == ["side task"] * 2 and sd["exception"] == "side task", sd
     assert sd["maps"] == 1 and sd["side"] == 4 and sd["recomputed"] == 0 and sd["lone"], sd
     assert out["call"] == {"child": True, "value": True, "redone": True, "cancelled": "cancelled",
-                           "disabled_here": True, "interrupted": "yes", "can_fork": True, "maps": 0,
+                           "disabled_here": True, "interrupted": "yes", "nested_gone": True, "can_fork": True, "maps": 0,
                            "child_items": 0, "recomputed": 1, "side": 0, "calls": 2}, out["call"]
     for with_side, c in out["carry"].items():
         # every entry here after the map, the child's items' from the child (its work not redone)
