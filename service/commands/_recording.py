@@ -34,7 +34,7 @@ def load_series(args, model, truth: bool = True, read=None, steps=None):
 
 
 def read_early(args, truth: bool):
-    """A noiselab recording read in a forked child (:func:`service.parallel.fork_call`) while this
+    """A noiselab recording read in a forked child (:meth:`service.parallel.Pool.submit`) while this
     process imports the analysis and loads the model, so the two overlap instead of following
     each other (on a long recording the reading is the larger part). None for foreign recordings
     and missing files; an error in the reading is raised where :func:`load_series` would raise it
@@ -52,7 +52,7 @@ def read_early(args, truth: bool):
     from ..recordings.load import noiselab_kinds
     from ..recordings.reader import read_recording
     path, kinds = args.recording, noiselab_kinds(truth)
-    return parallel.fork_call(lambda: read_recording(path, kinds=kinds))
+    return parallel.Pool().submit(lambda: read_recording(path, kinds=kinds))
 
 
 def reading_early(args, body) -> int:

@@ -20,7 +20,6 @@ from __future__ import annotations
 import math
 import threading
 import time
-from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 
@@ -483,20 +482,11 @@ def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MA
     data = Data(y, u, model.Ts, at_rest, k0)
     S = Search(model, data, log=say)
     count = _Counted(S, progress) if progress is not None else None
-    # the comparisons (before, after each step, after all) run beside the fits on long records: as
-    # one more item of the next candidate map when the maps fork a second process (parallel.can_fork:
-    # only while this process runs a single thread; a fork there gains more than threads, 33 s -> 25
-    # s on 10^6 samples; a comparison in a forked child of its own, a third process on two cores,
-    # slowed the maps by as much as it gained, and run here before the map it left a core idle for
-    # 0.9 s each, 3.4 s of that record's 24 s; riding along, each takes 1.3-1.9 s beside the other
-    # process, which shares the memory bandwidth: 1.0 +- 0.6 s gained over 9 paired runs), else in
-    # one more thread (the candidate maps leave a core idle at their ends)
-    if S.workers <= 1:
-        bg = None
-    elif parallel.can_fork():
-        bg = S
-    else:
-        bg = ThreadPoolExecutor(max_workers=1)
+    # the comparisons (before, after each step, after all) run beside the fits on long records
+    # (:meth:`.search.Search.beside`): as one more item of the next candidate map where the maps
+    # fork a second process (a process of its own would be a third on two cores), else in one more
+    # thread (the candidate maps leave a core idle at their ends)
+    bg = S
     try:
         before = _later(bg, lambda: _compare(S, model, t, y, u, burn, revision=0))
         try:
@@ -508,21 +498,13 @@ def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MA
                 raise exc from None
             raise
     finally:
-        if isinstance(bg, ThreadPoolExecutor):
-            bg.shutdown(wait=True)
+        S.pool.close()
 
 
 def _later(bg, fn):
-    """fn() in the background thread (``bg`` an executor), beside the search's next forked map
-    (``bg`` the :class:`.search.Search`: :meth:`~.search.Search.beside`), or now (None);
-    .result() and .exception() in every case."""
-    if isinstance(bg, ThreadPoolExecutor):
-        return bg.submit(fn)
-    if bg is not None:
-        return bg.beside(fn)
-    f = Future()
-    f.set_result(fn())
-    return f
+    """fn() beside the search's maps (``bg`` the :class:`.search.Search`:
+    :meth:`~.search.Search.beside`), or now (None); .result() and .exception() in every case."""
+    return bg.beside(fn) if bg is not None else parallel.now(fn)
 
 
 def _same_model(a, b) -> bool:

@@ -129,7 +129,7 @@ class Search:
         # a long record: candidates are screened on its first SCREEN_N samples (a valid likelihood of
         # that part), then scored on the whole record at the screened values; the leaders are fitted
         # on the whole record (see :meth:`candidates`)
-        self._side: list[parallel.Task] = []   # tasks that ride along with the next map (:meth:`beside`)
+        self.pool = parallel.Pool()           # the maps' workers and the calls beside them
         self.Hs = self.H
         if data.N >= 2 * SCREEN_N:
             part = Data(data.y[:SCREEN_N + 1], None if data.u is None else data.u[:SCREEN_N + 1], data.Ts,
@@ -304,39 +304,22 @@ class Search:
                     bias.append(c)
         return max(bias, key=key) if bias else first
 
-    def beside(self, fn) -> parallel.Task:
-        """fn() as one more item of the next :meth:`_map` that forks (a process comes free for it
-        there, where a process of its own would be a third on two cores), or when its result is
-        asked for, whichever comes first (:class:`service.parallel.Task`)."""
-        s = parallel.Task(fn)
-        self._side.append(s)
-        return s
+    def beside(self, fn):
+        """fn() beside the search's maps (:meth:`service.parallel.Pool.beside`): one more item of
+        the next map that forks, a thread where it cannot, or now with one worker."""
+        return self.pool.beside(fn, workers=self.workers)
 
     def _map(self, fn, items: list, cost=None) -> list:
-        """fn over items, two at a time on long records: in this process and a forked copy of it
-        where that is safe (:func:`service.parallel.can_fork`; the fits are mostly Python, which
-        threads cannot run at once), else in :data:`WORKERS` threads (the transforms and array
-        arithmetic release the GIL; the caches they share are :class:`service.memo.Memo`); results in order.
-        ``cost``: an item's expected cost, the costliest started first (no worker idles at the
-        end while the other runs a long fit)."""
-        side, self._side = [s for s in self._side if not s.done], []
-        if self.workers <= 1 or len(items) + len(side) < 2:
-            self._side = side
-            return [fn(x) for x in items]
-        order = sorted(range(len(items)), key=lambda i: -cost(items[i])) if cost else list(range(len(items)))
-        if parallel.can_fork():
-            return parallel.fork_map(fn, items, order, portable=_portable, side=side, carry=self._carry())
-        self._side = side
-        from concurrent.futures import ThreadPoolExecutor
-        out = [None] * len(items)
-        with ThreadPoolExecutor(max_workers=self.workers) as pool:
-            futures = {i: pool.submit(fn, items[i]) for i in order}
-            for i, f in futures.items():
-                out[i] = f.result()
-        return out
+        """fn over items, two at a time on long records (:meth:`service.parallel.Pool.map`: in this
+        process and a forked copy of it where that is safe, the fits being mostly Python, which
+        threads cannot run at once; else in :data:`WORKERS` threads); results in order. ``cost``:
+        an item's expected cost, the costliest started first (no worker idles at the end while the
+        other runs a long fit)."""
+        order = sorted(range(len(items)), key=lambda i: -cost(items[i])) if cost else None
+        return self.pool.map(fn, items, workers=self.workers, order=order, portable=_portable, carry=self._carry())
 
     def _carry(self):
-        """(mark, take, give) of :func:`.parallel.fork_map`: the parts a forked child computed
+        """(mark, take, give) of :meth:`.parallel.Pool.map`: the parts a forked child computed
         (:meth:`.evaluator.Evaluator.parts`' cache, of the whole record and of the screened prefix) come back
         to this process, so that the next map's fits find them. The joint refits of a step's
         leaders share every correlation time of their coarse grids, and later steps' refits the

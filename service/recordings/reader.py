@@ -88,14 +88,16 @@ def read_recording(path: str | os.PathLike, kinds: Iterable[str] = wire.KINDS) -
         return wire.decode_batch(payloads, kind, topic=shown(ktopic))
 
     sizes = [len(raw[j[3]][0]) for j in jobs]
-    if len(jobs) >= 2 and sum(sizes) >= PARALLEL_DECODE and parallel.can_fork():
+    if len(jobs) >= 2 and sum(sizes) >= PARALLEL_DECODE:
         # parsing is C strtod under the GIL: two topics in two processes (a forked copy of this one)
+        # where that is safe, else one after the other (threads would gain nothing)
         def caught(job):
             try:
                 return decode(job)
             except wire.WireError as exc:          # raised below in the topics' order, as serially
                 return exc
-        decoded = parallel.fork_map(caught, jobs, sorted(range(len(jobs)), key=lambda i: -sizes[i]))
+        decoded = parallel.Pool().map(caught, jobs, order=sorted(range(len(jobs)), key=lambda i: -sizes[i]),
+                                      threads=False)
         for d in decoded:
             if isinstance(d, Exception):
                 raise d

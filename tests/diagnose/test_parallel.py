@@ -1,9 +1,11 @@
-"""A forked second process (``service.parallel.fork_map``): the diagnosis' candidate maps give the
-report the threads give, the recording's topics are parsed to the same bits, and whatever the
-child does not deliver is computed in the parent.
+"""The pool (``service.parallel.Pool``: a fork-context ProcessPoolExecutor where a fork is safe,
+else threads, or serially): the diagnosis' candidate maps give the report the threads and the
+serial path give, the recording's topics are parsed to the same bits, whatever a child does not
+deliver is computed in the parent, and an error is raised in the parent by the item that causes it.
 
-Each check runs in a subprocess of its own: a fork is only safe from a process that runs a single
-thread, which a pytest-xdist worker is not (``parallel.can_fork`` refuses there, and the threads run).
+Each check of the processes runs in a subprocess of its own: a fork is only safe from a process
+that runs a single thread, which a pytest-xdist worker is not (``parallel.can_fork`` refuses there,
+and the threads run).
 """
 
 from __future__ import annotations
@@ -36,33 +38,35 @@ _DIAGNOSE = """
     from service.diagnose import search
     from service.diagnose.diagnose import diagnose
     from service.model import parse_model
-    parallel.ENABLED = {processes}
+    parallel.POOL = "{pool}"
     case = make_case(27)                       # a walk and process noise, 115000 samples at 2 ms
     truth, nominal = parse_model(case.truth, "truth"), parse_model(case.nominal, "nominal")
     rec = truth.simulate(int(round(case.duration / truth.Ts)), seed=case.seed)
     assert len(rec.t) * truth.p >= search.PARALLEL_MIN
     rep = diagnose(nominal, rec.t, rec.y, rec.u)
     keep = {{k: v for k, v in rep.items() if k not in ("model", "before", "after", "seconds")}}
-    print(json.dumps({{"report": keep, "forks": parallel.FORKS}}, default=str))
+    print(json.dumps({{"report": keep, "forks": parallel.STATS}}, default=str))
 """
 
 
 @pytest.mark.slow
-def test_forked_candidate_maps_give_the_report_the_threads_give():
-    forked = _run(_DIAGNOSE.format(processes=True))
-    threads = _run(_DIAGNOSE.format(processes=False))
+def test_forked_candidate_maps_give_the_report_the_threads_and_the_serial_path_give():
+    forked = _run(_DIAGNOSE.format(pool="processes"))
+    threads = _run(_DIAGNOSE.format(pool="threads"))
+    serial = _run(_DIAGNOSE.format(pool="serial"))
     f = forked["forks"]
     # the fork ran every map (screens, full fits, the backward pass, exchanges, intervals), and every
     # item the child took came back from it
     assert f["maps"] >= 8 and f["child_items"] >= 8 and f["recomputed"] == 0, f
     # the model comparisons (before, after each step) rode along with the maps, not run between them
     assert f["side"] >= 1 + len(forked["report"]["steps"]), f
-    assert threads["forks"]["maps"] == 0
+    assert threads["forks"]["maps"] == 0 and serial["forks"]["maps"] == 0
     assert [m["effect"] for m in forked["report"]["missing"]], "the case has effects to find"
     # the same report, intervals and notes included, to rounding: a value the caches share (a
     # source's part, a mean response) may have been computed from another trial model that
     # shares it, in another order (so two runs on threads can differ in the last digit too)
     _same(forked["report"], threads["report"])
+    _same(forked["report"], serial["report"])
 
 
 def _same(a, b, path="report"):
@@ -115,6 +119,8 @@ _TOY = """
         gate()
         return lambda: x * x              # the child's will not pickle: the child delivers nothing
 
+    stats = lambda before: {{k: parallel.STATS[k] - before[k] for k in parallel.STATS}}
+
     out = {{"threads": threading.active_count(), "can_fork": parallel.can_fork()}}
     # a second thread, Python's or a library's, and no fork
     stop = threading.Event()
@@ -135,16 +141,16 @@ _TOY = """
         first.clear()
         sync_r, sync_w = os.pipe()          # fresh ones per map (a killed child's bytes stay in the old)
         back_r, back_w = os.pipe()
-        before = dict(parallel.FORKS)
-        res = parallel.fork_map(fn, items, order)
+        before = dict(parallel.STATS)
+        res = parallel.Pool().map(fn, items, order=order)
         for fd in (sync_r, sync_w, back_r, back_w):
             os.close(fd)
         res = [r() if callable(r) else r for r in res]
-        out[name] = {{"ok": res == [x * x for x in items],
-                     **{{k: parallel.FORKS[k] - before[k] for k in parallel.FORKS}}}}
+        out[name] = {{"ok": res == [x * x for x in items], "can_fork": parallel.can_fork(), **stats(before)}}
 
-    # side tasks ride along with a map: each run once, in whichever process came free for it, its
-    # value or its exception settled when the map returns; one no map took runs when asked for
+    # calls beside a pool's maps ride along with its next map: each run once, in whichever process
+    # came free for it, its value or its exception settled when the map returns; one no map took
+    # runs when asked for
     runs_r, runs_w = os.pipe()
 
     def side_value(v):
@@ -158,16 +164,17 @@ _TOY = """
         exc.pid = os.getpid()
         raise exc
 
-    tasks = [parallel.Task(side_error), parallel.Task(side_error),
-             parallel.Task(lambda: side_value(1)), parallel.Task(lambda: side_value(2))]
-    done = parallel.Task(lambda: side_value(0))
+    pool = parallel.Pool()
+    tasks = [pool.beside(side_error), pool.beside(side_error),
+             pool.beside(lambda: side_value(1)), pool.beside(lambda: side_value(2))]
+    done = pool.beside(lambda: side_value(0))
     done.result()                             # already done: the map does not run it again
-    lone = parallel.Task(lambda: side_value(3))
+    lone = parallel.Pool().beside(lambda: side_value(3))      # a pool that never maps
     first.clear()
     sync_r, sync_w = os.pipe()
     back_r, back_w = os.pipe()
-    before = dict(parallel.FORKS)
-    res = parallel.fork_map(lambda x: x * x, items, order, side=tasks + [done])
+    before = dict(parallel.STATS)
+    res = pool.map(lambda x: x * x, items, order=order)
     for fd in (sync_r, sync_w, back_r, back_w):
         os.close(fd)
     settled = [t.done for t in tasks]
@@ -193,8 +200,7 @@ _TOY = """
             where["here"] = exc.__traceback__ is not None and not notes
     out["side"] = {{"ok": res == [x * x for x in items], "settled": settled, "runs": runs, "where": where,
                    "values": [v for v, _ in vals], "errors": errs, "exception": str(tasks[0].exception()),
-                   "lone": list(lone.result()) == [3, parent],
-                   **{{k: parallel.FORKS[k] - before[k] for k in parallel.FORKS}}}}
+                   "lone": list(lone.result()) == [3, parent], **stats(before)}}
 
     # what the child left in a cache comes back (``carry``): after the map this process holds every
     # item's entry, the child's included, whether the map has side tasks or not
@@ -212,33 +218,53 @@ _TOY = """
         first.clear()
         sync_r, sync_w = os.pipe()
         back_r, back_w = os.pipe()
-        before = dict(parallel.FORKS)
-        res = parallel.fork_map(fill, items, order, carry=carry,
-                                side=[parallel.Task(lambda: 0)] if with_side else ())
+        before = dict(parallel.STATS)
+        pool = parallel.Pool()
+        if with_side:
+            pool.beside(lambda: 0)
+        res = pool.map(fill, items, order=order, carry=carry)
         for fd in (sync_r, sync_w, back_r, back_w):
             os.close(fd)
         carried[str(with_side)] = {{"ok": res == items, "all": all(cache[x][0] == x * x for x in items),
                                    "from_child": sum(cache[x][1] != parent for x in items),
                                    "old_kept": cache["old"] == parent,
-                                   "child_items": parallel.FORKS["child_items"] - before["child_items"]}}
+                                   "child_items": parallel.STATS["child_items"] - before["child_items"]}}
     out["carry"] = carried
 
     # a call computed in a forked child while this process goes on: its value comes back; what the
     # child does not deliver (it raised there) is computed here; a call not wanted is stopped
-    before = dict(parallel.FORKS)
-    got = parallel.fork_call(lambda: (os.getpid(), list(range(100000)))).result()
-    once = parallel.fork_call(lambda: os.getpid() if os.getpid() == parent else 1 / 0).result()
+    before = dict(parallel.STATS)
+    got = parallel.Pool().submit(lambda: (os.getpid(), list(range(100000)))).result()
+    once = parallel.Pool().submit(lambda: os.getpid() if os.getpid() == parent else 1 / 0).result()
     hold_r, hold_w = os.pipe()
-    stuck = parallel.fork_call(lambda: os.read(hold_r, 1))        # blocks until cancelled
+    stuck = parallel.Pool().submit(lambda: os.read(hold_r, 1))    # blocks until cancelled
     stuck.cancel()
     try:
         stuck.result()
         cancelled = "no error"
     except RuntimeError as exc:
         cancelled = str(exc)
+    # a call cancelled while its child runs a map of its own (in the child and a grandchild): both
+    # end (not only the child): every holder of ``dead_w``, an end this process then closes, is gone
+    ready_r, ready_w = os.pipe()
+    dead_r, dead_w = os.pipe()
+
+    def blocked(x):
+        os.write(ready_w, b"r")
+        return os.read(hold_r, 1)                                  # blocks until killed
+
+    nested = parallel.Pool().submit(lambda: parallel.Pool().map(blocked, [0, 1]))
+    started = b""
+    while len(started) < 2:                                        # the child's item and the grandchild's
+        started += os.read(ready_r, 2 - len(started))
+    nested.cancel()
+    os.close(dead_w)
+    nested_gone = os.read(dead_r, 1) == b""
+    for fd in (ready_r, ready_w, dead_r):
+        os.close(fd)
     # interrupted while it waits for the child (Ctrl-C): the child is killed and reaped at once, and
-    # the caller's cancel() afterwards does nothing (it closed the pipe twice before)
-    slow = parallel.fork_call(lambda: os.read(hold_r, 1))
+    # the caller's cancel() afterwards does nothing more
+    slow = parallel.Pool().submit(lambda: os.read(hold_r, 1))
 
     def interrupt(*_):
         raise KeyboardInterrupt
@@ -256,12 +282,12 @@ _TOY = """
     slow.cancel()
     os.close(hold_r)
     os.close(hold_w)
-    parallel.ENABLED = False
-    here = parallel.fork_call(os.getpid).result()
-    parallel.ENABLED = True
+    parallel.POOL = "threads"
+    here = parallel.Pool().submit(os.getpid).result()
+    parallel.POOL = "processes"
     out["call"] = {{"child": got[0] != parent, "value": got[1] == list(range(100000)), "redone": once == parent,
                    "cancelled": cancelled, "disabled_here": here == parent, "interrupted": interrupted,
-                   **{{k: parallel.FORKS[k] - before[k] for k in parallel.FORKS}}}}
+                   "nested_gone": nested_gone, "can_fork": parallel.can_fork(), **stats(before)}}
 
     def parent_fails(x):
         if os.getpid() == parent:
@@ -272,7 +298,7 @@ _TOY = """
 
     sync_r, sync_w = os.pipe()
     try:
-        parallel.fork_map(parent_fails, items, order)
+        parallel.Pool().map(parent_fails, items, order=order)
         out["parent_fails"] = "no error"
     except ValueError as exc:
         out["parent_fails"] = str(exc)
@@ -284,16 +310,19 @@ _TOY = """
     except ChildProcessError:
         out["children_left"] = False
 
-    def no_fork():
-        raise OSError(11, "Resource temporarily unavailable")
+    def no_fork(process_obj):
+        raise OSError(11, "Resource temporarily unavailable")    # what os.fork raises (EAGAIN)
 
+    from multiprocessing import context
     fds = len(os.listdir("/proc/self/fd"))
-    real, os.fork = os.fork, no_fork
-    before = dict(parallel.FORKS)
-    res = parallel.fork_map(lambda x: x + 1, items, order)
-    os.fork = real
-    out["no_fork"] = {{"ok": res == [x + 1 for x in items], "maps": parallel.FORKS["maps"] - before["maps"],
-                      "fds_leaked": len(os.listdir("/proc/self/fd")) - fds}}
+    real, context.ForkProcess._Popen = context.ForkProcess._Popen, staticmethod(no_fork)
+    before = dict(parallel.STATS)
+    res = parallel.Pool().map(lambda x: x + 1, items, order=order)
+    called = parallel.Pool().submit(os.getpid).result()
+    context.ForkProcess._Popen = real
+    out["no_fork"] = {{"ok": res == [x + 1 for x in items] and called == parent,
+                      "maps": parallel.STATS["maps"] - before["maps"],
+                      "fds_leaked": len(os.listdir("/proc/self/fd")) - fds, "can_fork": parallel.can_fork()}}
     print(json.dumps(out))
 """
 
@@ -305,6 +334,8 @@ def test_a_forked_map_computes_here_what_the_child_did_not_deliver():
     sq = out["square"]
     assert sq["ok"] and sq["maps"] == 1 and sq["child_items"] >= 1 and sq["recomputed"] == 0, sq
     assert sq["child_items"] + sq["recomputed"] < 12            # the parent took its share too
+    # each map's executor is shut and its threads gone when the map returns: the next may fork too
+    assert all(out[name]["can_fork"] for name in ("square", "child_fails", "child_unpicklable"))
     for name in ("child_fails", "child_unpicklable"):
         r = out[name]
         # the child took at least one item (the parent's first waited for it) and delivered none
@@ -316,16 +347,16 @@ def test_a_forked_map_computes_here_what_the_child_did_not_deliver():
     assert sd["values"] == [1, 2] and sd["errors"] == ["side task"] * 2 and sd["exception"] == "side task", sd
     assert sd["maps"] == 1 and sd["side"] == 4 and sd["recomputed"] == 0 and sd["lone"], sd
     assert out["call"] == {"child": True, "value": True, "redone": True, "cancelled": "cancelled",
-                           "disabled_here": True, "interrupted": "yes", "maps": 0, "child_items": 0,
-                           "recomputed": 1, "bytes": 0, "side": 0, "calls": 2}, out["call"]
+                           "disabled_here": True, "interrupted": "yes", "nested_gone": True, "can_fork": True, "maps": 0,
+                           "child_items": 0, "recomputed": 1, "side": 0, "calls": 2}, out["call"]
     for with_side, c in out["carry"].items():
         # every entry here after the map, the child's items' from the child (its work not redone)
         assert c["ok"] and c["all"] and c["old_kept"] and c["from_child"] >= 1, (with_side, c)
         assert c["from_child"] <= c["child_items"], c             # (the side task may be one of them)
     assert out["parent_fails"] == "parent item"               # raised here, by the item that causes it
     assert out["children_left"] is False                      # and the child was reaped
-    # no process to be had (EAGAIN): this one computes everything, and closes its pipes
-    assert out["no_fork"] == {"ok": True, "maps": 0, "fds_leaked": 0}
+    # no process to be had (EAGAIN): this one computes everything, and closes the executor's pipes
+    assert out["no_fork"] == {"ok": True, "maps": 0, "fds_leaked": 0, "can_fork": True}
 
 
 _READ = """
@@ -343,8 +374,8 @@ _READ = """
     write_sample(d + "/a.mcap", n=3000, name="a")
     out = {}
     for on in (True, False):
-        parallel.ENABLED = on
-        before = dict(parallel.FORKS)
+        parallel.POOL = "processes" if on else "serial"
+        before = dict(parallel.STATS)
         rec = read_recording(d + "/a.mcap")
         got = {}
         for name, dev in rec.devices.items():
@@ -352,7 +383,7 @@ _READ = """
                 got[name + "/" + kind] = [td.seq.tolist(), td.t.view(np.uint64).tolist(),
                                           td.values.view(np.uint64).tolist(), td.publish_ns.tolist(),
                                           td.log_ns.tolist()]
-        out[str(on)] = {"data": got, "forks": {k: parallel.FORKS[k] - before[k] for k in parallel.FORKS}}
+        out[str(on)] = {"data": got, "forks": {k: parallel.STATS[k] - before[k] for k in parallel.STATS}}
     # a bad payload on the second of two topics: the same one-line error either way
     raw_file(d + "/bad.mcap", ["noiselab/b/measurement"], n=1500)
     raw_file(d + "/bad2.mcap", ["noiselab/b/command"], n=1500, payload=b'{"seq":0,"t":0.0,"u":[NaN]}')
@@ -372,7 +403,7 @@ _READ = """
         w.finish()
     errors = {}
     for on in (True, False):
-        parallel.ENABLED = on
+        parallel.POOL = "processes" if on else "serial"
         try:
             read_recording(d + "/both.mcap")
             errors[str(on)] = None
@@ -430,7 +461,7 @@ _CLI = """
         f.write(b"not an mcap file")
     out = {}
     for on in (True, False):
-        parallel.ENABLED = on
+        parallel.POOL = "processes" if on else "serial"
         runs = {}
         for name, cmd, args in (("walk", "diagnose", [d + "/walk.mcap", "--model", "hidden/sensor.bias_walk-nominal"]),
                                 ("cut", "diagnose", [d + "/cut.mcap", "--model", "hidden/sensor.bias_walk-nominal"]),
@@ -438,7 +469,7 @@ _CLI = """
                                 ("bad_model", "diagnose", [d + "/walk.mcap", "--model", "nope-model"]),
                                 ("analyze", "analyze", [d + "/walk.mcap", "--model", "hidden/sensor.bias_walk-nominal"]),
                                 ("analyze_bad", "analyze", [d + "/bad.mcap", "--model", "hidden/sensor.bias_walk-nominal"])):
-            before = dict(parallel.FORKS)
+            before = dict(parallel.STATS)
             so, se = io.StringIO(), io.StringIO()
             with contextlib.redirect_stdout(so), contextlib.redirect_stderr(se):
                 code = cli.main([cmd, *args, "--json"])
@@ -446,7 +477,7 @@ _CLI = """
             if rep is not None:
                 rep.pop("seconds", None)
             runs[name] = {"code": code, "report": rep, "stderr": se.getvalue(),
-                          "forks": {k: parallel.FORKS[k] - before[k] for k in ("calls", "recomputed")}}
+                          "forks": {k: parallel.STATS[k] - before[k] for k in ("calls", "recomputed")}}
         out[str(on)] = runs
     print(json.dumps(out))
 """
@@ -454,7 +485,7 @@ _CLI = """
 
 def test_the_command_line_reads_the_recording_in_a_child_while_it_imports(tmp_path):
     """`noiselab diagnose` and `noiselab analyze` read a noiselab recording in a forked child while
-    they import the analysis (:func:`service.parallel.fork_call`): the same report as read in this
+    they import the analysis (:meth:`service.parallel.Pool.submit`): the same report as read in this
     process; a file the reader rejects, or one it reads with no whole sample, gives the same
     one-line error (the child's failure redone here); a bad model is reported first, as before,
     and the child's reading stopped."""

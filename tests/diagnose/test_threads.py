@@ -1,7 +1,8 @@
-"""Caches shared by threads (service/memo.py and its users). The diagnosis fits its candidates in
-threads wherever it cannot fork (a process that already runs other threads: a pytest-xdist worker,
-the live analyzer), and a comparison computes its views in threads; every cache of computed results
-they share must stay whole while they put, get and evict at once.
+"""Caches shared by threads (service/memo.py and its users), and the pool's threads. The diagnosis
+fits its candidates in threads wherever it cannot fork (a process that already runs other threads:
+a pytest-xdist worker, the live analyzer), and a comparison computes its views in threads; every
+cache of computed results they share must stay whole while they put, get and evict at once, and a
+map in threads gives what the serial path gives, in order, its items' errors raised in the caller.
 
 Each test starts its threads together (a barrier) with the interpreter's switch interval cut to
 1 us, so that threads interleave inside the caches' bookkeeping as often as they can, and repeats
@@ -121,7 +122,7 @@ def test_threaded_candidate_fits_share_the_parts_cache_while_it_evicts(monkeypat
     12 rounds, each with a fresh search. Every round completes, the cache keeps its bounds, the
     fillers were evicted, and the candidates' scores are bit-identical to the serial map's (a cache
     holds results, not choices)."""
-    monkeypatch.setattr(parallel, "ENABLED", False)
+    monkeypatch.setattr(parallel, "POOL", "threads")
     monkeypatch.setattr(W.parts, "PARTS_CACHE", 1000)
     monkeypatch.setattr(W.parts, "PARTS_CACHE_BYTES", 256 << 10)
     truth, nominal = load_model("hidden/sensor.bias_markov"), load_model("hidden/sensor.bias_markov-nominal")
@@ -166,3 +167,40 @@ def test_a_predictor_shared_by_threads_gives_each_the_whole_steady_state(switch_
         errors = _together(8, work)
         assert not errors, errors[:3]
     assert not wrong, wrong[:3]
+
+
+@pytest.mark.parametrize("pool", ["threads", "serial"])
+def test_a_map_in_threads_or_serially_gives_every_result_in_order_and_raises_an_items_error(monkeypatch, pool):
+    """``Pool.map`` where it cannot fork (this test's process may run other threads; the pool is
+    told to use threads, or none): 4 workers over 200 items taken in reverse, each item's result
+    in its place; an item that raises raises its own error in the caller; a call beside the maps
+    runs (in a thread of the pool, or at once serially) and close() leaves no thread behind."""
+    monkeypatch.setattr(parallel, "POOL", pool)
+    items = list(range(200))
+    seen: list = []
+    lock = threading.Lock()
+
+    def square(x):
+        with lock:
+            seen.append((x, threading.get_ident()))
+        return x * x
+
+    with parallel.Pool() as p:
+        assert p.map(square, items, workers=4, order=items[::-1]) == [x * x for x in items]
+        assert sorted(x for x, _ in seen) == items                   # each item once
+        if pool == "serial":
+            assert {t for _, t in seen} == {threading.get_ident()}
+
+        def fails(x):
+            if x == 57:
+                raise ValueError(f"item {x}")
+            return x
+        with pytest.raises(ValueError, match="item 57"):
+            p.map(fails, items, workers=4)
+        before = threading.active_count()
+        side = p.beside(threading.get_ident, workers=2)
+        assert (side.result() == threading.get_ident()) is (pool == "serial")
+        err = p.beside(lambda: 1 / 0, workers=2) if pool == "threads" else None
+    assert threading.active_count() <= before
+    if err is not None:
+        assert isinstance(err.exception(), ZeroDivisionError)

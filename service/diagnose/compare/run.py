@@ -3,11 +3,11 @@ summed up in a :class:`.results.Comparison` (formulas in :mod:`service.diagnose.
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ... import parallel
 from ...model import ModelError
 from ...model.lyapunov import LEAK
 from ...model.mean_response import free_response_fit
@@ -237,8 +237,7 @@ def _run_views(jobs: list, size: int) -> list:
     """The views, in threads on a record of at least VIEW_THREADS_MIN values (their transforms and
     array arithmetic release the GIL)."""
     if size >= VIEW_THREADS_MIN and VIEW_THREADS > 1:
-        with ThreadPoolExecutor(max_workers=VIEW_THREADS) as pool:
-            return list(pool.map(lambda f: f(), jobs))
+        return parallel.Pool().map(lambda f: f(), jobs, workers=VIEW_THREADS, processes=False)
     return [f() for f in jobs]
 
 
