@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from models_for_tests import ALL_LINEAR, load
+from helpers.models import ALL_LINEAR, load
 from service.stats import acf, oadev, welch
 
 BASE = """

@@ -27,8 +27,8 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from ruamel.yaml import YAML
 
-from conftest import assert_bad
-from conftest import cli_in_process as cli
+from helpers.cli import assert_bad
+from helpers.cli import cli_in_process as cli
 
 from service.cli import main
 from service.diagnose import load
