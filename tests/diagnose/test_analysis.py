@@ -41,6 +41,7 @@ N_LONG = 50_000
 SEEDS = range(10)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("which", ["seed", "all_linear"])
 def test_error_of_the_right_model_is_about_one(which):
     """Mean over seeds of the model error within 3 standard errors (+ 0.1) of 1, overall and per view.
@@ -924,6 +925,7 @@ def test_live_update_ends_at_the_newest_complete_sample():
     assert got.error == ref.error and got.error_per_view == ref.error_per_view
 
 
+@pytest.mark.slow
 def test_a_coarse_quantizer_over_little_noise_right_model_reads_about_one():
     """An encoder-like sensor: a step of 0.5 over a sensor noise of 0.04 (0.08 step), a sine moving
     the mean across ~11 steps. The quantizer's error is then mostly a function of the mean: its
@@ -958,6 +960,7 @@ def test_a_coarse_quantizer_over_little_noise_right_model_reads_about_one():
     assert max(errs) < 1.5, errs
 
 
+@pytest.mark.slow
 def test_a_motor_measured_by_angle_and_speed_holds_the_speed_to_its_levels():
     """Two outputs, one of which (the angle) the plant's walk reaches: the level view, which needs
     a stationary variance, runs for the speed alone (it was off for both: one flag per model), and

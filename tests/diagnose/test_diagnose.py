@@ -1436,6 +1436,7 @@ def test_a_driven_record_that_does_not_start_at_rest_skips_the_mean_responses_tr
     assert rep["missing"] == [] and rep["error_before"] < 1.5
 
 
+@pytest.mark.slow
 def test_a_fast_plant_cut_mid_stream_starts_from_its_fitted_mean_state():
     """The audit's fast plant with feed-through (poles at -2 +- 4.6j rad/s, D = 0.05; here behind
     an actuator lag of 50 ms) under a sine of 1, sensor noise 0.002, cut mid-stream. The burn

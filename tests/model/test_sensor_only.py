@@ -169,6 +169,7 @@ def test_spectra_of_a_gyro_at_rest_are_the_closed_forms():
     np.testing.assert_allclose(av["sensor.bias_walk"][:, 0], q * (2 * mm**2 + 1) / (6 * mm), rtol=1e-8)
 
 
+@pytest.mark.slow
 def test_simulation_matches_the_predicted_mean_and_variance():
     """2000 independent trials of AXES (fixed seed): at samples k far apart (4 Markov times) the
     ensemble mean and variance of each output against the predicted E[y_k] and S_y,k (the bias
