@@ -20,7 +20,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from models_for_tests import ALL_LINEAR, load
+from helpers.models import ALL_LINEAR, ENCODER_TOML, load
+from helpers.recordings import raw_json_mcap
+from helpers.rrd import column, read_chunks
 from service.diagnose.compare import compare, transient_samples
 from service.model import load_model, parse_model
 from service import wire
@@ -40,6 +42,7 @@ N_LONG = 50_000
 SEEDS = range(10)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("which", ["seed", "all_linear"])
 def test_error_of_the_right_model_is_about_one(which):
     """Mean over seeds of the model error within 3 standard errors (+ 0.1) of 1, overall and per view.
@@ -317,23 +320,6 @@ def seed_recording(tmp_path_factory) -> Path:
 
 
 # -- 4. the .rrd read back ------------------------------------------------------------------------------
-def read_chunks(path) -> dict:
-    from rerun.chunk import RrdReader
-
-    out: dict = {}
-    for chunk in RrdReader(path).stream():
-        out.setdefault(chunk.entity_path, []).append(chunk.to_record_batch())
-    return out
-
-
-def column(batches: list, name: str) -> list:
-    rows = []
-    for b in batches:
-        if name in b.schema.names:
-            rows.extend(b.column(name).to_pylist())
-    return rows
-
-
 def test_rrd_holds_the_numbers_of_compare(seed_recording, tmp_path):
     rrd = tmp_path / "out" / "analysis.rrd"
     rrd.parent.mkdir()
@@ -365,20 +351,6 @@ def test_rrd_holds_the_numbers_of_compare(seed_recording, tmp_path):
 
 
 # -- 7. bad input: one line, exit 2 --------------------------------------------------------------------
-def _raw_json_mcap(path: Path, topic: str, messages: list[tuple[int, bytes]]) -> None:
-    """A foreign recording: one JSON channel written with the raw mcap writer."""
-    from mcap.writer import Writer
-
-    with open(path, "wb") as f:
-        w = Writer(f)
-        w.start(profile="", library="noiselab tests")
-        sid = w.register_schema(name="Foreign", encoding="jsonschema", data=b'{"type": "object"}')
-        cid = w.register_channel(topic=topic, message_encoding="json", schema_id=sid)
-        for i, (stamp, data) in enumerate(messages):
-            w.add_message(channel_id=cid, log_time=stamp, publish_time=stamp, data=data, sequence=i)
-        w.finish()
-
-
 def _imu_message(stamp_ns: int, x: float) -> bytes:
     # json.dumps writes NaN as the bare literal NaN (invalid JSON that Python's json accepts)
     return json.dumps({"header": {"stamp_ns": stamp_ns},
@@ -398,7 +370,7 @@ def bad_inputs(tmp_path_factory, seed_recording) -> dict:
                       wire.encode_batch("truth", 0, t, rec.x, topic="noiselab/seed/truth"))
     # a foreign recording with a NaN sample
     nan = d / "nan.mcap"
-    _raw_json_mcap(nan, "/imu", [(k * 10_000_000, _imu_message(k * 10_000_000, float("nan") if k == 700 else
+    raw_json_mcap(nan, "/imu", [(k * 10_000_000, _imu_message(k * 10_000_000, float("nan") if k == 700 else
                                                                 float(rec.y[k, 0]))) for k in range(2000)])
     assert b"NaN" in _imu_message(0, float("nan"))
     short = d / "short.mcap"
@@ -421,18 +393,18 @@ def bad_inputs(tmp_path_factory, seed_recording) -> dict:
     # foreign messages are untrusted: one nested 200,000 deep (Python's parser recursed out of its
     # stack), a number beyond float64, a time stamp beyond int64 ns (OverflowError tracebacks)
     deep = d / "deep.mcap"
-    _raw_json_mcap(deep, "/imu", [(k * 10_000_000, b'{"linear_acceleration": {"x": ' + b"[" * 200_000 + b"]" * 200_000
+    raw_json_mcap(deep, "/imu", [(k * 10_000_000, b'{"linear_acceleration": {"x": ' + b"[" * 200_000 + b"]" * 200_000
                                    + b"}}" if k == 300 else _imu_message(k * 10_000_000, float(rec.y[k, 0])))
                                   for k in range(2000)])
     huge = d / "huge.mcap"
-    _raw_json_mcap(huge, "/imu", [(k * 10_000_000, _imu_message(k * 10_000_000, float(rec.y[k, 0])) if k != 5 else
+    raw_json_mcap(huge, "/imu", [(k * 10_000_000, _imu_message(k * 10_000_000, float(rec.y[k, 0])) if k != 5 else
                                    b'{"header": {"stamp_ns": 50000000}, "linear_acceleration": {"x": 1' + b"0" * 400
                                    + b"}}") for k in range(2000)])
     late = d / "late.mcap"
-    _raw_json_mcap(late, "/imu", [(k * 10_000_000, _imu_message(10**30 if k == 9 else k * 10_000_000,
+    raw_json_mcap(late, "/imu", [(k * 10_000_000, _imu_message(10**30 if k == 9 else k * 10_000_000,
                                                                 float(rec.y[k, 0]))) for k in range(2000)])
     late_publish = d / "late_publish.mcap"          # MCAP's u64 publish_time beyond int64
-    _raw_json_mcap(late_publish, "/imu", [(2**64 - 1 if k == 9 else k * 10_000_000, _imu_message(0, float(rec.y[k, 0])))
+    raw_json_mcap(late_publish, "/imu", [(2**64 - 1 if k == 9 else k * 10_000_000, _imu_message(0, float(rec.y[k, 0])))
                                           for k in range(2000)])
     # a topic with a control character (a newline) and a value beyond the analysis' bound: the
     # one-line message escapes it
@@ -630,7 +602,7 @@ def test_foreign_recording_with_gap_and_irregular_timing(tmp_path):
     stamps[late] += Ts_ns // 200                                      # 0.5 % of Ts
     keep = np.ones(n, bool)
     keep[10_000:10_003] = False                                      # the gap
-    _raw_json_mcap(path, "/imu", [(int(stamps[k]), _imu_message(int(stamps[k]), float(y[k])))
+    raw_json_mcap(path, "/imu", [(int(stamps[k]), _imu_message(int(stamps[k]), float(y[k])))
                                   for k in np.flatnonzero(keep)])
     r = cli("analyze", path, "--model", model_file, "--measurement", "/imu:linear_acceleration.x",
             "--time", "header.stamp_ns", "--json")
@@ -661,7 +633,7 @@ def test_drive_noise_var_equals_the_closed_form(text, name):
     where rho^{2k} is below the double epsilon (the converged tail)."""
     from fractions import Fraction
 
-    from models_for_tests import EVERYTHING
+    from helpers.models import EVERYTHING
     from service.model import parse_model
     from service.model.model import scenario_text
 
@@ -954,26 +926,7 @@ def test_live_update_ends_at_the_newest_complete_sample():
     assert got.error == ref.error and got.error_per_view == ref.error_per_view
 
 
-_ENCODER_DOC = """name = "encoder"
-[sampling]
-Ts = 0.005
-[plant]
-m = 1.0
-c = 2.0
-k = 10.0
-[command]
-kind = "sine"
-amplitude = 20.0
-frequency_hz = 0.3
-[process.white]
-std = 0.05
-[sensor.white]
-std = 0.04
-[sensor.quantization]
-step = 0.5
-"""
-
-
+@pytest.mark.slow
 def test_a_coarse_quantizer_over_little_noise_right_model_reads_about_one():
     """An encoder-like sensor: a step of 0.5 over a sensor noise of 0.04 (0.08 step), a sine moving
     the mean across ~11 steps. The quantizer's error is then mostly a function of the mean: its
@@ -984,7 +937,7 @@ def test_a_coarse_quantizer_over_little_noise_right_model_reads_about_one():
     averages 1 (within 4 standard errors of the records' own spread), and no model error is above
     1.5 (they average 0.95). Before, the conditional mean was left in the residual: power ratio 17, model
     errors 6-12."""
-    mdl = parse_model(_ENCODER_DOC, "encoder")
+    mdl = parse_model(ENCODER_TOML, "encoder")
     n, burn = 24_000, 4000
     pr = mdl.predictor()
     mo = pr.quantizer_moments(pr.mean_response(n).y)
@@ -1008,6 +961,7 @@ def test_a_coarse_quantizer_over_little_noise_right_model_reads_about_one():
     assert max(errs) < 1.5, errs
 
 
+@pytest.mark.slow
 def test_a_motor_measured_by_angle_and_speed_holds_the_speed_to_its_levels():
     """Two outputs, one of which (the angle) the plant's walk reaches: the level view, which needs
     a stationary variance, runs for the speed alone (it was off for both: one flag per model), and

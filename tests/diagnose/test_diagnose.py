@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.models import ENCODER_TOML
+from helpers.rrd import column, read_chunks
 
 from service.diagnose.data import Data, quantization_grid
 from service.diagnose.diagnose import diagnose
@@ -894,9 +896,7 @@ def test_an_encoder_like_quantizer_is_found_alone_and_explains_the_record():
     in the mean response (and the variance about it following the mean's place between the levels)
     the quantizer alone is reported and the model error falls to about 1; with it left in the
     residual as noise the error after was 10.5 on this record."""
-    from test_analysis import _ENCODER_DOC
-
-    truth = parse_model(_ENCODER_DOC, "encoder")
+    truth = parse_model(ENCODER_TOML, "encoder")
     rep, _ = _diagnose_hidden(truth, ("sensor.quantization",), 24_000, 1)
     assert [m["effect"] for m in rep["missing"]] == ["sensor.quantization"]
     assert rep["missing"][0]["params"]["step"] == pytest.approx(0.5, rel=1e-6)
@@ -997,8 +997,6 @@ def walk_recording(tmp_path_factory):
 
 
 def test_cli_json_fitted_model_and_rrd(walk_recording, tmp_path):
-    from test_analysis import column, read_chunks
-
     fit, rrd = tmp_path / "fitted.toml", tmp_path / "diag.rrd"
     r = cli("diagnose", walk_recording, "--model", "hidden/sensor.bias_walk-nominal", "--json",
             "--fit-out", fit, "--rrd", rrd)
@@ -1439,6 +1437,7 @@ def test_a_driven_record_that_does_not_start_at_rest_skips_the_mean_responses_tr
     assert rep["missing"] == [] and rep["error_before"] < 1.5
 
 
+@pytest.mark.slow
 def test_a_fast_plant_cut_mid_stream_starts_from_its_fitted_mean_state():
     """The audit's fast plant with feed-through (poles at -2 +- 4.6j rad/s, D = 0.05; here behind
     an actuator lag of 50 ms) under a sine of 1, sensor noise 0.002, cut mid-stream. The burn

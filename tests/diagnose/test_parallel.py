@@ -362,8 +362,8 @@ def test_a_forked_map_computes_here_what_the_child_did_not_deliver():
 _READ = """
     import json, sys
     import numpy as np
-    sys.path.insert(0, "tests/recordings")
-    from test_mcapio import raw_file, write_sample
+    sys.path.insert(0, "tests")
+    from helpers.recordings import raw_file, write_sample
     from service import parallel
     from service import wire
     from service.recordings import reader

@@ -46,7 +46,7 @@ from pathlib import Path
 import allantools
 import numpy as np
 import pytest
-from conftest import run_once
+from helpers.once import run_once
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 

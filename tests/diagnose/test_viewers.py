@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pyarrow as pa
 import pytest
+from helpers.rrd import column, read_chunks
 
 from service.diagnose.results import Comparison, Region, View
 from viewers.comparisons import ViewerInputError
@@ -141,25 +142,6 @@ def with_level():
 
 
 # -- reading an .rrd back ----------------------------------------------------------------------------------
-def read_chunks(path, store=None) -> dict:
-    """{entity path: [pyarrow.RecordBatch, ...]} of one store (default: the first recording)."""
-    from rerun.chunk import RrdReader
-
-    out: dict = {}
-    for chunk in RrdReader(path).stream(store=store):
-        out.setdefault(chunk.entity_path, []).append(chunk.to_record_batch())
-    return out
-
-
-def column(batches: list, name: str) -> list:
-    """Rows of one column across an entity's chunks (batches that lack it are skipped)."""
-    rows = []
-    for b in batches:
-        if name in b.schema.names:
-            rows.extend(b.column(name).to_pylist())
-    return rows
-
-
 def blueprint_values(bp: dict, name: str) -> list:
     """One component of every view entity of a blueprint store (one value per view)."""
     return [x for k, b in bp.items() if k.startswith("/view/") for row in column(b, name) for x in row]

@@ -47,6 +47,7 @@ def test_expected_periodogram_matches_monte_carlo(text):
     assert np.all(np.abs(ratio - 1) < 4 * sd + 0.01), ratio
 
 
+@pytest.mark.slow
 def test_from_rest_correction_is_needed_and_right():
     """A lightly damped plant from rest: the first bins are lower than the stationary prediction;
     the from-rest correction accounts for it (the 8 lowest bins pooled: 3200 exponential draws)."""
@@ -371,6 +372,7 @@ def test_cross_periodogram_matches_monte_carlo():
         assert abs(band.mean().imag - e.imag) < 4 * sd_im, (a, band.mean(), e)
 
 
+@pytest.mark.slow
 def test_shared_noise_is_not_counted_twice():
     """Two sensors of one plant (position and a scaled rate) see the same process noise: the
     likelihood-ratio statistic of refitting the true process-noise level must follow chi2_1 (Wilks),
@@ -475,6 +477,7 @@ def test_jitter_sandwich_variance_matches_its_spread():
     assert ratio > 1 + 3 * rel and np.mean(c) > 1 + 3 * rel, (ratio, np.mean(c))
 
 
+@pytest.mark.slow
 def test_sandwich_factor_is_one_for_stationary_noise():
     """Where the Whittle likelihood is right (stationary sensor white noise), the sandwich factor
     averages 1: 30 records of 60 s, mean within 3 sd of the mean (from the factors' own spread).

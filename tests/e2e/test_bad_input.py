@@ -33,8 +33,9 @@ import pytest
 from hypothesis import HealthCheck, assume, example, given, settings
 from hypothesis import strategies as st
 
-from conftest import assert_bad
-from conftest import cli_in_process as cli
+from helpers.cli import assert_bad
+from helpers.cli import cli_in_process as cli
+from helpers.recordings import write_record
 
 from service.cli import build_parser
 from service.commands.predict import predict_report
@@ -43,10 +44,8 @@ from service.model.effects import CATALOGUE
 from service.model.model import TS_MAX, TS_MIN, _from_data, scenario_text
 from service.model.predict import HORIZON_MAX
 from service.nodes import transport
-from service import wire
 from service.recordings.output import PARTIAL_SUFFIX
 from service.recordings.reader import read_recording
-from service.recordings.writer import RecordingWriter
 from service.nodes.runner import READY_MARK, free_port
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -183,20 +182,6 @@ def test_every_built_in_scenario_still_loads():
 
 
 # -- 2. recordings whose values the analysis cannot square --------------------------------------------
-def write_record(path, model, n: int, seed: int, edit=None) -> None:
-    """A noiselab recording of ``model`` (n samples of truth, command and measurement, the wire
-    contract as ``simulate`` writes it), its arrays first given to ``edit(x, u, y)``."""
-    b = model.simulate(n, seed=seed)
-    x, u, y = b.x.copy(), b.u.copy(), b.y.copy()
-    if edit is not None:
-        edit(x, u, y)
-    t, pub = wire.sample_times(0, n, model.Ts)
-    with RecordingWriter(path) as w:
-        w.write_interleaved([(wire.key(model.name, kind), kind, 0, pub, pub,
-                              wire.encode_batch(kind, 0, t, arr, topic=wire.key(model.name, kind)))
-                             for kind, arr in (("truth", x), ("command", u), ("measurement", y))])
-
-
 @pytest.fixture(scope="module")
 def seed_model():
     return load_model("seed")

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import readme_main_command, run_noiselab
+from helpers.readme import readme_main_command, run_noiselab
 from service.recordings.load import load_noiselab
 from service.model import load_model, parse_model
 

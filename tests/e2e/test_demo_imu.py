@@ -17,7 +17,8 @@ import sys
 
 import numpy as np
 import pytest
-from conftest import ROOT, run_once
+from helpers.once import run_once
+from helpers.readme import ROOT
 
 from service.model import load_model
 from service.recordings.load import load_noiselab

@@ -21,7 +21,6 @@ import numpy as np
 import pytest
 import zenoh
 
-from livechild import ROOT
 from service.recordings.load import load_noiselab
 from service.model import load_model
 from service.nodes import recorder, transport
@@ -34,8 +33,9 @@ from service.nodes.analyzer import LiveAnalyzer
 from service.nodes.recorder import Ingest
 from service.nodes.recorder_summary import RecorderSummary
 from service.nodes.runner import READY_MARK, free_port
-from test_live import (CONTROLLER, EMULATE_MARK, LOOP_TOML, ROUTER_MARK, Collector, check_summary_topics, ep,
-                       file_messages, session_config, waited_for_subscribers)
+from helpers.live import (CONTROLLER, EMULATE_MARK, ROOT, ROUTER_MARK, Collector, check_summary_topics, ep,
+                          file_messages, session_config, waited_for_subscribers)
+from helpers.models import LOOP_TOML
 
 pytestmark = pytest.mark.slow   # live end-to-end runs: real processes and sessions
 

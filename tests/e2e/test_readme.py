@@ -8,7 +8,8 @@ import sys
 
 import pytest
 
-from conftest import ROOT, main_command_steps, readme_blocks as blocks, readme_main_command, run_noiselab
+from helpers.readme import ROOT, main_command_steps, readme_main_command, run_noiselab
+from helpers.readme import readme_blocks as blocks
 
 
 def console_commands():

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from models_for_tests import ALL_LINEAR, EVERYTHING, load
+from helpers.models import ALL_LINEAR, EVERYTHING, load
 from service.model import load_model
 
 ALPHA = 1e-3

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from models_for_tests import ALL_LINEAR, load
+from helpers.models import ALL_LINEAR, load
 from service.stats import acf, oadev, welch
 
 BASE = """
@@ -137,6 +137,7 @@ def test_allan_deviation_of_walk_white_and_markov():
     assert pred["sensor.white"][0, 0] > 10 * pred["sensor.bias_walk"][0, 0]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("truth,wrong", [
     ("[actuator.ar1]\nstd = 0.2\ntau_s = 0.3", "[actuator.white]\nstd = 0.2"),       # color missed
     ("[sensor.white]\nstd = 0.01", "[sensor.white]\nstd = 0.0095"),                 # 10 % in power
@@ -150,6 +151,7 @@ def test_checks_fail_on_a_wrong_model(truth, wrong):
         check_psd(load(BASE + wrong), r)
 
 
+@pytest.mark.slow
 def test_acf_check_fails_on_a_wrong_model():
     r = residual(load(BASE + "[actuator.ar1]\nstd = 0.2\ntau_s = 0.3\n[sensor.white]\nstd = 0.003"), seed=6)
     with pytest.raises(AssertionError):

@@ -84,6 +84,7 @@ def test_ar1_innovation_variance_and_tau():
     assert abs(r1 - 0.97) < 4 * np.sqrt((1 - 0.97**2) / N * (1 + 0.97**2) / (1 - 0.97**2))
 
 
+@pytest.mark.slow
 def test_bias_walk_variance_grows_linearly_monte_carlo():
     """Var(b_k) = Var(b_0) + k Q_b (seed section 6.2), Q_b = std^2 Ts, checked on an ensemble."""
     std, init, Ts = 0.002, 0.003, 0.01

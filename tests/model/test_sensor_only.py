@@ -12,7 +12,10 @@ import json
 
 import numpy as np
 import pytest
-from test_bad_input import assert_bad, cli, write_record
+from helpers.cli import assert_bad
+from helpers.cli import cli_in_process as cli
+from helpers.live import check_recording
+from helpers.recordings import write_record
 
 from service.model import ModelError, parse_model
 
@@ -166,6 +169,7 @@ def test_spectra_of_a_gyro_at_rest_are_the_closed_forms():
     np.testing.assert_allclose(av["sensor.bias_walk"][:, 0], q * (2 * mm**2 + 1) / (6 * mm), rtol=1e-8)
 
 
+@pytest.mark.slow
 def test_simulation_matches_the_predicted_mean_and_variance():
     """2000 independent trials of AXES (fixed seed): at samples k far apart (4 Markov times) the
     ensemble mean and variance of each output against the predicted E[y_k] and S_y,k (the bias
@@ -212,8 +216,6 @@ def test_the_emulator_streams_a_sensor_only_model(tmp_path, capsys):
     """`noiselab run` (emulator and recorder as processes, real Zenoh on loopback): the recording
     holds every sample, the payloads are the step API's bit for bit and the measurement the batch
     simulation's; the truth is the empty state."""
-    from test_live import check_recording
-
     path = tmp_path / "gyro.toml"
     path.write_text(GYRO_WALK)
     rep = run_json(capsys, "run", path, "--duration", "2", "--seed", "5", "--out", tmp_path / "rec",

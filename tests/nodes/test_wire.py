@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from service import wire
 from service.wire import WireError
 
-from models_for_tests import LOOP_TOML
+from helpers.models import LOOP_TOML
 
 finite = st.floats(allow_nan=False, allow_infinity=False)
 

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.recordings import DIMS, Ts, make_data, raw_file, write_sample
 from mcap.data_stream import ReadDataStream
 from mcap.reader import make_reader
 from mcap.records import Chunk, Message
@@ -40,51 +41,12 @@ from service.recordings.scan import ScanReport, iter_messages
 from service.recordings.writer import RecordingWriter
 
 REPO = Path(__file__).resolve().parents[2]
-Ts = 0.01
-DIMS = {"truth": 2, "command": 1, "measurement": 2}
 
 
 def same_bits(a, b) -> bool:
     a = np.asarray(a, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
     return a.shape == b.shape and np.array_equal(a.view(np.uint64), b.view(np.uint64))
-
-
-def make_data(n, seed=1):
-    """Per kind: (t, publish_ns, log_ns, values) of n samples, values with awkward floats."""
-    rng = np.random.default_rng(seed)
-    t, pub = wire.sample_times(0, n, Ts)
-    out = {}
-    for i, kind in enumerate(wire.KINDS):
-        vals = rng.standard_normal((n, DIMS[kind])) * 10.0 ** rng.integers(-20, 20, (n, 1))
-        vals[0, 0] = -0.0
-        log = pub + 1_700_000_000_000_000_000 + rng.integers(0, 50_000, n) + i
-        out[kind] = (t, pub, log, vals)
-    return out
-
-
-def write_sample(path, n=200, *, name="dev", chunk_size=64 * 1024, compression=None,
-                 metadata=None):
-    """Write n samples of the 3 topics: the first half message by message, the rest batched.
-
-    Messages interleave truth, command, measurement per sample, as the emulator sends them.
-    """
-    data = make_data(n)
-    kw = {} if compression is None else {"compression": compression}
-    with RecordingWriter(path, chunk_size=chunk_size, metadata=metadata, **kw) as w:
-        half = n // 2
-        for k in range(half):
-            for kind in wire.KINDS:
-                t, pub, log, vals = data[kind]
-                payload = wire.encode(k, t[k], vals[k], kind=kind)
-                w.write(wire.key(name, kind), kind, k, int(pub[k]), int(log[k]), payload)
-        for k0 in range(half, n, 10):
-            for kind in wire.KINDS:
-                t, pub, log, vals = data[kind]
-                sl = slice(k0, min(k0 + 10, n))
-                payloads = wire.encode_batch(kind, k0, t[sl], vals[sl])
-                w.write_batch(wire.key(name, kind), kind, k0, pub[sl], log[sl], payloads)
-    return data
 
 
 def messages(path):
@@ -415,28 +377,6 @@ def test_killed_forced_writer_leaves_the_old_file_and_a_recoverable_partial(tmp_
 
 
 # --------------------------------------------------------------- foreign topic spellings
-
-
-def raw_file(path, topics, n=5, payload=None, schema=True):
-    """A file written with mcap's own Writer, as another tool would."""
-    with open(path, "wb") as f:
-        w = Writer(f)
-        w.start()
-        for topic in topics:
-            kind = topic.rsplit("/", 1)[1]
-            sid = (w.register_schema(wire.SCHEMA_NAMES[kind], "jsonschema",
-                                     wire.schema_bytes(kind)) if schema and kind in wire.KINDS
-                   else 0)
-            cid = w.register_channel(topic, "json", sid)
-            for k in range(n):
-                if kind not in wire.KINDS:  # some other topic of the foreign tool
-                    data = b'{"status":"ok"}'
-                else:
-                    data = payload if payload is not None else wire.encode(
-                        k, k * Ts, [float(k), -float(k)], kind=kind)
-                w.add_message(cid, log_time=k * 7, data=data, publish_time=k * 10_000_000,
-                              sequence=k)
-        w.finish()
 
 
 def test_reader_accepts_topics_with_a_leading_slash(tmp_path):

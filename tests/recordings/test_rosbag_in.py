@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
-from conftest import assert_bad
-from conftest import cli_in_process as cli
+from helpers.cli import assert_bad
+from helpers.cli import cli_in_process as cli
 from rosbags.rosbag1 import Writer as Writer1
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore

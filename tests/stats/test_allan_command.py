@@ -14,9 +14,9 @@ import math
 
 import numpy as np
 import pytest
-from conftest import assert_bad, cli_in_process
-from test_analysis import _raw_json_mcap
-from test_stats_allan import BOUNDS_RTOL, half_unit, ocxo_y, read_stable32
+from helpers.allan_reference import BOUNDS_RTOL, half_unit, ocxo_y, read_stable32
+from helpers.cli import assert_bad, cli_in_process
+from helpers.recordings import raw_json_mcap
 
 from service.cli import main
 from service.recordings.load import load_noiselab
@@ -169,7 +169,7 @@ def test_ocxo_matches_stable32(tmp_path, capsys):
     type of every octave tau as Stable32 identified it, the interval's width as Stable32's."""
     y = ocxo_y()
     path = tmp_path / "ocxo.mcap"
-    _raw_json_mcap(path, "/ocxo", [(k * 1_000_000_000, json.dumps({"y": float(v)}).encode()) for k, v in enumerate(y)])
+    raw_json_mcap(path, "/ocxo", [(k * 1_000_000_000, json.dumps({"y": float(v)}).encode()) for k, v in enumerate(y)])
     code, out, err = run(capsys, path, "--measurement", "/ocxo:y", "--json")
     assert code == 0, err
     rep = json.loads(out)
@@ -199,7 +199,7 @@ def foreign(tmp_path_factory):
     d = tmp_path_factory.mktemp("foreign")
     rng = np.random.default_rng(3)
     path = d / "imu.mcap"
-    _raw_json_mcap(path, "/imu", [(k * 10_000_000, json.dumps({"angular_velocity": {"x": float(v), "y": 0.0},
+    raw_json_mcap(path, "/imu", [(k * 10_000_000, json.dumps({"angular_velocity": {"x": float(v), "y": 0.0},
                                                                 "header": {"stamp": "now"}}).encode())
                                   for k, v in enumerate(rng.standard_normal(400))])
     return path
@@ -258,7 +258,7 @@ def test_a_recording_too_short_for_a_tau(tmp_path, capsys):
     of 4 phase points); two are refused in one line saying so, not by the edf's inner check."""
     for n in (3, 2):
         path = tmp_path / f"n{n}.mcap"
-        _raw_json_mcap(path, "/s", [(k * 1_000_000, json.dumps({"v": float(k % 2)}).encode()) for k in range(n)])
+        raw_json_mcap(path, "/s", [(k * 1_000_000, json.dumps({"v": float(k % 2)}).encode()) for k in range(n)])
         result = run(capsys, path, "--measurement", "/s:v", "--json")
         if n == 3:
             assert result[0] == 0, result[2]

@@ -1,4 +1,5 @@
-"""Model files shared by the statistical tests."""
+"""Model files shared by tests in several folders (the statistical tests, the live runs, the
+analysis and the diagnosis)."""
 
 from service.model import parse_model
 
@@ -76,3 +77,25 @@ step = 0.0005
 
 def load(text, name="test"):
     return parse_model(text, name)
+
+
+# An encoder-like sensor: a quantizer step of 0.5 over a sensor noise of 0.04 (0.08 step), a sine
+# moving the mean across ~11 steps, so most of the quantizer's error is a function of the mean.
+ENCODER_TOML = """name = "encoder"
+[sampling]
+Ts = 0.005
+[plant]
+m = 1.0
+c = 2.0
+k = 10.0
+[command]
+kind = "sine"
+amplitude = 20.0
+frequency_hz = 0.3
+[process.white]
+std = 0.05
+[sensor.white]
+std = 0.04
+[sensor.quantization]
+step = 0.5
+"""

@@ -1,7 +1,6 @@
 """A child process of the live tests (``python -m service.cli ...`` or a helper script) with its
 stdout and stderr lines collected by threads, so a test waits for a line (an event) instead of
-sleeping. Shared by tests/e2e/test_live.py and tests/e2e/test_analysis_live.py; the ``spawn`` fixture is
-in tests/conftest.py."""
+sleeping. The ``spawn`` fixture (tests/conftest.py) starts them and kills them at teardown."""
 
 from __future__ import annotations
 
@@ -14,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 class Child:
