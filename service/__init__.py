@@ -14,6 +14,6 @@ def one_blas_thread() -> None:
     the seed (2 cores) `diagnose` took 26.1-27.9 s wall and 40-43 s CPU with one thread, 30.3-34.9 s
     and 52-59 s with OpenBLAS's default; in the test suite, two workers with the default threads
     slowed each other's tests 2-2.7x. A BLAS worker also keeps the diagnosis from forking its second
-    process (:func:`service.parallel.can_fork`). Subprocesses inherit the setting."""
+    process (:func:`noiselab.parallel.can_fork`). Subprocesses inherit the setting."""
     for var in BLAS_VARS:
         os.environ.setdefault(var, "1")

@@ -5,7 +5,7 @@ Bounded numbers: every number a flag takes is read by one of these (argparse ``t
 inf, a negative count or a duration no timer can wait is a one-line usage error (exit 2).
 
 The transport flags (:func:`add_transport_args`) of every node that opens a Zenoh session; what
-they mean is :func:`service.nodes.transport.build_config`'s.
+they mean is :func:`noiselab.nodes.transport.build_config`'s.
 """
 
 from __future__ import annotations

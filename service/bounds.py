@@ -1,7 +1,7 @@
 """The one bound on the magnitude of every number noiselab computes with: a model file's numbers
-(:mod:`service.model.schema`), a recording's values (:mod:`service.recordings.series`), a control
-from the network and a sample the emulator publishes (:mod:`service.wire`,
-:mod:`service.nodes.emulator`), a sample the live analyzer takes (:mod:`service.nodes.analyzer`).
+(:mod:`noiselab.model.schema`), a recording's values (:mod:`noiselab.recordings.series`), a control
+from the network and a sample the emulator publishes (:mod:`noiselab.wire`,
+:mod:`noiselab.nodes.emulator`), a sample the live analyzer takes (:mod:`noiselab.nodes.analyzer`).
 
 One value for all of them, so that whatever one part accepts the next can use: a control the
 emulator accepts drives a plant whose published output the recorder writes and the analysis

@@ -2,7 +2,7 @@
 
 Exit codes (DESIGN.md): 0 success, 2 bad input (one line on stderr naming what is wrong),
 1 a bug (a traceback). Every long-running command has a bound (``--duration``). Each subcommand
-is a module of :mod:`service.commands` (its flags and its body); this module builds the parser
+is a module of :mod:`noiselab.commands` (its flags and its body); this module builds the parser
 from them and runs the one asked for.
 """
 
@@ -34,14 +34,14 @@ def _loaded(module: str, name: str):
 def _bad_input_types():
     """The error classes the CLI prints as one line with exit 2. A class whose module no command
     imported cannot have been raised, and is not imported here to be caught (:class:`_Lazy`)."""
-    McapIoError = _loaded("service.recordings.errors", "McapIoError")
-    RecordingExistsError = _loaded("service.recordings.errors", "RecordingExistsError")
-    SeriesError = _loaded("service.recordings.errors", "SeriesError")
-    TransportError = _loaded("service.nodes.transport", "TransportError")
-    WireError = _loaded("service.wire", "WireError")
-    AnalysisError = _loaded("service.diagnose.results", "AnalysisError")
-    DemoError = _loaded("service.demo", "DemoError")
-    StatsError = _loaded("service.stats.errors", "StatsError")
+    McapIoError = _loaded("noiselab.recordings.errors", "McapIoError")
+    RecordingExistsError = _loaded("noiselab.recordings.errors", "RecordingExistsError")
+    SeriesError = _loaded("noiselab.recordings.errors", "SeriesError")
+    TransportError = _loaded("noiselab.nodes.transport", "TransportError")
+    WireError = _loaded("noiselab.wire", "WireError")
+    AnalysisError = _loaded("noiselab.diagnose.results", "AnalysisError")
+    DemoError = _loaded("noiselab.demo", "DemoError")
+    StatsError = _loaded("noiselab.stats.errors", "StatsError")
     return (ModelError, BadInput, WireError, McapIoError, RecordingExistsError, TransportError,
             AnalysisError, SeriesError, StatsError, DemoError,
             FileNotFoundError, IsADirectoryError, PermissionError)

@@ -90,7 +90,7 @@ def _variance_story(models: list, y: np.ndarray, u: np.ndarray, Ts: float) -> li
 
 def run_demo(out_dir: Path, *, duration: float, speed: float, seed: int, force: bool,
              max_effects: int = 3, log=sys.stderr, progress=None) -> tuple[dict, list[str]]:
-    """The demo (the module docstring); ``progress``: a :class:`service.progress.Steps` shown
+    """The demo (the module docstring); ``progress``: a :class:`noiselab.progress.Steps` shown
     beside the narrative lines (the live run's time, the reading, each phase of the diagnosis
     with its fits counted, the files), or None."""
     from .diagnose.diagnose import diagnose
@@ -130,8 +130,8 @@ def run_demo(out_dir: Path, *, duration: float, speed: float, seed: int, force: 
     comps = rep["comparisons"]
     for c in comps:
         c.truth = series.truth
-    from viewers.rerun_log import log_comparisons
-    from viewers.summary_png import write_summary_png
+    from noiselab.viewers.rerun_log import log_comparisons
+    from noiselab.viewers.summary_png import write_summary_png
     phase(f"writing {outs['rrd'].name} and {outs['png'].name}")
     with writing(str(outs["rrd"])):
         log_comparisons(comps, str(outs["rrd"]))

@@ -75,8 +75,8 @@ def run_imu_demo(out_dir: Path, *, duration: float, speed: float, seed: int, for
     comps = rep["comparisons"]
     for c in comps:
         c.recording = series.source
-    from viewers.rerun_log import log_comparisons
-    from viewers.summary_png import write_summary_png
+    from noiselab.viewers.rerun_log import log_comparisons
+    from noiselab.viewers.summary_png import write_summary_png
     with writing(str(outs["rrd"])):
         log_comparisons(comps, str(outs["rrd"]))
     with writing(str(outs["png"])):

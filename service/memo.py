@@ -1,6 +1,6 @@
 """Computed results remembered between calls, shared by the threads of one process.
 
-The diagnosis fits its candidates in threads wherever it cannot fork (:func:`service.parallel.can_fork`:
+The diagnosis fits its candidates in threads wherever it cannot fork (:func:`noiselab.parallel.can_fork`:
 the process already runs other threads, e.g. a test runner's workers or the live analyzer's
 sessions), and a comparison computes its views in threads; the caches of what they compute
 (expected periodogram parts, mean responses, matrix exponentials, tapers) are shared by those
@@ -52,8 +52,8 @@ class Memo:
     diagnosis, which hold the few models of its current step: a full one means the search has
     moved on). A value larger than ``nbytes`` alone is not kept (it would push out every other).
 
-    Keys: a model enters a key by its content (:meth:`service.model.model.Model.cache_key`, or
-    :func:`service.model.mean_response.mean_key` for the part of it a mean response depends on),
+    Keys: a model enters a key by its content (:meth:`noiselab.model.model.Model.cache_key`, or
+    :func:`noiselab.model.mean_response.mean_key` for the part of it a mean response depends on),
     never by its ``id`` (a new model can reuse a freed one's).
     """
 

@@ -3,7 +3,7 @@ one line naming the file.
 
 * :func:`check_out` (a file) and :func:`check_out_dir` (a directory, ``run`` and ``demo``): a
   directory or a file in the way, an existing file without ``--force``, a parent that cannot be
-  made or a place where no file can be created is bad input (:class:`~service.errors.BadInput`,
+  made or a place where no file can be created is bad input (:class:`~noiselab.errors.BadInput`,
   exit 2) before the run, not after it.
 * :func:`writing`: the OS errors of a write (disk full, ...) as one line naming the file.
 * :func:`write_replacing`: a whole file written beside its target as ``<name>.partial`` and renamed
@@ -71,7 +71,7 @@ def check_out(path: str | os.PathLike | None, force: bool) -> None:
 def writing(path: str | os.PathLike):
     """Writing the output ``path`` (an .rrd, a PNG, a fitted model): an OS error (disk full, ...)
     is bad input naming the path and the error. (An .rrd's bytes are written by Python too,
-    :func:`viewers.rerun_log.log_comparisons`, so its errors are OSErrors.)"""
+    :func:`noiselab.viewers.rerun_log.log_comparisons`, so its errors are OSErrors.)"""
     try:
         yield
     except OSError as e:

@@ -18,7 +18,7 @@ processes
     and the caches would have to cross on every map.
 threads
     A :class:`~concurrent.futures.ThreadPoolExecutor` everywhere else (the transforms and the array
-    arithmetic release the GIL; the caches the threads share are :class:`service.memo.Memo`).
+    arithmetic release the GIL; the caches the threads share are :class:`noiselab.memo.Memo`).
 serial
     ``POOL = "serial"``: no pool at all (tests; a caller that wants none).
 

@@ -14,11 +14,11 @@ Two shapes:
     a diagnosis): ``steps(label, done, total)`` shows the phase ``label`` with its count, closing
     the previous phase's bar when the label changes. A phase without a count (``total`` None)
     shows its label and, when it ends, its elapsed time. It is the diagnosis's progress callback
-    (:func:`service.diagnose.diagnose.diagnose`).
+    (:func:`noiselab.diagnose.diagnose.diagnose`).
 
 Both are safe where the diagnosis runs: tqdm's monitor thread is off (``monitor_interval = 0``),
 so a process showing a bar stays single-threaded and may still fork
-(:func:`service.parallel.can_fork`); a bar is drawn only by the process that made it (a forked
+(:func:`noiselab.parallel.can_fork`); a bar is drawn only by the process that made it (a forked
 child's copy ignores updates, which would draw over the parent's line); updates from worker
 threads are serialised by a lock.
 """

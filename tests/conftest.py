@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import sys
 
-from service import one_blas_thread
+from noiselab import one_blas_thread
 
-# One BLAS thread per process (service.one_blas_thread says why), set before numpy is imported and
+# One BLAS thread per process (noiselab.one_blas_thread says why), set before numpy is imported and
 # before xdist starts its workers, which inherit the environment, as the tests' subprocesses do.
 one_blas_thread()
 
@@ -28,14 +28,14 @@ settings.load_profile("noiselab")
 
 @pytest.fixture
 def spawn(request):
-    """``spawn(label, *cli_args)`` starts ``python -m service.cli ...``; ``spawn(label, script, ...,
+    """``spawn(label, *cli_args)`` starts ``python -m noiselab.cli ...``; ``spawn(label, script, ...,
     script=True)`` a helper script. The requesting module's ``T_EVENT`` (default 30 s) bounds each
     wait. Every child is killed at teardown."""
     t_event = getattr(request.module, "T_EVENT", 30.0)
     children: list[Child] = []
 
     def start(label: str, *args: str, script: bool = False) -> Child:
-        cmd = [sys.executable, *args] if script else [sys.executable, "-m", "service.cli", *args]
+        cmd = [sys.executable, *args] if script else [sys.executable, "-m", "noiselab.cli", *args]
         child = Child(cmd, label, t_event)
         children.append(child)
         return child

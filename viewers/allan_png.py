@@ -1,11 +1,11 @@
 """The Allan deviation figure of ``noiselab allan --png``: one log-log panel per output.
 
-Drawn from the command's report (:func:`service.commands.allan.allan_report`, the ``--json``
+Drawn from the command's report (:func:`noiselab.commands.allan.allan_report`, the ``--json``
 document), so the figure shows exactly the numbers printed: the overlapping Allan deviation at
 octave taus with its 68.3 % chi-squared band, the IEEE 952 lines read off it (N / sqrt(tau) through
 N at tau = 1 s, K sqrt(tau / 3) through K at tau = 3 s, the flicker floor 0.664 B), each drawn bold
 over the taus it was read on and thin beyond, and the model's predicted curve when there is one.
-Matplotlib's Agg canvas on a Figure (no pyplot, no display), as :mod:`viewers.summary_png`.
+Matplotlib's Agg canvas on a Figure (no pyplot, no display), as :mod:`noiselab.viewers.summary_png`.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import io
 
 import numpy as np
 
-from service.stats.ieee952 import FLICKER_FLOOR
+from noiselab.stats.ieee952 import FLICKER_FLOOR
 
 DPI = 100
 WIDTH_PX = 1100

@@ -1,4 +1,4 @@
-"""What the viewers read from a :class:`~service.diagnose.results.Comparison`: its outputs' names,
+"""What the viewers read from a :class:`~noiselab.diagnose.results.Comparison`: its outputs' names,
 units and labels, where its data came from, what its model changed from the previous revision,
 and the check of the shapes every viewer relies on (:func:`validate_comparisons`)."""
 
@@ -8,7 +8,7 @@ import re
 
 import numpy as np
 
-from service.diagnose.results import VIEW_NAMES, VIEW_UNITS, Comparison, View
+from noiselab.diagnose.results import VIEW_NAMES, VIEW_UNITS, Comparison, View
 
 
 class ViewerInputError(ValueError):
@@ -38,7 +38,7 @@ def effect_ids(comparisons: list) -> list:
 # parameters with the model file's names} of the compared model) are read where present, so that a
 # Comparison without them is still drawn: its outputs are then ``out<i>`` in ``units``.
 UNNAMED_OUTPUT = "out{}"
-UNNAMED_UNIT = "units"      # the placeholder the views' labels carry (service.diagnose.compare)
+UNNAMED_UNIT = "units"      # the placeholder the views' labels carry (noiselab.diagnose.compare)
 
 
 def output_names(c: Comparison) -> tuple:

@@ -1,4 +1,4 @@
-"""Where a comparison's entities live in the Rerun recording (:mod:`viewers.rerun_log` documents
+"""Where a comparison's entities live in the Rerun recording (:mod:`noiselab.viewers.rerun_log` documents
 the whole layout) and the blueprint that shows them on one screen.
 
 The blueprint: a Tabs container with one tab per revision (the last one active) holding, per
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.diagnose.results import Comparison
+from noiselab.diagnose.results import Comparison
 
 from .comparisons import (
     fmt_error,
@@ -53,7 +53,7 @@ def data_paths(comps: list) -> dict:
 
 
 def build_blueprint(comparisons: list, history: bool = False):
-    """The one-screen blueprint for :func:`viewers.rerun_log.log_comparisons`'s entity layout."""
+    """The one-screen blueprint for :func:`noiselab.viewers.rerun_log.log_comparisons`'s entity layout."""
     import rerun.blueprint as rrb
 
     comps = validate_comparisons(comparisons)

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from service.diagnose.results import VIEW_NAMES, View
+from noiselab.diagnose.results import VIEW_NAMES, View
 
 from .comparisons import flag_mask, fmt_error, view_unit
 from .style import COLORS, CONTRIB_COLORS, VIEW_COLORS, effect_color

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.diagnose.results import VIEW_NAMES
+from noiselab.diagnose.results import VIEW_NAMES
 
 from .comparisons import (
     fmt_error,

@@ -1,8 +1,8 @@
-"""Comparisons (``service.diagnose.results``) -> one Rerun ``.rrd`` file whose blueprint tells the
+"""Comparisons (``noiselab.diagnose.results``) -> one Rerun ``.rrd`` file whose blueprint tells the
 story on one screen: the data against the model, where they part, and the model error falling
 across revisions.
 
-Every Rerun call of the viewers (here, :mod:`viewers.plot2d`, :mod:`viewers.layout`) was checked
+Every Rerun call of the viewers (here, :mod:`noiselab.viewers.plot2d`, :mod:`noiselab.viewers.layout`) was checked
 against the installed rerun-sdk **0.41.0** (package source in ``site-packages/rerun``):
 ``rr.RecordingStream(app_id, recording_id=...)``, ``.binary_stream()`` (the .rrd encoded in
 memory; ``BinaryStream.read(flush=True)`` gives it, footer included),
@@ -66,7 +66,7 @@ recording property ``source``       AnyValues ``recording`` (path, topic and fie
                                     selection panel shows them and scripts can read them back.
 
 
-The 2D plots (:mod:`viewers.plot2d`) and the blueprint (:mod:`viewers.layout`) say how they are
+The 2D plots (:mod:`noiselab.viewers.plot2d`) and the blueprint (:mod:`noiselab.viewers.layout`) say how they are
 drawn and laid out.
 """
 
@@ -78,7 +78,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.diagnose.results import VIEW_NAMES, Comparison, View
+from noiselab.diagnose.results import VIEW_NAMES, Comparison, View
 
 from .comparisons import (
     effect_ids,

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.diagnose.results import VIEW_NAMES, View
+from noiselab.diagnose.results import VIEW_NAMES, View
 
 from .comparisons import (
     effect_ids,

@@ -3,8 +3,8 @@
 Each module here defines ``register(sub)``: it adds its parser to the ``noiselab`` subparsers
 ``sub`` and sets ``func`` (the command; it returns the exit code). :func:`register_all` finds
 them, so a new command is a new module and no edit of the CLI. A command module raises
-:class:`service.errors.BadInput` (or another ValueError the CLI maps) for bad input, never
-imports :mod:`service.cli`, and imports the libraries its command needs inside the command, so
+:class:`noiselab.errors.BadInput` (or another ValueError the CLI maps) for bad input, never
+imports :mod:`noiselab.cli`, and imports the libraries its command needs inside the command, so
 that reading the flags (``noiselab --help``) loads none of them. Modules whose name starts with
 ``_`` are helpers shared by the commands, not commands.
 """

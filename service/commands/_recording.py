@@ -13,7 +13,7 @@ def load_series(args, model, truth: bool = True, read=None, steps=None):
     """``read``: the file's reading begun by :func:`read_early` (or None). A command the analysis
     assumes (the recording has none: the model's own stands in) is said on stderr, whatever the
     output format, besides the report's notes and its ``command`` field. ``steps``: the
-    command's :class:`~service.progress.Steps`, told of the reading (its phase ends when the
+    command's :class:`~noiselab.progress.Steps`, told of the reading (its phase ends when the
     next begins)."""
     from ..recordings.load import load_recording
     from ..recordings.series import command_note
@@ -34,7 +34,7 @@ def load_series(args, model, truth: bool = True, read=None, steps=None):
 
 
 def read_early(args, truth: bool):
-    """A noiselab recording read in a forked child (:meth:`service.parallel.Pool.submit`) while this
+    """A noiselab recording read in a forked child (:meth:`noiselab.parallel.Pool.submit`) while this
     process imports the analysis and loads the model, so the two overlap instead of following
     each other (on a long recording the reading is the larger part). None for foreign recordings
     and missing files; an error in the reading is raised where :func:`load_series` would raise it

@@ -4,26 +4,26 @@ Per output of the recording (a noiselab recording's measurement, or ``--measurem
 TOPIC:FIELD[,FIELD...]`` of a foreign one):
 
 * the fully overlapping Allan deviation (NIST SP 1065 eq. (11)) at octave taus, tau = m Ts with
-  m = 1, 2, 4, ... up to N/4 (Stable32's list, :func:`service.stats.allan.oadev`); its chi-squared
+  m = 1, 2, 4, ... up to N/4 (Stable32's list, :func:`noiselab.stats.allan.oadev`); its chi-squared
   interval at 68.3 % (Greenhall & Riley 2003 equivalent degrees of freedom, SP 1065 eq. (45)); the
   noise type identified at each tau (lag-1 autocorrelation, Riley & Greenhall 2004, with at least
   30 averages; Stable32's B1 / R(n) rule below that), named as SP 1065 names the power laws;
-* the slope readings (:func:`service.stats.ieee952.ieee952_readings`): N at tau = 1 s on the -1/2
+* the slope readings (:func:`noiselab.stats.ieee952.ieee952_readings`): N at tau = 1 s on the -1/2
   line, K at tau = 3 s on the +1/2 line, B = the floor / 0.664, each with the tau range it was
   read on, or null with the reason;
 * with ``--model``: the model's predicted Allan deviation at the same taus (the exact discrete
-  Allan variance of the sampled process, :meth:`service.model.predict.Predictor.allan`, summed
-  over its effects) and its IEEE 952 coefficients (:mod:`service.model.coefficients`).
+  Allan variance of the sampled process, :meth:`noiselab.model.predict.Predictor.allan`, summed
+  over its effects) and its IEEE 952 coefficients (:mod:`noiselab.model.coefficients`).
 
 The data are taken as recorded (no mean response removed: a sensor at rest); the model's curve is
 that of its noise, so a model with a command says so in a note. Units are the model's ``[outputs]``
 units when a model is given; otherwise the output is named by its field, in the unit its ROS message
-type fixes (REP 103, :data:`service.recordings.rosbag_in.FIELD_UNITS`) or else the field name standing for
+type fixes (REP 103, :data:`noiselab.recordings.rosbag_in.FIELD_UNITS`) or else the field name standing for
 the unit. Ts is the model's, else the median step of the recording's times.
 
 Output: the table on stdout; ``--json`` the same as one JSON document (keys below, stable);
 ``--csv FILE`` one row per output and tau; ``--png FILE`` the log-log figure
-(:mod:`viewers.allan_png`). An output file that exists needs ``--force``.
+(:mod:`noiselab.viewers.allan_png`). An output file that exists needs ``--force``.
 
 JSON: {"recording", "Ts", "samples", "conf", "estimator", "model", "notes", "outputs": {name:
 {"unit", "tau", "m", "n_terms", "adev", "interval": [[lo, hi], ...], "edf", "alpha",
@@ -223,7 +223,7 @@ def cmd_allan(args) -> int:
         write_replacing(args.csv, csv_text(rep))
         written.append(args.csv)
     if args.png:
-        from viewers.allan_png import allan_png_bytes
+        from noiselab.viewers.allan_png import allan_png_bytes
         write_replacing(args.png, allan_png_bytes(rep))
         written.append(args.png)
     if args.json:

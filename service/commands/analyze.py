@@ -124,13 +124,13 @@ def _analyze(args, read, steps) -> tuple[dict, list[str]]:
     cmp.recording = series.source
     extra = {}
     if args.rrd:
-        from viewers.rerun_log import log_comparisons
+        from noiselab.viewers.rerun_log import log_comparisons
         steps(f"writing {args.rrd}")
         with writing(args.rrd):
             log_comparisons([cmp], args.rrd)
         extra["rrd"] = args.rrd
     if png:
-        from viewers.summary_png import write_summary_png
+        from noiselab.viewers.summary_png import write_summary_png
         steps(f"writing {png}")
         with writing(png):
             write_summary_png([cmp], png)

@@ -3,7 +3,7 @@
 Kalibr (ethz-asl/kalibr, wiki "IMU Noise Model") reads six keys: ``gyroscope_noise_density``
 (rad/s/sqrt(Hz)), ``gyroscope_random_walk`` (rad/s^2/sqrt(Hz)), ``accelerometer_noise_density``
 (m/s^2/sqrt(Hz)), ``accelerometer_random_walk`` (m/s^3/sqrt(Hz)), ``update_rate`` (Hz) and
-``rostopic``. In IEEE Std 952 terms (:mod:`service.model.coefficients`):
+``rostopic``. In IEEE Std 952 terms (:mod:`noiselab.model.coefficients`):
 
 * noise density = the white density N of the model's white noise, with the quantization's white
   equivalent N_q added in quadrature (sqrt(N^2 + N_q^2): Kalibr models all white noise as one);
@@ -22,7 +22,7 @@ Any other unit is refused in one line, as is a model that lacks one of the four 
 (Kalibr needs all four), an output name the model does not have, or an output in both lists.
 
 The file: an existing one is replaced only with ``--force``; it is written beside the target as
-``FILE.partial`` and renamed over it when complete (:func:`service.outfiles.write_replacing`), so
+``FILE.partial`` and renamed over it when complete (:func:`noiselab.outfiles.write_replacing`), so
 a failed write leaves any old file as it was. The YAML is plain (six scalars and comments); floats always carry a '.' and
 an exponent sign, so YAML 1.1 readers (PyYAML, which Kalibr uses) read them as floats.
 """

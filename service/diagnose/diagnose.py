@@ -421,7 +421,7 @@ def _report_params(eid: str, params: dict, Ts: float) -> dict:
 
 class _Counted:
     """The search's maps counted for a progress report: ``progress(label, done, total)`` (e.g.
-    :class:`service.progress.Steps`) hears, under the current :meth:`phase`'s label, every fit
+    :class:`noiselab.progress.Steps`) hears, under the current :meth:`phase`'s label, every fit
     the phase's maps finish out of the fits they were given. The maps' items done in this process
     are counted as they finish (from worker threads too); a forked child's, when its results come
     back at the map's end."""

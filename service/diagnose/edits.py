@@ -11,7 +11,7 @@ from ..model.effects import CATALOGUE
 # -- hypotheses ---------------------------------------------------------------------------------------------
 def plant_stable(model) -> bool:
     """Every eigenvalue of the discrete plant inside the unit circle, an integrator's (within
-    :func:`service.model.predict.unit_tol` of 1) excluded."""
+    :func:`noiselab.model.predict.unit_tol` of 1) excluded."""
     from ..model.predict import unit_tol
     Ad = np.asarray(model.Ad, float)
     if Ad.size == 0:

@@ -38,7 +38,7 @@ from .tones import tone_ls
 # -- one evaluation: residual spectrum and noise spectrum of a hypothesis -----------------------------------
 class Evaluator:
     """Caches what does not change between evaluations (mean responses, parts of fixed effects),
-    shared by the threads that fit one record's candidates (:class:`service.memo.Memo`)."""
+    shared by the threads that fit one record's candidates (:class:`noiselab.memo.Memo`)."""
 
     def __init__(self, data: Data):
         self.data = data
@@ -105,7 +105,7 @@ class Evaluator:
 
     def quant_part(self, model):
         """The quantizer's part of E I_f with its error correlated as the model predicts over this
-        record (:mod:`service.model.effects.sensor_quantization`: it depends on the other sources
+        record (:mod:`noiselab.model.effects.sensor_quantization`: it depends on the other sources
         and on the record's mean response), or None where the plant has no stationary prediction.
         The mean response's factors are cached by the steps, the tones and the rms increments of
         the mean response (below)."""

@@ -3,7 +3,7 @@
 The parameters of the user's model stay at the user's values unless a candidate frees them
 (``refit``: the effect is there but a value is wrong). A hypothesis is scored by the likelihood
 of :mod:`.evaluator`. How each effect is fitted is declared by the effect itself (``Effect.fit``,
-:class:`service.model.effects.base.FitSpec`):
+:class:`noiselab.model.effects.base.FitSpec`):
 
 * ``noise`` sources (white, AR(1), Gauss-Markov, bias walk, process noise): the expected
   periodogram is linear in each source's variance, so the variances are fitted together
@@ -69,7 +69,7 @@ from .tones import refine_frequency
 
 def _stein(parts: dict, mo, keep=()) -> dict:
     """The expected periodogram's parts with a quantizer's covariance with the noise (Stein's
-    lemma: Cov(n_j, e_k) = Cov(n_j, x_k) h_k, :mod:`service.model.effects.sensor_quantization`)
+    lemma: Cov(n_j, e_k) = Cov(n_j, x_k) h_k, :mod:`noiselab.model.effects.sensor_quantization`)
     carried by the noise parts: output j's times 1 + 2 h_j, a cross term between outputs j and k
     times sqrt((1 + 2 h_j)(1 + 2 h_k)) (1 + h_j + h_k to first order; this form keeps the
     cross-spectral matrices positive definite). For several outputs only: with one, the term is in

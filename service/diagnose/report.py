@@ -12,7 +12,7 @@ Each ``missing`` entry gives its fitted parameters' 95 % profile-likelihood inte
   (:func:`.intervals.interval_tasks`); {} when no parameter is fitted per output (one output, or one
   value for all of them).
 
-``coefficients`` (:func:`service.model.coefficients.model_coefficients`) takes each output's
+``coefficients`` (:func:`noiselab.model.coefficients.model_coefficients`) takes each output's
 coefficient interval from its own interval.
 """
 
@@ -63,7 +63,7 @@ def fitted_coefficients(rep: dict) -> dict:
     """The IEEE Std 952 coefficients of the diagnosis' fitted model (``rep["model"]``: the input
     model with the effects found added or refitted), with the profile intervals of the parameters
     the diagnosis fitted, each output's own where it has one
-    (:func:`service.model.coefficients.model_coefficients`)."""
+    (:func:`noiselab.model.coefficients.model_coefficients`)."""
     return model_coefficients(rep["model"], {m["effect"]: m.get("interval") or {} for m in rep["missing"]},
                               {m["effect"]: m.get("intervals_per_output") or {} for m in rep["missing"]})
 

@@ -135,7 +135,7 @@ def godambe_factor(H: Hypotheses, fit: Fit, a: int) -> float:
 def gated(model, eid: str, data: Data) -> bool:
     """Whether ``eid`` is an actuator noise that reaches the plant through a gain that switches over
     the record (a saturation or a dead zone the command reaches part of the time:
-    :func:`service.model.predict.gain_switches`): its power arrives modulated, and the stationary
+    :func:`noiselab.model.predict.gain_switches`): its power arrives modulated, and the stationary
     likelihood takes its periodogram as less spread than it is (the modulation's kurtosis: a noise
     clipped a third of the time has 1.5x the variance in its mean power). Its interval is adjusted
     by :func:`godambe_factor`, as the jitter's. The gain over ``data``'s command (an external

@@ -305,12 +305,12 @@ class Search:
         return max(bias, key=key) if bias else first
 
     def beside(self, fn):
-        """fn() beside the search's maps (:meth:`service.parallel.Pool.beside`): one more item of
+        """fn() beside the search's maps (:meth:`noiselab.parallel.Pool.beside`): one more item of
         the next map that forks, a thread where it cannot, or now with one worker."""
         return self.pool.beside(fn, workers=self.workers)
 
     def _map(self, fn, items: list, cost=None) -> list:
-        """fn over items, two at a time on long records (:meth:`service.parallel.Pool.map`: in this
+        """fn over items, two at a time on long records (:meth:`noiselab.parallel.Pool.map`: in this
         process and a forked copy of it where that is safe, the fits being mostly Python, which
         threads cannot run at once; else in :data:`WORKERS` threads); results in order. ``cost``:
         an item's expected cost, the costliest started first (no worker idles at the end while the

@@ -10,7 +10,7 @@ Intervals: a fitted parameter's 95 % profile-likelihood interval, mapped end to 
 coefficient's increasing relation to the parameter. A parameter fitted one value per output (a
 sensor noise's std of a model of several outputs) has each output's own interval, from the
 profile over that output's value (the diagnosis' ``missing[i].intervals_per_output``:
-:func:`service.diagnose.intervals.interval_tasks`), and each output's coefficient gets its own. A
+:func:`noiselab.diagnose.intervals.interval_tasks`), and each output's coefficient gets its own. A
 parameter fitted as one value (or one factor) for every output has one interval (``missing[i].
 interval``), given to every output holding the largest value (all of them when the value is one);
 without the per-output intervals, only those outputs get one. None for every coefficient whose

@@ -8,8 +8,8 @@ formed from the model's autocovariance R(d) or variogram gamma(d) = E[(y_{k+d} -
   "constant"), from gamma(d), which exists for a walk as well;
 - :func:`expected_window_stats`: E[segment autocovariance] (biased, segment mean removed).
 
-The periodogram's expectation for the Whittle likelihood is :mod:`service.diagnose.whittle`'s.
-Welch conventions are :func:`service.stats.welch`'s: one-sided, units^2/Hz, at f_j = j / (L Ts),
+The periodogram's expectation for the Whittle likelihood is :mod:`noiselab.diagnose.whittle`'s.
+Welch conventions are :func:`noiselab.stats.welch`'s: one-sided, units^2/Hz, at f_j = j / (L Ts),
 every bin (DC and Nyquist too) doubled.
 """
 

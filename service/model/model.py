@@ -52,7 +52,7 @@ def scenario_names(group: str | None = None) -> list[str]:
     """Built-in scenarios: ``seed``, ``seed-nominal``, ... and, with ``group="hidden"``, the
     hidden-effect pairs of ``service/scenarios/hidden/`` (``hidden/<effect id>`` and
     ``hidden/<effect id>-nominal``, ``hidden/null-*``)."""
-    pkg = resources.files("service.scenarios")
+    pkg = resources.files("noiselab.scenarios")
     if group:
         pkg = pkg.joinpath(group)
         return sorted(f"{group}/{p.name[:-5]}" for p in pkg.iterdir() if p.name.endswith(".toml"))
@@ -67,7 +67,7 @@ def _is_scenario(name: str) -> bool:
 
 
 def scenario_text(name: str) -> str:
-    return resources.files("service.scenarios").joinpath(f"{name}.toml").read_text()
+    return resources.files("noiselab.scenarios").joinpath(f"{name}.toml").read_text()
 
 
 def load_model(spec: str | Path) -> "Model":
@@ -311,7 +311,7 @@ class Model:
         return d
 
     def cache_key(self) -> str:
-        """The model as a cache key (:class:`service.memo.Memo`): its source and its content
+        """The model as a cache key (:class:`noiselab.memo.Memo`): its source and its content
         (:meth:`to_dict`, repr), formed once. Models of equal content predict alike, whatever text
         (comments, spelling) or object they came from; the source names them in error messages."""
         key = self._asm.get("key")

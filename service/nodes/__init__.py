@@ -1,5 +1,5 @@
 """Zenoh nodes (emulator, recorder, analyzer, replayer).
 
-The wire contract (keys, payloads, schemas, time) is :mod:`service.wire`; recordings are read and
-written by :mod:`service.recordings`.
+The wire contract (keys, payloads, schemas, time) is :mod:`noiselab.wire`; recordings are read and
+written by :mod:`noiselab.recordings`.
 """

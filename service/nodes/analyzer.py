@@ -1,6 +1,6 @@
 """The live analysis node: subscribes to a device's measurement and command over Zenoh, keeps a
 rolling window, and every ``update`` seconds compares it with the model (the same
-:func:`service.diagnose.compare.compare` as the offline analysis), publishes the summary on
+:func:`noiselab.diagnose.compare.compare` as the offline analysis), publishes the summary on
 ``noiselab/<name>/analysis`` and prints it. On stop it writes the ``.rrd`` (the latest comparison
 of every model revision plus the error over time) and prints its final report.
 
@@ -8,7 +8,7 @@ Timing: updates are paced by deadlines on the monotonic clock (tick k at t0 + k 
 a pause after each update, so the period is ``update`` whatever an update costs as long as it
 costs less; an update that overruns makes the loop skip the ticks it missed (counted as
 ``late_ticks``) instead of drifting. The predictions an update needs depend on the model and the
-estimator sizes only and are cached per model revision (:mod:`service.diagnose.compare`); at start
+estimator sizes only and are cached per model revision (:mod:`noiselab.diagnose.compare`); at start
 the analyzer computes them once for the full window, so the first full-window update is not slow.
 
 Untrusted input: a measurement or command is analysed only if it holds to the wire contract
@@ -387,8 +387,8 @@ def run_live(session, model_spec: str, *, device: str | None, window_s: float, u
         out.update(summary_of(last, an, ranker.latest if ranker is not None else None))
         out["notes"] = last.notes
         if rrd:
-            from viewers.rerun_log import log_comparisons
-            from viewers.summary_png import write_summary_png
+            from noiselab.viewers.rerun_log import log_comparisons
+            from noiselab.viewers.summary_png import write_summary_png
 
             comps = [an.latest[r] for r in sorted(an.latest)]
             with writing(rrd):                  # a full disk: one line naming the file, as offline

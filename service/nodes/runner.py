@@ -37,7 +37,7 @@ def free_port() -> int:
 
 
 def _cli(*args: str) -> list[str]:
-    return [sys.executable, "-m", "service.cli", *args]
+    return [sys.executable, "-m", "noiselab.cli", *args]
 
 
 def _pump(stream, sink: list, ready: threading.Event | None = None, echo=None, mark: str = READY_MARK,

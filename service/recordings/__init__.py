@@ -1,7 +1,7 @@
 """Recordings in and out: noiselab MCAP, foreign JSON MCAP, ROS bags, and the series they become.
 
 Below the analysis, the diagnosis and the nodes: it imports the wire contract
-(:mod:`service.wire`), the bounds and the errors, never the analysis, a node or the CLI. The
+(:mod:`noiselab.wire`), the bounds and the errors, never the analysis, a node or the CLI. The
 analysis and the diagnosis take a :class:`~.series.Series`, never a file.
 
 Modules, one concept each:
@@ -32,11 +32,11 @@ MCAP conventions (DESIGN.md, "Wire contract (Zenoh and MCAP)"):
 
 - one channel per stream, topic = the Zenoh key without a leading ``/``
   (``noiselab/<name>/<kind>``), message encoding ``json``, one registered JSON Schema per kind
-  (schema encoding ``jsonschema``, names :data:`service.wire.SCHEMA_NAMES`);
+  (schema encoding ``jsonschema``, names :data:`noiselab.wire.SCHEMA_NAMES`);
 - MCAP ``sequence`` = payload ``seq``. MCAP's sequence is a uint32, so past 2**32 - 1 it wraps
   modulo 2**32; the payload ``seq`` stays exact and is the one the reader returns;
 - ``publish_time`` = the stream's wall-clock start + the sample's time from it, in integer ns
-  (:mod:`service.wire`, "Time"; the start is ``start_time_ns`` in the ``noiselab`` metadata
+  (:mod:`noiselab.wire`, "Time"; the start is ``start_time_ns`` in the ``noiselab`` metadata
   record); ``log_time`` = receive time in integer ns. Readers order and pace by publish_time and
   take a sample's time from the payload ``t``; they must not assume that either time is
   wall-clock (a foreign file's need not be). All times stay Python ints / int64, never float64.

@@ -3,7 +3,7 @@
 - A JSON MCAP: time from a field (``--time FIELD``, seconds, or ``FIELD_ns`` style integer ns
   when the name ends in ``_ns``, or a ``{sec, nanosec}`` stamp object, exact integer ns) or from
   the MCAP publish_time. A file's message is untrusted: parsed within the wire decoders' bounds
-  (:func:`service.wire.loads`: size, nesting; NaN and Infinity are not JSON), its fields numbers
+  (:func:`noiselab.wire.loads`: size, nesting; NaN and Infinity are not JSON), its fields numbers
   within float64 (times in ns within int64), else one line naming the topic, the sample and the
   field. ``.*`` expands on the first message, in its key order.
 - A ROS bag (rosbag2 MCAP or SQLite3, a bag directory, a ROS 1 bag): decoded by

@@ -9,7 +9,7 @@ time field when that is coarser) is noted; a median step more than 1 % from the 
 refused (:func:`check_period`).
 
 Every value the analysis uses (measurement, command, truth) is at most
-:data:`~service.bounds.MAGNITUDE_MAX` (1e50) in magnitude, the one bound of every number
+:data:`~noiselab.bounds.MAGNITUDE_MAX` (1e50) in magnitude, the one bound of every number
 noiselab computes with (a model file's too): the estimators square the data, sum the squares
 over the record and square again (the spread of a variance estimate, the likelihood of a fit),
 which must stay finite in float64. A larger value is refused (:func:`check_magnitude`), naming

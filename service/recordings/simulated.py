@@ -84,7 +84,7 @@ def write_simulation(model, n: int, seed: int, out: Path, *, force: bool = False
 
 def _blocks(model, n: int, seed: int, start: int):
     """``(k0, t, stamp_ns, block)`` of consecutive blocks: ``t`` the payload times (s since the
-    start, :func:`service.wire.sample_times`), ``stamp_ns`` the anchored publish times
+    start, :func:`noiselab.wire.sample_times`), ``stamp_ns`` the anchored publish times
     ``start + round(t * 1e9)`` (int64 ns; ``np.rint`` rounds half to even, as Python's ``round``)."""
     from .. import wire
 

@@ -30,10 +30,10 @@ Untrusted input (a payload comes from any peer on the network, or from a file)
     ``MAX_DEPTH`` (32 nested arrays/objects): a sample is 2 deep, an analysis summary 6.
     ``seq`` must fit in int64 (:data:`SEQ_MAX`: every reader stores it so). A ``control``
     element must not exceed :data:`MAGNITUDE_MAX` in magnitude (it drives a simulation; the one
-    bound of :mod:`service.bounds`, 1e50, which the models, the emulator's output, the recordings'
+    bound of :mod:`noiselab.bounds`, 1e50, which the models, the emulator's output, the recordings'
     loader and the live analyzer share). What the bytes cannot tell (a vector's length, a seq
     that does not continue its stream) is judged by the node that knows the stream, with
-    :class:`service.nodes.seqgate.SeqGate`.
+    :class:`noiselab.nodes.seqgate.SeqGate`.
 
 Time (integer nanoseconds end to end, STYLE.md 13)
     ``Ts_ns = round(Ts * 1e9)`` once (:func:`period_ns`). The payload ``t`` is the float

@@ -11,7 +11,7 @@ import time
 import allantools
 import numpy as np
 
-from service.stats import oadev
+from noiselab.stats import oadev
 
 
 def best_of(fn, repeat):

@@ -21,10 +21,10 @@ Parts (ratios against a named peer measured in the same run):
    every view: variance, acf, psd, allan) as a subprocess, wall time best and median of
    ``--repeat`` runs (target < 10 s); the same with ``--rrd`` (Rerun file + PNG, which also reads
    the truth topic) as information. Then in this process, the split:
-   ``service.recordings.load.load_noiselab`` (without truth, as ``--json``; with truth, as ``--rrd``),
+   ``noiselab.recordings.load.load_noiselab`` (without truth, as ``--json``; with truth, as ``--rrd``),
    ``compare()`` cold (its prediction caches cleared: what a fresh CLI process pays) and warm,
-   ``viewers.rerun_log.log_comparisons`` (.rrd) and ``viewers.summary_png.write_summary_png``, and
-   the interpreter start-up + imports of the CLI (``python -c "import service.cli, ..."``).
+   ``noiselab.viewers.rerun_log.log_comparisons`` (.rrd) and ``noiselab.viewers.summary_png.write_summary_png``, and
+   the interpreter start-up + imports of the CLI (``python -c "import noiselab.cli, ..."``).
    Peer for the reading part: the mcap library's own reader,
    ``mcap.reader.make_reader(f).iter_messages()`` over the same file with ``json.loads`` of every
    payload: all three topics (against the load with truth) and the two topics the ``--json``
@@ -61,7 +61,7 @@ Timing: ``time.perf_counter`` (subprocesses: around ``subprocess.run``); best an
 reported, pass/fail on the best (noise from other processes only ever adds time). The machine has
 2 cores and is shared: the 1-min load average is recorded at the start and end of every part;
 ``--wait-quiet L`` waits (up to 15 min) for it to fall below L before each part. Every node runs on
-a free loopback port (``service.nodes.runner.free_port``), never 7447.
+a free loopback port (``noiselab.nodes.runner.free_port``), never 7447.
 
 ``--write`` replaces the generated block (BEGIN/END markers) in the "Analysis" section
 of RESULTS.md (re-read right before writing) and keeps everything else; a missing section is
@@ -142,11 +142,11 @@ def wait_quiet(limit: float | None, what: str, max_wait: float = 900.0) -> None:
 def cli_prefix() -> list[str]:
     """The installed ``noiselab`` console script next to this interpreter, else ``python -m``."""
     exe = Path(sys.executable).parent / "noiselab"
-    return [str(exe)] if exe.exists() else [sys.executable, "-m", "service.cli"]
+    return [str(exe)] if exe.exists() else [sys.executable, "-m", "noiselab.cli"]
 
 
 def node_cmd(*args: str) -> list[str]:
-    return [sys.executable, "-m", "service.cli", *args]
+    return [sys.executable, "-m", "noiselab.cli", *args]
 
 
 def child_env() -> dict:
@@ -181,7 +181,7 @@ def make_recording(model: Path, duration: float, workdir: Path) -> tuple[Path, f
 
 def fill_seconds(model: Path, window: float) -> float:
     """Seconds of stream until the live analyzer's ring buffer is full (window + warm-up)."""
-    from service.nodes.analyzer import LiveAnalyzer
+    from noiselab.nodes.analyzer import LiveAnalyzer
     an = LiveAnalyzer(str(model), device=None, window_s=window, log=io.StringIO())
     return an.meas.cap * an.model.Ts
 
@@ -221,7 +221,7 @@ def print_profile(label: str, pr: cProfile.Profile) -> str:
 
 
 def clear_compare_caches() -> None:
-    from service.diagnose import compare as cm
+    from noiselab.diagnose import compare as cm
     cm.cache_clear()
 
 
@@ -249,11 +249,11 @@ def peer_read(rec: Path, topics: list[str] | None) -> int:
 
 def bench_offline(model: Path, rec: Path, repeat: int, peer_repeat: int, rrd_repeat: int, workdir: Path,
                   wait: float | None, prof: bool) -> dict:
-    from service.diagnose.compare import compare
-    from service.recordings.load import load_noiselab
-    from service.model import load_model
-    from viewers.rerun_log import log_comparisons
-    from viewers.summary_png import write_summary_png
+    from noiselab.diagnose.compare import compare
+    from noiselab.recordings.load import load_noiselab
+    from noiselab.model import load_model
+    from noiselab.viewers.rerun_log import log_comparisons
+    from noiselab.viewers.summary_png import write_summary_png
 
     wait_quiet(wait, "offline")
     res: dict = {"load_start": loadavg(), "file_bytes": rec.stat().st_size}
@@ -287,8 +287,8 @@ def bench_offline(model: Path, rec: Path, repeat: int, peer_repeat: int, rrd_rep
     imp = []
     for _ in range(repeat):
         t0 = time.perf_counter()
-        subprocess.run([sys.executable, "-c", "import service.cli, service.diagnose.compare, service.recordings.load, "
-                        "service.model, service.recordings.reader"], check=True, cwd=REPO, env=child_env())
+        subprocess.run([sys.executable, "-c", "import noiselab.cli, noiselab.diagnose.compare, noiselab.recordings.load, "
+                        "noiselab.model, noiselab.recordings.reader"], check=True, cwd=REPO, env=child_env())
         imp.append(time.perf_counter() - t0)
     res["startup_imports"] = summary(imp)
     # in-process split
@@ -409,9 +409,9 @@ def _pump(stream, sink: list, mark: str | None = None, ev: threading.Event | Non
 
 def bench_live(model: Path, rec: Path, duration: float, window: float, update: float, source: str,
                wait: float | None, profile_to: Path | None = None, fill_s: float = 124.0) -> dict:
-    from service.nodes import transport
-    from service import wire
-    from service.nodes.runner import free_port
+    from noiselab.nodes import transport
+    from noiselab import wire
+    from noiselab.nodes.runner import free_port
 
     wait_quiet(wait, "live")
     res: dict = {"load_start": loadavg(), "duration": duration, "window": window, "update": update,
@@ -424,7 +424,7 @@ def bench_live(model: Path, rec: Path, duration: float, window: float, update: f
     if profile_to is not None:                       # the analyzer's main thread under cProfile
         ana_cmd = [sys.executable, "-m", "cProfile", "-o", str(profile_to)] + ana_cmd[1:]
         res["profiled"] = True
-    res["analyzer_cmd"] = "noiselab " + " ".join(ana_cmd[ana_cmd.index("service.cli") + 1:])
+    res["analyzer_cmd"] = "noiselab " + " ".join(ana_cmd[ana_cmd.index("noiselab.cli") + 1:])
     ana = subprocess.Popen(ana_cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO, env=env)
     out_lines, err_lines = [], []
     ready = threading.Event()
@@ -476,7 +476,7 @@ def bench_live(model: Path, rec: Path, duration: float, window: float, update: f
             else:
                 src_cmd = node_cmd("emulate", str(model), "--duration", f"{duration:g}", "--connect", ep,
                                    "--wait-subscribers", "20", "--json")
-            res["source_cmd"] = "noiselab " + " ".join(src_cmd[src_cmd.index("service.cli") + 1:])
+            res["source_cmd"] = "noiselab " + " ".join(src_cmd[src_cmd.index("noiselab.cli") + 1:])
             t_src0 = time.monotonic()
             src = subprocess.Popen(src_cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO,
                                    env=env)
@@ -598,10 +598,10 @@ def live_phases(model: Path, rec: Path, update: float, window: float, at: list[f
     chunk and analyse() of every update timed (as the node, which analyses at every tick); reported
     at the stream times ``at``, as p50 / p90 / max while the window fills and once the ring buffer
     is full, and (``steady``) that many consecutive updates after the fill."""
-    from service.diagnose.compare import compare  # noqa: F401  (import cost outside the timing)
-    from service import wire
-    from service.recordings.scan import iter_messages
-    from service.nodes.analyzer import LiveAnalyzer
+    from noiselab.diagnose.compare import compare  # noqa: F401  (import cost outside the timing)
+    from noiselab import wire
+    from noiselab.recordings.scan import iter_messages
+    from noiselab.nodes.analyzer import LiveAnalyzer
 
     clear_compare_caches()
     an = LiveAnalyzer(str(model), device=None, window_s=window, log=io.StringIO())
@@ -707,7 +707,7 @@ def table(res: dict) -> str:
                     f"{ld_of(la.get('cli_json', o['load_start']), 'cli_rrd')} | | info |")
         sp = o["split"]
         ld_split = ld_of(la.get("cli_rrd", la.get("cli_json", o["load_start"])), "split")
-        rows.append(f"| 1 | ↳ interpreter start-up + imports (`python -c 'import service.cli, ...'`) | "
+        rows.append(f"| 1 | ↳ interpreter start-up + imports (`python -c 'import noiselab.cli, ...'`) | "
                     f"{fmt_s(o['startup_imports'])} s | {ld_split} | | |")
         rows.append(f"| 1 | ↳ `load_noiselab(FILE, truth=False)` (measurement + command, as `--json`) | "
                     f"{fmt_s(sp['load'])} s | | | |")

@@ -9,7 +9,7 @@ Run on demand, not by pytest (``pyproject.toml`` ignores ``tests/bench``)::
     .venv/bin/python tests/bench/bench_live.py --only sweep     # one part
     .venv/bin/python tests/bench/bench_live.py --wait-quiet 0.5 --write   # wait for load < 0.5
 
-Every node runs as its own process, exactly as a user starts it (``python -m service.cli ...``),
+Every node runs as its own process, exactly as a user starts it (``python -m noiselab.cli ...``),
 on free loopback ports (never 7447). The model is the built-in ``seed`` scenario with its Ts
 replaced (and its name changed to ``benchlive``), written to a temporary TOML file.
 
@@ -260,7 +260,7 @@ def machine() -> dict:
 
 def model_toml(Ts: float, directory: Path) -> Path:
     """The built-in ``seed`` scenario with ``Ts`` replaced and the name ``benchlive``."""
-    from service.model.model import scenario_text
+    from noiselab.model.model import scenario_text
     text = scenario_text("seed")
     text, n1 = re.subn(r"(?m)^Ts\s*=\s*[0-9.eE+-]+", f"Ts = {Ts!r}", text)
     text, n2 = re.subn(r'(?m)^name\s*=\s*"[^"]*"', f'name = "{NAME}"', text)
@@ -272,7 +272,7 @@ def model_toml(Ts: float, directory: Path) -> Path:
 
 
 def free_port() -> int:
-    from service.nodes.runner import free_port as fp
+    from noiselab.nodes.runner import free_port as fp
     while True:
         p = fp()
         if p != 7447:
@@ -280,7 +280,7 @@ def free_port() -> int:
 
 
 def cli(*args: str) -> list[str]:
-    return [sys.executable, "-m", "service.cli", *args]
+    return [sys.executable, "-m", "noiselab.cli", *args]
 
 
 def child_env() -> dict:
@@ -414,7 +414,7 @@ class Child:
 
 
 def start_recorder(workdir: Path, out: Path, endpoint: str, tag: str) -> Child:
-    from service.nodes.runner import READY_MARK
+    from noiselab.nodes.runner import READY_MARK
     rec = Child(cli("record", "--key", f"noiselab/{NAME}/**", "--out", str(out), "--force",
                     "--listen", endpoint, "--json"), workdir, tag, mark=READY_MARK)
     rec.wait_mark(60)
@@ -432,7 +432,7 @@ def stop_recorder(rec: Child, timeout: float = 300) -> tuple[dict, float]:
 
 def recording_books(path: Path, samples: int) -> dict:
     """Per topic of the recording file: count, gaps, missing at start / in gaps / at the end."""
-    from service.recordings.reader import read_recording
+    from noiselab.recordings.reader import read_recording
     recd = read_recording(path)
     dev = recd.devices.get(NAME)
     out = {"complete": recd.complete, "note": recd.note, "topics": {}}
@@ -553,8 +553,8 @@ def bench_sweep(periods: list[float], duration: float, workdir: Path, linger: fl
 # ------------------------------------------------------------------------------ 3: recorder
 def make_messages(n_samples: int) -> list[tuple[str, str, int, int, bytes]]:
     """(topic, kind, seq, publish_ns, payload) of ``n_samples`` samples x 3 topics, interleaved."""
-    from service.model.model import load_model
-    from service import wire
+    from noiselab.model.model import load_model
+    from noiselab import wire
     model = load_model("seed")
     r = model.simulate(n_samples, seed=1)
     t, pub = wire.sample_times(0, n_samples, 0.001)
@@ -570,7 +570,7 @@ def make_messages(n_samples: int) -> list[tuple[str, str, int, int, bytes]]:
 
 def write_raw(msgs, path: Path) -> None:
     from mcap.writer import CompressionType, Writer
-    from service import wire
+    from noiselab import wire
     with open(path, "wb") as f:
         w = Writer(f, chunk_size=64 * 1024, compression=CompressionType.ZSTD)
         w.start(profile="", library="bench")
@@ -588,7 +588,7 @@ def write_raw(msgs, path: Path) -> None:
 
 
 def write_ours(msgs, path: Path) -> None:
-    from service.recordings.writer import RecordingWriter
+    from noiselab.recordings.writer import RecordingWriter
     with RecordingWriter(path, force=True, chunk_size=64 * 1024, compression="zstd") as w:
         for topic, kind, seq, p, data in msgs:
             w.write(topic, kind, seq, p, p, data)
@@ -598,8 +598,8 @@ def write_recorder_loop(msgs, path: Path) -> None:
     """What run_recorder's main thread does with what it takes from its channel, minus zenoh:
     ``recorder.Ingest.add`` on batches of ``recorder.BATCH`` (key, payload) pairs (group by
     topic, decode, check, write, book)."""
-    from service.nodes import recorder
-    from service.recordings.writer import RecordingWriter
+    from noiselab.nodes import recorder
+    from noiselab.recordings.writer import RecordingWriter
     items = [(topic, data) for topic, _kind, _seq, _p, data in msgs]
     with RecordingWriter(path, force=True, chunk_size=64 * 1024, compression="zstd") as w:
         ing = recorder.Ingest(w, str(path))
@@ -622,8 +622,8 @@ def blast_child(endpoint: str, n_samples: int, end: bool) -> None:
     emulator's publisher options, then (``end``) end the stream as the emulator does
     (``transport.end_stream``: end message, wait for the recorder's acknowledgement) and close;
     without ``end``, close right after the last put (the behaviour before the fix)."""
-    from service.nodes import transport
-    from service import wire
+    from noiselab.nodes import transport
+    from noiselab import wire
     msgs = make_messages(n_samples)
     args = argparse.Namespace(connect=[endpoint], listen=None, config=None, mode=None, connect_timeout=10.0)
     with transport.open_session(args, "source") as session:
@@ -784,14 +784,14 @@ def latsub_child(endpoint: str) -> None:
 def latpub_child(endpoint: str, variant: str, seconds: float) -> None:
     """Publisher process of part 4: 3 puts every 1 ms with the send time as attachment."""
     import zenoh
-    from service import wire
+    from noiselab import wire
     conf = zenoh.Config()
     conf.insert_json5("mode", '"peer"')
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
     conf.insert_json5("listen/endpoints", "[]")
     if variant == "noiselab":
-        from service.nodes import transport
+        from noiselab.nodes import transport
         opts = dict(transport.DATA_QOS)
     elif variant == "express":
         opts = dict(congestion_control=zenoh.CongestionControl.BLOCK, express=True)
@@ -890,9 +890,9 @@ def bench_phases(seconds: float, workdir: Path, periods: list[float] = (0.001,),
     """Instrumented copy of run_emulator's loop (no health, no control), recorder attached; express on
     and off alternate (``rounds`` times each; every run is a row) at each period."""
     import zenoh
-    from service.model.model import load_model
-    from service.nodes import transport
-    from service import wire
+    from noiselab.model.model import load_model
+    from noiselab.nodes import transport
+    from noiselab import wire
     res: dict = {"load_start": loadavg(), "seconds": seconds, "order": []}
     meter = CpuMeter()
     plan = [(Ts, express, i) for Ts in periods for i in range(rounds) for express in (True, False)]

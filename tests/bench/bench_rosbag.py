@@ -13,7 +13,7 @@ What is measured (the ratio is taken against its peer *in the same run*, on the 
   epoch start, log time 0.5 ms after each stamp, white noise on the three gyro axes.
 * peer: rosbags' reader loop, ``AnyReader([bag])`` over the ``/imu`` connection, each message
   deserialized (``reader.deserialize``) and one field read (``angular_velocity.x``) into a list.
-* noiselab: ``service.recordings.load.load_recording(bag, spec="/imu:angular_velocity.x", Ts=0.01)``,
+* noiselab: ``noiselab.recordings.load.load_recording(bag, spec="/imu:angular_velocity.x", Ts=0.01)``,
   the loader ``analyze`` and ``diagnose`` call: the same decoding, the header stamps to exact
   integer ns, and every check a foreign series passes (NaN, magnitude, order, regular timing,
   the longest gap-free run), the ``Series`` returned.
@@ -81,7 +81,7 @@ def peer(bag: Path) -> int:
 
 
 def ours(bag: Path) -> int:
-    from service.recordings.load import load_recording
+    from noiselab.recordings.load import load_recording
 
     s = load_recording(str(bag), spec="/imu:angular_velocity.x", Ts=TS_NS * 1e-9)
     return s.y.shape[0]

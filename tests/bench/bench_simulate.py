@@ -16,7 +16,7 @@ What is measured (every ratio is taken against its peer *in the same run*):
    run ``--peer-repeat`` times (default 2) there.
 2. ``step``: ``st = model.stepper(seed=1); st.step()`` in a Python loop, 1e5 steps, for ``seed``
    and for ``ALL_EFFECTS`` (a 2-state plant with every effect of the catalogue, checked against
-   ``service.model.effects.CATALOGUE`` at start-up). Target: < 20 us per sample (headroom for a
+   ``noiselab.model.effects.CATALOGUE`` at start-up). Target: < 20 us per sample (headroom for a
    10 kHz loop). The loop figure is total time / steps; the per-call percentiles come from a
    separate run that wraps each of ``--percall`` steps in ``time.perf_counter_ns``.
 3. ``memory``: a 1e7-sample ``seed`` batch in a fresh subprocess: peak RSS minus the process's RSS
@@ -80,8 +80,8 @@ import numpy as np
 import scipy
 import seed_reference
 
-from service.model.effects import CATALOGUE
-from service.model.model import load_model, parse_model
+from noiselab.model.effects import CATALOGUE
+from noiselab.model.model import load_model, parse_model
 
 RESULTS = HERE / "RESULTS.md"
 SECTION = "## Simulation"
@@ -373,7 +373,7 @@ def bench_write(n: int, repeat: int) -> list[dict]:
     import shutil
     import tempfile
 
-    from service.recordings.simulated import write_simulation
+    from noiselab.recordings.simulated import write_simulation
 
     model = load_model("seed")
     rows = []
@@ -415,7 +415,7 @@ def bench_write(n: int, repeat: int) -> list[dict]:
 def profile_write(n: int) -> str:
     import tempfile
 
-    from service.recordings.simulated import write_simulation
+    from noiselab.recordings.simulated import write_simulation
 
     buf = io.StringIO()
     model = load_model("seed")

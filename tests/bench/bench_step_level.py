@@ -25,8 +25,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from service.diagnose.diagnose import diagnose  # noqa: E402
-from service.model import parse_model  # noqa: E402
+from noiselab.diagnose.diagnose import diagnose  # noqa: E402
+from noiselab.model import parse_model  # noqa: E402
 
 LIMIT, K = 1.5, 4.0
 BASE = ("name = \"stepsat\"\n[sampling]\nTs = 0.01\n[plant]\nm = 1.0\nc = 0.5\nk = 4.0\n"

@@ -57,18 +57,18 @@ IGNORED = {"seconds", "path", "file", "recording", "out", "fit_out", "created", 
 def _cli(args: str, cwd: Path) -> subprocess.CompletedProcess:
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     (cwd / "service").exists() or (cwd / "service").symlink_to(ROOT / "service")
-    return subprocess.run([sys.executable, "-c", "import sys; from service.cli import main; sys.exit(main())",
+    return subprocess.run([sys.executable, "-c", "import sys; from noiselab.cli import main; sys.exit(main())",
                            *args.split()], check=False, capture_output=True, text=True, env=env, cwd=cwd)
 
 
 def save(out: Path, n_cases: int) -> None:
-    from service import one_blas_thread
+    from noiselab import one_blas_thread
     one_blas_thread()          # as bench_diagnose.py and the command line do
     from hidden_set import make_case
 
-    from service.diagnose.diagnose import diagnose
-    from service.diagnose.report import diagnosis_json
-    from service.model import parse_model
+    from noiselab.diagnose.diagnose import diagnose
+    from noiselab.diagnose.report import diagnosis_json
+    from noiselab.model import parse_model
 
     out.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory() as d:

@@ -17,9 +17,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from service.model import parse_model
-from service.model.effects.base import _map
-from service.model.model import dumps_toml
+from noiselab.model import parse_model
+from noiselab.model.effects.base import _map
+from noiselab.model.model import dumps_toml
 
 PERIODS = (0.002, 0.005, 0.01, 0.02)
 NEEDS_COMMAND = ("actuator.lag", "actuator.saturation", "actuator.deadzone", "sensor.scale_factor",

@@ -23,17 +23,17 @@ import pytest
 from helpers.models import ALL_LINEAR, ENCODER_TOML, load
 from helpers.recordings import raw_json_mcap
 from helpers.rrd import column, read_chunks
-from service.diagnose.compare import compare, transient_samples
-from service.model import load_model, parse_model
-from service import wire
-from service.recordings.writer import RecordingWriter
+from noiselab.diagnose.compare import compare, transient_samples
+from noiselab.model import load_model, parse_model
+from noiselab import wire
+from noiselab.recordings.writer import RecordingWriter
 
 ROOT = Path(__file__).resolve().parents[2]
 VIEWS = ("variance", "acf", "psd", "allan")
 
 
 def cli(*args, timeout: float = 120) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "service.cli", *map(str, args)], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "noiselab.cli", *map(str, args)], capture_output=True, text=True,
                           cwd=ROOT, timeout=timeout)
 
 
@@ -87,7 +87,7 @@ def test_window_variance_spread_is_exact_for_long_memory():
     case 2.2x, which put a right model's variance view at about 1.5 instead of 1.)"""
     from scipy.signal import lfilter
 
-    from service.diagnose.compare import windowed_variance_var
+    from noiselab.diagnose.compare import windowed_variance_var
 
     def brute(gam, W):
         S = np.cumsum(gam[:W])
@@ -156,7 +156,7 @@ def test_window_variance_kurtosis_is_exact():
     chi-squared of matching variance (3 + 12 / nu = 5.0)."""
     from scipy.signal import lfilter
 
-    from service.diagnose.compare import KURT_DENSE, window_kurtosis, windowed_variance_var
+    from noiselab.diagnose.compare import KURT_DENSE, window_kurtosis, windowed_variance_var
 
     def dense(gam, W):
         a = np.arange(W)
@@ -202,7 +202,7 @@ def test_acf_spread_at_lag_zero_is_exact_for_long_memory():
     as independent, understates it about 1.9x here.)"""
     from scipy.signal import lfilter
 
-    from service.diagnose.compare import acf_view
+    from noiselab.diagnose.compare import acf_view
 
     M, K, R, s2, sw2 = 512, 8, 1000, 5.0, 0.3
     rho = np.exp(-1 / (2.4 * M))
@@ -634,8 +634,8 @@ def test_drive_noise_var_equals_the_closed_form(text, name):
     from fractions import Fraction
 
     from helpers.models import EVERYTHING
-    from service.model import parse_model
-    from service.model.model import scenario_text
+    from noiselab.model import parse_model
+    from noiselab.model.model import scenario_text
 
     if text == "everything":
         mdl = parse_model(EVERYTHING, "everything")
@@ -659,7 +659,7 @@ def test_cached_predictions_give_the_uncached_numbers_and_stay_bounded():
     the variogram is computed once for a generous length and sliced) gives exactly the floats of a
     cold compare() of each record; the cache holds at most its byte bound, keeps one variogram
     per model, and a model whose text differs is a different entry."""
-    from service.diagnose import compare as cm
+    from noiselab.diagnose import compare as cm
 
     mdl = load_model("seed")
     rec = mdl.simulate(12_000, seed=5)
@@ -713,7 +713,7 @@ def test_cached_predictions_follow_the_record_when_a_coarse_quantizer_makes_them
     prediction depends on the record, not only on the model: comparing one record and then another
     (a live window sliding from a moving to a still command) gives the second's cold numbers. The
     views' cache was keyed by the model alone, and the PSD view read 120 where its cold value is 2."""
-    from service.diagnose import compare as cm
+    from noiselab.diagnose import compare as cm
 
     text = _COARSE_QUANT_DOC
     moving = parse_model(text, "moving")
@@ -739,10 +739,10 @@ def test_psd_view_spread_holds_at_a_resonance_narrower_than_a_welch_bin():
     flat-spectrum dof say. Over 100 right-model records the PSD view's z^2 at the resonance band
     must average 1 (within 4 standard errors of the records' own spread): with the flat dof it
     averaged 5.8, and right models of lightly damped plants read model errors above 1.5."""
-    from service.diagnose.compare import (default_settings, predictor_of, psd_band_dof_factor, psd_fine_length,
+    from noiselab.diagnose.compare import (default_settings, predictor_of, psd_band_dof_factor, psd_fine_length,
                                           psd_view)
-    from service.stats import welch
-    from service.stats.psd import log_bin_groups
+    from noiselab.stats import welch
+    from noiselab.stats.psd import log_bin_groups
 
     wn = 2 * np.pi
     mdl = parse_model(f"""name = "ld"
@@ -796,7 +796,7 @@ def test_psd_view_a_tones_band_varies_only_through_the_noise_under_it():
     product only. Over 100 right-model records the band's z^2 must average 1 within 4 standard
     errors (the flat dof, which treated the tone as Gaussian noise, gave 0.004: a model amplitude
     10 % off read z = -3 there); and a model amplitude 10 % too high must stand out (|z| > 10)."""
-    from service.diagnose.compare import default_settings, predictor_of, psd_view
+    from noiselab.diagnose.compare import default_settings, predictor_of, psd_view
 
     def model(amplitude):
         return parse_model(f"""name = "tone"
@@ -843,8 +843,8 @@ def test_psd_band_dof_factor_is_one_for_a_flat_spectrum_bounded_for_a_bare_tone_
     a tone over no noise at all (a band known exactly); lowest at a resonance's band for segments of
     1000 and of 1024 samples alike (G was a power of two: 8192 for L = 1000, and 2G // L = 16 grid
     points per bin where there are 16.4 put the bins up to 12 bins off by Nyquist)."""
-    from service.diagnose.compare import PSD_DOF_MAX, psd_band_dof_factor, psd_fine_length
-    from service.stats.psd import log_bin_groups
+    from noiselab.diagnose.compare import PSD_DOF_MAX, psd_band_dof_factor, psd_fine_length
+    from noiselab.stats.psd import log_bin_groups
 
     n = 10_001                                                      # G = 8000 for L = 1000 (2G // L exact)
     d = np.arange(n + 1, dtype=float)
@@ -876,7 +876,7 @@ def test_acf_spread_does_not_depend_on_the_other_views_settings():
     variance window): once read from a variogram cut to the longest of them, it depended on the
     window (live and offline differed by 0.02 in the model error). A Gauss-Markov bias as long as
     a segment makes the segments' variances correlate, which is where it shows."""
-    from service.diagnose import compare as cm
+    from noiselab.diagnose import compare as cm
 
     mdl = parse_model((ROOT / "service" / "scenarios" / "seed.toml").read_text()
                       + "\n[sensor.bias_markov]\nstd = 0.01\ntau_s = 5.0\n")
@@ -894,7 +894,7 @@ def test_live_history_is_thinned_not_unbounded():
     it keeps every other one when full, and the first entry of every revision."""
     import io
 
-    from service.nodes import analyzer
+    from noiselab.nodes import analyzer
 
     an = analyzer.LiveAnalyzer("seed", device=None, window_s=5.0, log=io.StringIO())
     for i in range(3 * analyzer.HISTORY_MAX):
@@ -911,7 +911,7 @@ def test_live_update_ends_at_the_newest_complete_sample():
     has both (exactly compare() on that prefix), instead of finding no complete run at all."""
     import io
 
-    from service.nodes import analyzer
+    from noiselab.nodes import analyzer
 
     mdl = load_model("seed")
     rec = mdl.simulate(1000, seed=2)
@@ -986,8 +986,8 @@ def test_a_region_is_one_side_of_the_model():
     """A run of flagged points whose z changes sign is two regions, each with its own direction and
     largest |z| (an ACF above the model at short lags and below it after was one region "below",
     with its largest |z| on the side above)."""
-    from service.diagnose.compare import regions_of
-    from service.diagnose.results import View
+    from noiselab.diagnose.compare import regions_of
+    from noiselab.diagnose.results import View
     z = np.array([0.0, 5.0, 6.0, -7.0, -4.0, 0.5, 3.0])
     x = np.arange(z.size, dtype=float)
     v = View("acf", 0, x, "lag [s]", "acf", z, z, z, z, z=z, flagged=np.abs(z) > 2)

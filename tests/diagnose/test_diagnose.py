@@ -16,14 +16,14 @@ import pytest
 from helpers.models import ENCODER_TOML
 from helpers.rrd import column, read_chunks
 
-from service.diagnose.data import Data, quantization_grid
-from service.diagnose.diagnose import diagnose
-from service.diagnose.modes import ADD
-from service.diagnose.search import Search
-from service.diagnose.thresholds import THRESHOLD
-from service.model import load_model, parse_model
-from service.model.effects import CATALOGUE
-from service.model.model import scenario_names
+from noiselab.diagnose.data import Data, quantization_grid
+from noiselab.diagnose.diagnose import diagnose
+from noiselab.diagnose.modes import ADD
+from noiselab.diagnose.search import Search
+from noiselab.diagnose.thresholds import THRESHOLD
+from noiselab.model import load_model, parse_model
+from noiselab.model.effects import CATALOGUE
+from noiselab.model.model import scenario_names
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "tests" / "bench"))
@@ -37,7 +37,7 @@ DURATION = 180.0
 
 def cli(*args, timeout=600):
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    return subprocess.run([sys.executable, "-m", "service.cli", *map(str, args)], cwd=ROOT, env=env,
+    return subprocess.run([sys.executable, "-m", "noiselab.cli", *map(str, args)], cwd=ROOT, env=env,
                           capture_output=True, text=True, timeout=timeout)
 
 
@@ -140,7 +140,7 @@ def test_prefix_screening_finds_what_the_whole_record_screening_finds(monkeypatc
     sample seed record takes that path, the diagnosis adds the same effects with the same scores
     (the leaders' joint refits search every parameter from a coarse grid either way) and the
     same final model error."""
-    import service.diagnose.search as S
+    import noiselab.diagnose.search as S
     rec = load_model("seed").simulate(60000, seed=22)
     nominal = load_model("seed-nominal")
     whole = diagnose(nominal, rec.t, rec.y, rec.u)
@@ -171,8 +171,8 @@ def test_nested_choice_statistic_is_half_chi2_0_half_chi2_1():
     2.71 (+3 binomial sd)."""
     from scipy import stats
 
-    from service.diagnose.hypotheses import Hypotheses
-    from service.diagnose.thresholds import CHIBAR2_95
+    from noiselab.diagnose.hypotheses import Hypotheses
+    from noiselab.diagnose.thresholds import CHIBAR2_95
 
     model = parse_model("name = \"w\"\n[sampling]\nTs = 0.01\n[plant]\nA = [[-2.0]]\nB = [[2.0]]\n"
                         "C = [[1.0]]\n[actuator.white]\nstd = 0.5\n[sensor.white]\nstd = 0.05\n")
@@ -201,8 +201,8 @@ def test_a_drift_slower_than_the_plant_is_reported_as_a_sensor_bias():
     slower than SLOW_DRIFT plant time constants is reported as the sensor bias when both are
     near-tied additions (the better supported of it and the walk, its long-tau limit); the AR(1) stays the
     alternative."""
-    from service.diagnose.search import plant_time_constant
-    from service.diagnose.thresholds import SLOW_DRIFT, TIE
+    from noiselab.diagnose.search import plant_time_constant
+    from noiselab.diagnose.thresholds import SLOW_DRIFT, TIE
 
     base = ("name = \"d\"\n[sampling]\nTs = 0.01\n[plant]\nA = [[-10.0]]\nB = [[10.0]]\nC = [[1.0]]\n"
             "[command]\nkind = \"sine\"\namplitude = 1.0\nfrequency_hz = 0.5\n"
@@ -228,9 +228,9 @@ def test_lr_spread_is_the_spread_of_the_likelihood_ratio_over_records():
     A's spectrum) against 4000 Monte Carlo periodograms: one output with groups of 1 and 8 bins
     (a group's mean of n exponential ordinates, G = n), and two outputs (X ~ CN(0, E_A) per bin,
     I = X X^H). The sd of a sample sd is sd / sqrt(2 R): 1.1 % here; tolerance 5 %."""
-    from service.diagnose.hypotheses import Fit
-    from service.diagnose.inner import Inner
-    from service.diagnose.sandwich import lr_spread
+    from noiselab.diagnose.hypotheses import Fit
+    from noiselab.diagnose.inner import Inner
+    from noiselab.diagnose.sandwich import lr_spread
 
     rng = np.random.default_rng(3)
     R, nb = 4000, 60
@@ -366,8 +366,8 @@ def test_the_sandwich_factor_of_a_noise_behind_a_switching_saturation_is_its_mon
     near the edge of what the data identify, the factor read 2.9 against 1.8: the sensor's
     variance, its cross-term in H^-1, carries a slow record-wide pattern the blocks miss.) The same
     plant with the limit at 2 never clips: not gated, no factor."""
-    from service.diagnose.hypotheses import Hypotheses
-    from service.diagnose.sandwich import gated, godambe_factor
+    from noiselab.diagnose.hypotheses import Hypotheses
+    from noiselab.diagnose.sandwich import gated, godambe_factor
 
     text = ("name = \"g\"\n[sampling]\nTs = 0.01\n[plant]\nA = [[-2.0]]\nB = [[2.0]]\nC = [[1.0]]\n[command]\n"
             "kind = \"sine\"\namplitude = 1.0\nfrequency_hz = 0.2\n[actuator.white]\nstd = 0.1\n"
@@ -402,7 +402,7 @@ def test_a_noise_behind_a_saturation_that_clips_the_whole_record_is_held_not_run
     each printing a RuntimeWarning; sensor and process noise are fitted as before."""
     import warnings
 
-    from service.diagnose.hypotheses import Hypotheses
+    from noiselab.diagnose.hypotheses import Hypotheses
 
     model = parse_model("name = \"clip\"\n[sampling]\nTs = 0.01\n[plant]\nA = [[0.0, 1.0], [-16.0, -2.0]]\n"
                         "B = [[0.0], [16.0]]\nC = [[1.0, 0.0]]\nL = [[0.0], [4.0]]\n[command]\nkind = \"prbs\"\n"
@@ -477,7 +477,7 @@ def test_a_saturations_limit_under_a_step_is_fitted_to_the_records_level():
     spread 10x wider than the level's, and the model error after stayed above 1.5 in half the
     seeds. The 95 % interval must cover 1.5 and be no wider than 1.5 x 1.96 k sqrt(V) each side
     (the transient adds a little; nothing else informs the limit)."""
-    from service.diagnose import whittle as W
+    from noiselab.diagnose import whittle as W
     base = ("name = \"stepsat\"\n[sampling]\nTs = 0.01\n[plant]\nm = 1.0\nc = 0.5\nk = 4.0\n"
             "[command]\nkind = \"step\"\namplitude = 2.0\n"
             "[process.white]\nstd = 0.5\n[sensor.white]\nstd = 0.002\n")
@@ -498,7 +498,7 @@ def test_the_ramps_whitener_whitens():
     spans four decades."""
     from scipy.signal import lfilter, welch
 
-    from service.diagnose.whittle import Ramps
+    from noiselab.diagnose.whittle import Ramps
 
     rng = np.random.default_rng(7)
     n = 200_000
@@ -530,7 +530,7 @@ def test_a_drift_the_views_see_is_added_when_bic_alone_would_stop():
     off. The views' rule adds the best candidate when the error stays above ERROR_OK, its
     likelihood-ratio test passes at 1 % family-wise over the candidates, and the error falls by a
     third with it: the bias, at its planted tau."""
-    from service.diagnose.diagnose import ERROR_FALL, ERROR_OK
+    from noiselab.diagnose.diagnose import ERROR_FALL, ERROR_OK
 
     truth = parse_model("name = \"c\"\n[sampling]\nTs = 0.005\n[plant]\nA = [[-1.0936947349271349]]\n"
                         "B = [[0.7904620537341346]]\nC = [[1.0]]\nL = [[1.0936947349271349]]\n"
@@ -553,7 +553,7 @@ def test_a_tone_must_stand_out_from_the_data_around_it():
     and from the data's own spectrum around it. A missing walk (flat in the differenced residual,
     where the model's noises rise as f^2 from DC) lifts the lowest bins far over the model, but
     they are no line; a line at bin 400 is one. Periodograms drawn as E_true Exp(1), seeded."""
-    from service.diagnose.tones import tone_peaks
+    from noiselab.diagnose.tones import tone_peaks
 
     rng = np.random.default_rng(7)
     nf, M, Ts = 20_000, 40_000, 0.01
@@ -615,7 +615,7 @@ def test_a_wrong_tau_that_the_views_see_is_refitted_when_the_fall_reaches_explai
     parameter), and takes the model error from 1.58 to 1.16: a fall of 27 %, short of the views'
     rule's third, but from a model the views call failed to one they call explained. That counts
     as the views' word; the refit is reported, at the planted tau."""
-    from service.diagnose.diagnose import ERROR_FALL, ERROR_OK
+    from noiselab.diagnose.diagnose import ERROR_FALL, ERROR_OK
 
     truth = parse_model("name = \"c\"\n[sampling]\nTs = 0.002\n[plant]\nA = [[0.0, 1.0], [-25.52539, -5.92271]]\n"
                         "B = [[0.0], [37.74555]]\nC = [[1.0, 0.0]]\nL = [[4.42985], [0.0]]\n"
@@ -651,7 +651,7 @@ def test_the_views_rule_adds_nothing_to_a_null_record_its_slow_bias_makes_look_w
     asks. Nothing is reported."""
     from scipy.stats import chi2
 
-    from service.diagnose.diagnose import BY_ERROR_ALPHA, ERROR_OK
+    from noiselab.diagnose.diagnose import BY_ERROR_ALPHA, ERROR_OK
 
     truth = parse_model("name = \"c\"\n[sampling]\nTs = 0.002\n[plant]\nA = [[0.0, 1.0], [-25.52539, -5.92271]]\n"
                         "B = [[0.0], [37.74555]]\nC = [[1.0, 0.0]]\nL = [[4.42985], [0.0]]\n"
@@ -675,7 +675,7 @@ def test_a_gauss_markov_bias_beats_a_walk_when_its_likelihood_ratio_test_passes(
     test of 1/tau > 0. The rule for an exact tie (identical spectra: the signal chain's order)
     took it, and the walk came first in the chain. A tie of two fits of different sizes is not
     that: the test decides, and here it passes."""
-    from service.diagnose.thresholds import CHIBAR2_95
+    from noiselab.diagnose.thresholds import CHIBAR2_95
 
     truth = parse_model("name = \"c\"\n[sampling]\nTs = 0.005\n[plant]\nm = 2.0495\nc = 15.7568\nk = 409.7569\n"
                         "[command]\nkind = \"none\"\n[process.white]\nstd = 22.3\n[sensor.white]\nstd = 0.006171\n"
@@ -718,7 +718,7 @@ def test_a_slow_drift_stays_the_sensor_bias_when_the_ar1_leads_within_its_spread
     truth that lead ranged from -4.9 to +2.2 (mean -2.1): a coin flip, which lr_spread measures
     (about 2 here). The AR(1) must now beat the bias by DISTINCT_Z of those spreads, in the step's
     ranking and in the exchange pass."""
-    from service.diagnose.thresholds import DISTINCT_Z, TIE
+    from noiselab.diagnose.thresholds import DISTINCT_Z, TIE
 
     truth = parse_model("name = \"c\"\n[sampling]\nTs = 0.02\n[plant]\nm = 0.4225\nc = 6.8061\nk = 130.3085\n"
                         "[command]\nkind = \"none\"\n[process.white]\nstd = 8.322\n[sensor.white]\nstd = 0.01154\n"
@@ -803,8 +803,8 @@ def test_a_local_refit_follows_a_shape_parameter_beyond_its_first_bracket():
     can have to move further. Started 10x below, the local refit of a Gauss-Markov tau (120 s of
     the pair's truth) must reach the maximum the coarse grid finds (before: stuck at 0.16 s, the
     log-likelihood 280 lower)."""
-    from service.diagnose.edits import _set
-    from service.diagnose.hypotheses import Hypotheses
+    from noiselab.diagnose.edits import _set
+    from noiselab.diagnose.hypotheses import Hypotheses
     eid = "sensor.bias_markov"
     truth = load_model(f"hidden/{eid}")
     rec = truth.simulate(int(round(120 / truth.Ts)), seed=7)
@@ -824,7 +824,7 @@ def test_a_right_model_with_jitter_under_a_chirp_reads_about_one():
     one sweep from rest, 12 % high here) and the spreads of their estimators under the modulation.
     The truth model's error over 10 records must be 1 within 3 standard errors of their mean (it
     read 2.0-2.7: PSD 3-4.7, Allan 4-7)."""
-    from service.diagnose.compare import compare
+    from noiselab.diagnose.compare import compare
     case = make_case(258)
     truth = parse_model(case.truth, "truth")
     errors = []
@@ -842,8 +842,8 @@ def test_modulation_kappa_against_monte_carlo():
     for stationary noise, must be modulation_kappa's factor within 3 sd of the ratio (sd 2 / sqrt(799)
     of it: two sample variances). One bin resolves 526 samples and sees no modulation (1.00); 64 bins
     resolve 8 and see its mean square (1.40)."""
-    from service.diagnose.compare import modulation_kappa
-    from service.stats import welch
+    from noiselab.diagnose.compare import modulation_kappa
+    from noiselab.stats import welch
     N, L, R, bands = 16384, 1024, 800, (1, 8, 64)
     m = 1 + 0.9 * np.sin(2 * np.pi * np.arange(N) / 200)
     rng = np.random.default_rng(1)
@@ -873,13 +873,13 @@ def test_a_coarse_quantizer_on_a_slow_signal_is_found_alone():
     step^2/12 of white noise. With the error taken as white, the true model read a model error of
     about 41 and the search added a Gauss-Markov "bias" of tau 0.01 s and a zero sensor noise to
     imitate the correlation (error after 7.3). With the correlated error predicted
-    (:func:`service.model.effects.sensor_quantization.quantization_acf`) the quantizer alone is
+    (:func:`noiselab.model.effects.sensor_quantization.quantization_acf`) the quantizer alone is
     reported and the error falls to about 1."""
     truth = parse_model('name = "q"\n[sampling]\nTs = 0.005\n[plant]\nm = 1.0\nc = 1.0\nk = 10.0\n'
                         '[command]\nkind = "sine"\namplitude = 1.0\nfrequency_hz = 0.4\n'
                         "[process.white]\nstd = 0.5\n[sensor.white]\nstd = 0.002\n"
                         "[sensor.quantization]\nstep = 0.02\n", "truth")
-    from service.diagnose.compare import compare
+    from noiselab.diagnose.compare import compare
 
     rec = truth.simulate(24_000, seed=1)
     assert compare(truth, rec.t, rec.y, rec.u, burn=None, level=True).error < 1.5
@@ -1133,8 +1133,8 @@ def test_a_quantizers_slope_modulation_is_not_a_jitter():
     without jitter its slope is within 3 standard errors of 0 (without the prediction it read
     jitters of about 1.1 ms, reported on 2 of 3 such records); with a 1.5 ms jitter it is std_s^2
     within 3 standard errors; and the diagnosis of the record without jitter reports nothing."""
-    from service.diagnose.hypotheses import Hypotheses
-    from service.diagnose.modulation import Modulation
+    from noiselab.diagnose.hypotheses import Hypotheses
+    from noiselab.diagnose.modulation import Modulation
     nominal = parse_model(_QJ_DOC, "nominal")
     jittered = parse_model(_QJ_DOC + "[sensor.jitter]\nstd_s = 0.0015\n", "jitter")
     out = {}
@@ -1160,8 +1160,8 @@ def test_the_text_report_gives_intervals_and_scores_the_digits_they_need():
     "50 [50, 50]"; it gets the digits that tell its ends apart. A sensor noise 100x over the
     model's scores Delta BIC ~5e13: 14 digits of it said nothing; small scores keep one decimal,
     as the evidence sentences print them."""
-    from service.diagnose.report import _with_interval
-    from service.diagnose.results import fmt_score
+    from noiselab.diagnose.report import _with_interval
+    from noiselab.diagnose.results import fmt_score
     assert _with_interval("frequency_hz", 50.00001, (49.99992, 50.00004)) == \
         "frequency_hz = 50.00001 [49.99992, 50.00004]"
     assert _with_interval("std", 0.0123456, (0.011, 0.0135)) == "std = 0.01235 [0.011, 0.0135]"
@@ -1263,7 +1263,7 @@ def test_a_profile_the_data_do_not_bound_ends_at_zero_or_the_largest_value_tried
     gives a finite end between."""
     from types import SimpleNamespace
 
-    from service.diagnose import intervals as S
+    from noiselab.diagnose import intervals as S
     doc = ('name = "two"\n[sampling]\nTs = 0.01\n[plant]\nA = [[-1.0, 0.0], [0.0, -2.0]]\n'
            'B = [[1.0, 0.0], [0.0, 1.0]]\nC = [[1.0, 1.0]]\n[actuator.ar1]\nstd = [0.3, 0.05]\ntau_s = 0.2\n')
     fit = SimpleNamespace(free={"actuator.ar1": ["std", "tau_s"]}, loglik=0.0, model=parse_model(doc, "two"))
@@ -1295,7 +1295,7 @@ def test_a_profile_crossing_from_the_estimate_lands_on_a_quadratic_profiles_end_
     estimate: a profile quadratic in ln x (or in x) is a straight line there, so the first fit lands
     on 2 Delta l = 3.84 (the bisection of the shape parameters took 12 fits, regula falsi on ln x
     4-5); without the peak, the plain regula falsi needs more than one."""
-    from service.diagnose import intervals as S
+    from noiselab.diagnose import intervals as S
 
     for log, z, back in ((True, math.log, math.exp), (False, (lambda v: v), (lambda v: v))):
         x_hat, sd = 0.3, 0.05
@@ -1322,7 +1322,7 @@ def test_an_exact_add_refit_tie_goes_to_the_addition_whichever_candidate_leads()
     On this record an AR(1) leads both in the choice score, by its second parameter's near-level
     likelihood ratio; the tie rule (the user's value kept, the effect added) must still apply.
     Before, the tie was looked for beside the leader only, and the refit was reported."""
-    from service.diagnose.thresholds import EXACT_TIE
+    from noiselab.diagnose.thresholds import EXACT_TIE
     base = ("name = \"m2\"\n[sampling]\nTs = 0.01\n[plant]\n"
             "A = [[0, 1, 0, 0], [-6, -0.6, 2, 0.3], [0, 0, 0, 1], [2, 0.3, -2, -0.3]]\n"
             "B = [[0], [1], [0], [0]]\nC = [[1, 0, 0, 0]]\n"
@@ -1346,7 +1346,7 @@ def test_the_leaders_exact_add_refit_tie_goes_before_the_mode_order():
     a replacement of the actuator noise by a near-white AR(1) sits within the near-tie margin, and
     the mode order alone would take it. The leader's tie comes first: the process noise is added
     (the first version of the chosen-candidate rule reported the AR(1))."""
-    from service.diagnose.thresholds import TIE
+    from noiselab.diagnose.thresholds import TIE
     case = make_case(8)
     truth, nominal = parse_model(case.truth, "truth"), parse_model(case.nominal, "nominal")
     assert "process.white" not in nominal.effects and "actuator.white" in nominal.effects
@@ -1363,7 +1363,7 @@ def test_a_candidate_ties_with_itself_at_any_score():
     candidates crashed (a two-output motor of the integrator bench, seed 9)."""
     from types import SimpleNamespace
 
-    from service.diagnose.search import exact_tie
+    from noiselab.diagnose.search import exact_tie
     for s in (12.5, 7432835967802488.0, 1e17):
         c = SimpleNamespace(score=s, k=2)
         assert exact_tie(c, c, lambda x: x.score)
@@ -1407,7 +1407,7 @@ def test_ceiling_crb_matches_the_gauss_markov_closed_form():
 def test_a_command_of_the_wrong_width_is_bad_input():
     """A recorded command with another number of components than the model's inputs is named as
     bad input (the CLI's exit 2), before any fitting; it crashed in the mean response."""
-    from service.diagnose.compare import AnalysisError
+    from noiselab.diagnose.compare import AnalysisError
 
     model = parse_model("name = \"w\"\n[sampling]\nTs = 0.01\n[plant]\nm = 1.2\nc = 0.35\nk = 4.0\n"
                         "[command]\nkind = \"sine\"\namplitude = 2.0\nfrequency_hz = 0.7\n[sensor.white]\nstd = 0.001\n")
@@ -1427,7 +1427,7 @@ def test_a_driven_record_that_does_not_start_at_rest_skips_the_mean_responses_tr
                         "[actuator.white]\nstd = 0.02\n[process.white]\nstd = 0.2\n")
     rec = model.simulate(13_000, seed=5)
     cut = slice(1000, None)
-    from service.diagnose.compare import compare
+    from noiselab.diagnose.compare import compare
 
     whole = compare(model, rec.t, rec.y, rec.u, burn=None, level=True)
     assert whole.error < 1.5
@@ -1448,7 +1448,7 @@ def test_a_fast_plant_cut_mid_stream_starts_from_its_fitted_mean_state():
     mean of 6 records within 3 standard errors of 1 (one record's error spread 0.29, measured over
     10 seeds); and a missing lag is found with its time constant inside its interval, the model
     error falling to about 1."""
-    from service.diagnose.compare import compare
+    from noiselab.diagnose.compare import compare
     plant = ('name = "g"\n[sampling]\nTs = 0.005\n[plant]\nA = [[0.0, 1.0], [-25.0, -4.0]]\nB = [[0.0], [25.0]]\n'
              'C = [[1.0, 0.0]]\nD = [[0.05]]\nL = [[0.5], [2.0]]\n[command]\nkind = "sine"\namplitude = 1.0\n'
              'frequency_hz = 0.5\n[process.white]\nstd = 0.05\n[sensor.white]\nstd = 0.002\n')

@@ -1,6 +1,6 @@
 """An effect is one module: a new effect defined here, and nowhere else, is parsed from a model file,
 simulated, predicted, compared and found by the diagnosis, through the hooks of
-:mod:`service.model.effects.base` alone. And the generic diagnosis modules name no effect.
+:mod:`noiselab.model.effects.base` alone. And the generic diagnosis modules name no effect.
 
 The effect: white noise seen through a first difference, v_k = std (e_{k-1} - e_{k-2}) (a sensor
 that reports the increment of a noisy reading), a "blue" noise: variance 2 std^2, lag-1
@@ -18,13 +18,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from service.diagnose.compare import compare
-from service.diagnose.diagnose import diagnose
-from service.diagnose.thresholds import THRESHOLD
-from service.model import parse_model
-from service.model.effects import CATALOGUE
-from service.model.effects.base import Effect, FitSpec
-from service.model.schema import nonnegative
+from noiselab.diagnose.compare import compare
+from noiselab.diagnose.diagnose import diagnose
+from noiselab.diagnose.thresholds import THRESHOLD
+from noiselab.model import parse_model
+from noiselab.model.effects import CATALOGUE
+from noiselab.model.effects.base import Effect, FitSpec
+from noiselab.model.schema import nonnegative
 
 ROOT = Path(__file__).resolve().parents[2]
 EID = "sensor.differenced"
@@ -169,7 +169,7 @@ def test_generic_diagnosis_modules_name_no_effect():
 
 
 def test_a_mode_is_a_small_type_spelled_as_the_json_contract():
-    from service.diagnose.modes import ADD, REFIT, Mode, replacing
+    from noiselab.diagnose.modes import ADD, REFIT, Mode, replacing
     rep = replacing("actuator.white")
     assert str(rep) == "replace:actuator.white" and Mode.parse("replace:actuator.white") == rep
     assert (str(ADD), str(REFIT)) == ("add", "refit") and Mode.parse("add") == ADD

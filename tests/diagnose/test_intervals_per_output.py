@@ -20,15 +20,15 @@ import re
 import numpy as np
 import pytest
 
-from service.cli import main
-from service.diagnose.data import Data
-from service.diagnose.diagnose import diagnose
-from service.diagnose.hypotheses import Hypotheses
-from service.diagnose.inner import Inner
-from service.diagnose.intervals import ChannelKey, merge_intervals
-from service.diagnose.report import diagnosis_lines
-from service.diagnose.thresholds import CHI2_95
-from service.model import parse_model
+from noiselab.cli import main
+from noiselab.diagnose.data import Data
+from noiselab.diagnose.diagnose import diagnose
+from noiselab.diagnose.hypotheses import Hypotheses
+from noiselab.diagnose.inner import Inner
+from noiselab.diagnose.intervals import ChannelKey, merge_intervals
+from noiselab.diagnose.report import diagnosis_lines
+from noiselab.diagnose.thresholds import CHI2_95
+from noiselab.model import parse_model
 
 TS = 0.01
 N = 12_000                     # 120 s

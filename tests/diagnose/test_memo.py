@@ -9,7 +9,7 @@ import threading
 
 import numpy as np
 
-from service.memo import Memo, deep_nbytes
+from noiselab.memo import Memo, deep_nbytes
 
 
 def test_an_lru_memo_keeps_what_is_read_and_counts_nested_arrays():

@@ -1,4 +1,4 @@
-"""The pool (``service.parallel.Pool``: a fork-context ProcessPoolExecutor where a fork is safe,
+"""The pool (``noiselab.parallel.Pool``: a fork-context ProcessPoolExecutor where a fork is safe,
 else threads, or serially): the diagnosis' candidate maps give the report the threads and the
 serial path give, the recording's topics are parsed to the same bits, whatever a child does not
 deliver is computed in the parent, and an error is raised in the parent by the item that causes it.
@@ -34,10 +34,10 @@ _DIAGNOSE = """
     import json, sys
     sys.path.insert(0, "tests/bench")
     from hidden_set import make_case
-    from service import parallel
-    from service.diagnose import search
-    from service.diagnose.diagnose import diagnose
-    from service.model import parse_model
+    from noiselab import parallel
+    from noiselab.diagnose import search
+    from noiselab.diagnose.diagnose import diagnose
+    from noiselab.model import parse_model
     parallel.POOL = "{pool}"
     case = make_case(27)                       # a walk and process noise, 115000 samples at 2 ms
     truth, nominal = parse_model(case.truth, "truth"), parse_model(case.nominal, "nominal")
@@ -87,7 +87,7 @@ def _same(a, b, path="report"):
 
 _TOY = """
     import json, os, sys, threading
-    from service import parallel
+    from noiselab import parallel
 
     parent = os.getpid()
     sync_r = sync_w = back_r = back_w = None
@@ -364,10 +364,10 @@ _READ = """
     import numpy as np
     sys.path.insert(0, "tests")
     from helpers.recordings import raw_file, write_sample
-    from service import parallel
-    from service import wire
-    from service.recordings import reader
-    from service.recordings.reader import read_recording
+    from noiselab import parallel
+    from noiselab import wire
+    from noiselab.recordings import reader
+    from noiselab.recordings.reader import read_recording
 
     reader.PARALLEL_DECODE = 1000              # the threshold, not the parser, is what is small here
     d = sys.argv[1]
@@ -431,7 +431,7 @@ def test_no_fork_beside_a_librarys_own_threads():
     code = textwrap.dedent("""
         import json, os, threading
         import numpy as np
-        from service import parallel
+        from noiselab import parallel
         a = np.random.default_rng(0).standard_normal((400, 400))
         a @ a                                           # the BLAS starts its workers
         blas = str(np.__config__.CONFIG.get("Build Dependencies", {}).get("blas", {}).get("name", ""))
@@ -448,7 +448,7 @@ def test_no_fork_beside_a_librarys_own_threads():
 
 _CLI = """
     import contextlib, io, json, sys
-    from service import cli, parallel
+    from noiselab import cli, parallel
 
     d = sys.argv[1]
     assert cli.main(["simulate", "hidden/sensor.bias_walk", "--duration", "60", "--seed", "3",
@@ -485,7 +485,7 @@ _CLI = """
 
 def test_the_command_line_reads_the_recording_in_a_child_while_it_imports(tmp_path):
     """`noiselab diagnose` and `noiselab analyze` read a noiselab recording in a forked child while
-    they import the analysis (:meth:`service.parallel.Pool.submit`): the same report as read in this
+    they import the analysis (:meth:`noiselab.parallel.Pool.submit`): the same report as read in this
     process; a file the reader rejects, or one it reads with no whole sample, gives the same
     one-line error (the child's failure redone here); a bad model is reported first, as before,
     and the child's reading stopped."""

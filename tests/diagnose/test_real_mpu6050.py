@@ -50,7 +50,7 @@ from helpers.once import run_once
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
-from service.cli import main
+from noiselab.cli import main
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "mpu6050"
 SHA256 = {   # of the uncompressed source files (README there)

@@ -19,12 +19,12 @@ import threading
 import numpy as np
 import pytest
 
-from service import parallel
-from service.diagnose import whittle as W
-from service.diagnose.data import Data
-from service.diagnose.search import Search
-from service.memo import Memo
-from service.model import load_model
+from noiselab import parallel
+from noiselab.diagnose import whittle as W
+from noiselab.diagnose.data import Data
+from noiselab.diagnose.search import Search
+from noiselab.memo import Memo
+from noiselab.model import load_model
 
 
 @pytest.fixture

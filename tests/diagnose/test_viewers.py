@@ -1,4 +1,4 @@
-"""Viewers: the .rrd written by viewers.rerun_log is read back with rerun.chunk.RrdReader (rerun-sdk
+"""Viewers: the .rrd written by noiselab.viewers.rerun_log is read back with rerun.chunk.RrdReader (rerun-sdk
 0.41.0 API: ``RrdReader(path)``, ``.recordings()`` / ``.blueprints()`` -> [StoreEntry],
 ``.store(store=entry)`` -> LazyStore (needs the footer), ``.stream(store=entry)`` -> LazyChunkStream of
 Chunk with ``.entity_path``, ``.num_rows``, ``.is_static``, ``.timeline_names``,
@@ -15,11 +15,11 @@ import pyarrow as pa
 import pytest
 from helpers.rrd import column, read_chunks
 
-from service.diagnose.results import Comparison, Region, View
-from viewers.comparisons import ViewerInputError
-from viewers.report import report_markdown
-from viewers.rerun_log import log_comparisons
-from viewers.summary_png import figure_size_px, write_summary_png
+from noiselab.diagnose.results import Comparison, Region, View
+from noiselab.viewers.comparisons import ViewerInputError
+from noiselab.viewers.report import report_markdown
+from noiselab.viewers.rerun_log import log_comparisons
+from noiselab.viewers.summary_png import figure_size_px, write_summary_png
 
 N = 2000
 TS = 0.01
@@ -347,7 +347,7 @@ def test_summary_png(tmp_path, request, which):
 def test_summary_png_has_a_level_panel_per_output_when_the_record_is_from_rest(with_level, two_outputs):
     """A record from rest has the level view: one panel per output, between the measurement and
     the variance, with the previous revision's model line; without it the layout is unchanged."""
-    from viewers.summary_png import summary_figure
+    from noiselab.viewers.summary_png import summary_figure
 
     axes = summary_figure(with_level).axes
     titles = [ax.get_title() for ax in axes]
@@ -411,7 +411,7 @@ def figure_texts(fig) -> list:
 
 
 def test_with_unit_replaces_the_units_placeholder():
-    from viewers.comparisons import with_unit
+    from noiselab.viewers.comparisons import with_unit
 
     assert with_unit("PSD [units^2/Hz]", "rad/s") == "PSD [(rad/s)^2/Hz]"
     assert with_unit("PSD [units^2/Hz]", "m") == "PSD [m^2/Hz]"
@@ -478,7 +478,7 @@ def test_output_names_are_checked(tmp_path, diagnosis):
 
 
 def test_png_names_the_outputs_units_recording_compared_model_and_every_added_effect(diagnosis):
-    from viewers.summary_png import summary_figure
+    from noiselab.viewers.summary_png import summary_figure
 
     fig = summary_figure(diagnosis)
     texts = figure_texts(fig)
@@ -503,7 +503,7 @@ def test_png_names_the_outputs_units_recording_compared_model_and_every_added_ef
 
 
 def test_png_says_truth_only_when_the_recording_has_it(two_revisions, two_outputs):
-    from viewers.summary_png import summary_figure
+    from noiselab.viewers.summary_png import summary_figure
 
     without = figure_texts(summary_figure(two_outputs))
     assert not any("truth" in t for t in without), [t for t in without if "truth" in t]
@@ -514,7 +514,7 @@ def test_png_says_truth_only_when_the_recording_has_it(two_revisions, two_output
 def test_png_notes_are_wrapped_not_cut(diagnosis):
     import dataclasses
 
-    from viewers.summary_png import summary_figure
+    from noiselab.viewers.summary_png import summary_figure
 
     note = ("the record does not start at rest: analysis starts at t = 2.31 s, the command's mean response from "
             "the mean state fitted there (2 states, least squares), and the command is assumed to be the model's own")
@@ -529,7 +529,7 @@ def test_png_notes_are_wrapped_not_cut(diagnosis):
 def test_png_panels_do_not_overlap(request, which):
     """Each panel with its title, tick and axis labels (its tight box) stays clear of every other
     panel's: a long axis label does not run into the neighbouring panel."""
-    from viewers.summary_png import summary_figure
+    from noiselab.viewers.summary_png import summary_figure
 
     comps = request.getfixturevalue(which)
     fig = summary_figure(comps)

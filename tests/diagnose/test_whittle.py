@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from service.diagnose import whittle as W
-from service.model import load_model, parse_model
-from service.model.simulate import lsim, propagate
+from noiselab.diagnose import whittle as W
+from noiselab.model import load_model, parse_model
+from noiselab.model.simulate import lsim, propagate
 
 SEED = open(__file__.replace("tests/diagnose/test_whittle.py", "service/scenarios/seed.toml")).read()
 
@@ -95,8 +95,8 @@ def test_profile_edge_root_finder_hits_the_chi2_crossing():
     known: l(x) = -(ln x - m)^2 / (2 s^2) crosses l_max - 3.84 / 2 at ln x = m -+ 1.96 s. It stops at
     |l - target| < 0.02, i.e. |ln x - edge| < 0.02 / |dl/d ln x| = 0.02 s / 1.96; and it must not
     take more refits than a bisection's 8."""
-    from service.diagnose.inner import _crossing
-    from service.diagnose.thresholds import CHI2_95
+    from noiselab.diagnose.inner import _crossing
+    from noiselab.diagnose.thresholds import CHI2_95
 
     m, s = 0.7, 0.3
     calls = []
@@ -235,7 +235,7 @@ def test_expected_periodogram_against_an_extended_precision_sum(tau):
     difference of the stationary part and the from-rest correction, both of the size of the
     output's variance R(0), so rounding is bounded by a few hundred eps of R(0) (or of the terms
     summed, whichever is larger), not of E; and E itself to 1e-6 of its largest value."""
-    from service.diagnose.edits import _set
+    from noiselab.diagnose.edits import _set
     LD = np.longdouble
     M = 256
     model = _set(load_model("seed"), "actuator.ar1", {"std": 0.08, "tau_s": tau})
@@ -379,8 +379,8 @@ def test_shared_noise_is_not_counted_twice():
     mean 1, over 60 records of 60 s (the mean's sd sqrt(2 / 60) = 0.18; bounds 0.55-1.45 are
     +-2.5 sd). Summing the two outputs' likelihoods as if independent counts the shared evidence
     twice and inflates it (1.62 on these records with the composite likelihood; 1.07 now)."""
-    from service.diagnose.data import Data
-    from service.diagnose.hypotheses import Hypotheses
+    from noiselab.diagnose.data import Data
+    from noiselab.diagnose.hypotheses import Hypotheses
 
     model = parse_model(TWOOUT)
     stats = []
@@ -399,7 +399,7 @@ def test_small_inverses_in_closed_form(p):
     """The inner problem's closed-form 2 x 2 and 3 x 3 inverses and ln det against LAPACK, on random
     Hermitian positive definite matrices spanning 12 decades of scale and near-singular ones
     (one direction 1e-6 of the others' power: coherence 1 - 1e-6)."""
-    from service.diagnose.inner import _inv_logdet
+    from noiselab.diagnose.inner import _inv_logdet
 
     rng = np.random.default_rng(0)
     X = rng.standard_normal((500, p, p + 1)) + 1j * rng.standard_normal((500, p, p + 1))
@@ -418,9 +418,9 @@ def test_score_contributions_sum_to_the_score(case):
     inner problem's score at any v: sum_q phi_aq = g_a + sum_b G_b tr(E_b^-1 U_ab), to 1e-9."""
     import dataclasses
 
-    from service.diagnose.data import Data
-    from service.diagnose.hypotheses import Hypotheses
-    from service.diagnose.sandwich import score_contributions
+    from noiselab.diagnose.data import Data
+    from noiselab.diagnose.hypotheses import Hypotheses
+    from noiselab.diagnose.sandwich import score_contributions
     if case == "one output":
         model = load_model("hidden/process.white")
         free = {"process.white": ["psd"], "actuator.white": ["std"], "sensor.white": ["std"]}
@@ -445,10 +445,10 @@ def test_score_contributions_sum_to_the_score(case):
 
 
 def _spread_and_factor(eid, seeds, duration):
-    from service.diagnose.data import Data
-    from service.diagnose.edits import _scale_name, _set
-    from service.diagnose.hypotheses import Hypotheses
-    from service.diagnose.sandwich import godambe_factor
+    from noiselab.diagnose.data import Data
+    from noiselab.diagnose.edits import _scale_name, _set
+    from noiselab.diagnose.hypotheses import Hypotheses
+    from noiselab.diagnose.sandwich import godambe_factor
     truth, nominal = load_model(f"hidden/{eid}"), load_model(f"hidden/{eid}-nominal")
     name = _scale_name(truth.effects[eid])[0]
     value = float(np.max(truth.effects[eid].params[name]))
@@ -494,8 +494,8 @@ def test_jitter_level_unbiased_under_a_prbs_command():
     taper-weighted mean of ydot^2 (:func:`whittle.slope_power`). Over 16 records of 120 s of the
     two-output null plant's position sensor with 1 ms of jitter, the mean fitted std_s over the truth
     must be 1 within 3 sd of that mean (the plain mean gave 1.025, 10 sd off)."""
-    from service.diagnose.data import Data
-    from service.diagnose.hypotheses import Hypotheses
+    from noiselab.diagnose.data import Data
+    from noiselab.diagnose.hypotheses import Hypotheses
     text = (TWOOUT.replace("C = [[1.0, 0.0], [0.0, 0.2]]", "C = [[1.0, 0.0]]")
             .replace("std = [0.002, 0.001]", "std = 0.002").replace("std = [0.002, 0.003]", "std = 0.002"))
     truth = parse_model(text + "\n[sensor.jitter]\nstd_s = 0.001\n")
@@ -516,11 +516,11 @@ def test_inner_likelihood_at_the_model_values_is_the_fixed_models(free):
     jitter's part holds std_s^2 Var(ydot), which the other sources' variances set: taken from the
     references (a process noise of unit std), it was 4x too large on a two-output plant and the
     joint refit of jitter and process noise stopped 114 below the right model's log-likelihood."""
-    from service.diagnose.data import Data
-    from service.diagnose.edits import _scale_name, _unit_scale
-    from service.diagnose.hypotheses import Hypotheses
-    from service.diagnose.intervals import _extra
-    from service.model.effects import CATALOGUE
+    from noiselab.diagnose.data import Data
+    from noiselab.diagnose.edits import _scale_name, _unit_scale
+    from noiselab.diagnose.hypotheses import Hypotheses
+    from noiselab.diagnose.intervals import _extra
+    from noiselab.model.effects import CATALOGUE
     model = parse_model(TWOOUT + "\n[sensor.jitter]\nstd_s = 0.001\n")
     rec = model.simulate(int(round(60 / model.Ts)), seed=3)
     H = Hypotheses(Data(rec.y, rec.u, model.Ts, True), model)

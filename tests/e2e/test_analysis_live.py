@@ -24,12 +24,12 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from service import wire
-from service.diagnose.compare import compare
-from service.model import load_model
-from service.nodes.runner import free_port
-from service.recordings.scan import iter_messages
-from service.recordings.writer import RecordingWriter
+from noiselab import wire
+from noiselab.diagnose.compare import compare
+from noiselab.model import load_model
+from noiselab.nodes.runner import free_port
+from noiselab.recordings.scan import iter_messages
+from noiselab.recordings.writer import RecordingWriter
 
 pytestmark = pytest.mark.slow   # live end-to-end runs: real processes and sessions
 
@@ -83,7 +83,7 @@ def listening_session(port: int) -> zenoh.Session:
 
 
 def cli(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "service.cli", *map(str, args)], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "noiselab.cli", *map(str, args)], capture_output=True, text=True,
                           cwd=ROOT, timeout=timeout)
 
 
@@ -267,8 +267,8 @@ def test_live_ranking_names_the_missing_effect_like_the_offline_diagnosis(tmp_pa
     """Issue 5 item 4: the live analyzer re-ranks the candidate missing effects on its window; fed
     a replay of a file (window longer than the file), its final ranking is the offline diagnosis'
     first step on the same samples (same floats), and the summaries on Zenoh carry it."""
-    from service.diagnose.diagnose import diagnose
-    from service.recordings.load import load_noiselab
+    from noiselab.diagnose.diagnose import diagnose
+    from noiselab.recordings.load import load_noiselab
 
     rec_path = tmp_path / "ar1.mcap"
     r = cli("simulate", "hidden/actuator.ar1", "--duration", "60", "--seed", FILE_SEED, "--out", rec_path)

@@ -37,16 +37,16 @@ from helpers.cli import assert_bad
 from helpers.cli import cli_in_process as cli
 from helpers.recordings import write_record
 
-from service.cli import build_parser
-from service.commands.predict import predict_report
-from service.model import ModelError, dumps_toml, load_model, parse_model, scenario_names
-from service.model.effects import CATALOGUE
-from service.model.model import TS_MAX, TS_MIN, _from_data, scenario_text
-from service.model.predict import HORIZON_MAX
-from service.nodes import transport
-from service.recordings.output import PARTIAL_SUFFIX
-from service.recordings.reader import read_recording
-from service.nodes.runner import READY_MARK, free_port
+from noiselab.cli import build_parser
+from noiselab.commands.predict import predict_report
+from noiselab.model import ModelError, dumps_toml, load_model, parse_model, scenario_names
+from noiselab.model.effects import CATALOGUE
+from noiselab.model.model import TS_MAX, TS_MIN, _from_data, scenario_text
+from noiselab.model.predict import HORIZON_MAX
+from noiselab.nodes import transport
+from noiselab.recordings.output import PARTIAL_SUFFIX
+from noiselab.recordings.reader import read_recording
+from noiselab.nodes.runner import READY_MARK, free_port
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -309,7 +309,7 @@ def test_an_rrd_that_meets_a_full_disk_is_one_line_and_nothing_after_it(where, s
     dropped came after our line, and a disk full half-way hung or gave a traceback); no report on
     stdout, no cut .rrd left."""
     rrd = "/dev/full" if where == "/dev/full" else str(tmp_path / "cut.rrd")
-    r = subprocess.run([sys.executable, "-m", "service.cli", "analyze", small_record, "--model", "seed", "--rrd", rrd,
+    r = subprocess.run([sys.executable, "-m", "noiselab.cli", "analyze", small_record, "--model", "seed", "--rrd", rrd,
                         "--png", tmp_path / "summary.png", "--force", "--json"], capture_output=True, text=True,
                        cwd=ROOT, timeout=300, preexec_fn=None if where == "/dev/full" else _file_limit(200_000))
     reason = "No space left on device" if where == "/dev/full" else "File too large"
@@ -342,7 +342,7 @@ def test_the_demo_meets_a_full_disk_in_one_line(name, tmp_path):
     """One of the files the demo writes after its live run is a full disk (a link to /dev/full):
     one line naming it and the OS error, exit 2, no traceback; the recording is kept."""
     (tmp_path / name).symlink_to("/dev/full")
-    r = subprocess.run([sys.executable, "-m", "service.cli", "demo", "--duration", "20", "--out", tmp_path, "--force"],
+    r = subprocess.run([sys.executable, "-m", "noiselab.cli", "demo", "--duration", "20", "--out", tmp_path, "--force"],
                        capture_output=True, text=True, cwd=ROOT, timeout=600)
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr[-3000:]
     assert r.stderr.splitlines()[-1] == f"noiselab: {tmp_path / name}: cannot write it (No space left on device)"
@@ -355,7 +355,7 @@ def test_simulate_that_runs_out_of_space_keeps_the_recording_it_replaces(tmp_pat
     old = tmp_path / "run.mcap"
     write_record(old, load_model("seed"), 500, 7)
     before = old.read_bytes()
-    r = subprocess.run([sys.executable, "-m", "service.cli", "simulate", "seed", "--duration", "100", "--out", old,
+    r = subprocess.run([sys.executable, "-m", "noiselab.cli", "simulate", "seed", "--duration", "100", "--out", old,
                         "--force"], preexec_fn=_file_limit(200_000), capture_output=True, text=True, cwd=ROOT,
                        timeout=300)
     assert_bad((r.returncode, r.stdout, r.stderr), str(old), "cannot write it (File too large)")
@@ -369,10 +369,10 @@ def test_record_that_runs_out_of_space_keeps_what_reached_the_disk(tmp_path):
     (the measurement's seqs 0..k with none missing) and `recover` makes a complete file of them."""
     port = free_port()
     out = tmp_path / "rec.mcap"
-    rec = subprocess.Popen([sys.executable, "-m", "service.cli", "record", "--connect", f"tcp/127.0.0.1:{port}",
+    rec = subprocess.Popen([sys.executable, "-m", "noiselab.cli", "record", "--connect", f"tcp/127.0.0.1:{port}",
                             "--connect-timeout", "60", "--out", out], preexec_fn=_file_limit(250_000), cwd=ROOT,
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    emu = subprocess.Popen([sys.executable, "-m", "service.cli", "emulate", "seed", "--listen",
+    emu = subprocess.Popen([sys.executable, "-m", "noiselab.cli", "emulate", "seed", "--listen",
                             f"tcp/127.0.0.1:{port}", "--duration", "3600", "--speed", "20", "--wait-subscribers", "60",
                             "--end-timeout", "1"], cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
@@ -390,7 +390,7 @@ def test_record_that_runs_out_of_space_keeps_what_reached_the_disk(tmp_path):
     seq = got.device("seed").measurement.seq
     assert seq.size > 100 and np.array_equal(seq, np.arange(seq.size))
     fixed = tmp_path / "fixed.mcap"
-    r = subprocess.run([sys.executable, "-m", "service.cli", "recover", out, "-o", fixed], capture_output=True,
+    r = subprocess.run([sys.executable, "-m", "noiselab.cli", "recover", out, "-o", fixed], capture_output=True,
                        text=True, cwd=ROOT, timeout=120)
     assert r.returncode == 0, r.stderr
     back = read_recording(fixed)
@@ -464,15 +464,15 @@ def test_the_walk_finds_every_numeric_flag_and_each_uses_the_shared_checks():
 
 
 def test_a_node_takes_the_bounded_flags_without_the_command_line():
-    """The bounded numeric types live in service.args, which the command line and the nodes both
-    import: a node adding its flags (transport's --connect-timeout) does not import service.cli,
+    """The bounded numeric types live in noiselab.args, which the command line and the nodes both
+    import: a node adding its flags (transport's --connect-timeout) does not import noiselab.cli,
     which imports the nodes (a cycle). In a fresh interpreter, so no other test's imports count."""
     code = ("import argparse, sys\n"
-            "import service.nodes.transport as t\n"
+            "import noiselab.nodes.transport as t\n"
             "p = argparse.ArgumentParser()\n"
             "t.add_transport_args(p)\n"
             "assert p.parse_args(['--connect-timeout', '0']).connect_timeout == 0.0\n"
-            "print(sorted(m for m in sys.modules if m == 'service.cli' or m.startswith('service.cli.')))\n")
+            "print(sorted(m for m in sys.modules if m == 'noiselab.cli' or m.startswith('noiselab.cli.')))\n")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert r.returncode == 0 and r.stdout.strip() == "[]", (r.stdout, r.stderr[-2000:])
 
@@ -498,7 +498,7 @@ def test_a_bad_number_on_any_flag_is_one_line_exit_2(command, flag, argv, kind, 
 
 
 def test_emulate_wait_subscribers_minus_5_from_the_shell():
-    r = subprocess.run([sys.executable, "-m", "service.cli", "emulate", "seed", "--wait-subscribers", "-5"],
+    r = subprocess.run([sys.executable, "-m", "noiselab.cli", "emulate", "seed", "--wait-subscribers", "-5"],
                        capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert_bad((r.returncode, r.stdout, r.stderr), "--wait-subscribers", "'-5'")
 
@@ -742,6 +742,6 @@ def test_predict_of_a_bad_model_file_from_the_shell(d, tmp_path_factory):
     assume(model_or_one_line_error(lambda: parse_model(text, "bad.toml")) is None)
     f = tmp_path_factory.mktemp("shell", numbered=True) / "bad.toml"
     f.write_text(text)
-    r = subprocess.run([sys.executable, "-m", "service.cli", "predict", f], capture_output=True, text=True,
+    r = subprocess.run([sys.executable, "-m", "noiselab.cli", "predict", f], capture_output=True, text=True,
                        cwd=ROOT, timeout=120)
     assert_bad((r.returncode, r.stdout, r.stderr), str(f))

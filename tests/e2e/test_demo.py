@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 
 from helpers.readme import readme_main_command, run_noiselab
-from service.recordings.load import load_noiselab
-from service.model import load_model, parse_model
+from noiselab.recordings.load import load_noiselab
+from noiselab.model import load_model, parse_model
 
 pytestmark = pytest.mark.slow   # live end-to-end runs: real processes and sessions
 

@@ -20,8 +20,8 @@ import pytest
 from helpers.once import run_once
 from helpers.readme import ROOT
 
-from service.model import load_model
-from service.recordings.load import load_noiselab
+from noiselab.model import load_model
+from noiselab.recordings.load import load_noiselab
 
 pytestmark = pytest.mark.slow   # live end-to-end runs: real processes and sessions
 
@@ -32,7 +32,7 @@ DURATION, SPEED, SEED = 120.0, 20.0, 4
 def demo(tmp_path_factory):
     def make(d):
         env = dict(os.environ, PYTHONPATH=str(ROOT))
-        res = subprocess.run([sys.executable, "-m", "service.cli", "demo", "imu", "--duration", str(DURATION),
+        res = subprocess.run([sys.executable, "-m", "noiselab.cli", "demo", "imu", "--duration", str(DURATION),
                               "--speed", str(SPEED), "--seed", str(SEED), "--out", str(d / "out"), "--json"],
                              capture_output=True, text=True, env=env, timeout=900)
         return {"returncode": res.returncode, "stdout": res.stdout, "stderr": res.stderr}

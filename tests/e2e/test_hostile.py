@@ -21,18 +21,18 @@ import numpy as np
 import pytest
 import zenoh
 
-from service.recordings.load import load_noiselab
-from service.model import load_model
-from service.nodes import recorder, transport
-from service import wire
-from service.recordings.errors import McapWriteError
-from service.recordings.reader import read_recording
-from service.recordings.writer import RecordingWriter
-from service.nodes.analyzer import READY_MARK as ANALYZER_READY
-from service.nodes.analyzer import LiveAnalyzer
-from service.nodes.recorder import Ingest
-from service.nodes.recorder_summary import RecorderSummary
-from service.nodes.runner import READY_MARK, free_port
+from noiselab.recordings.load import load_noiselab
+from noiselab.model import load_model
+from noiselab.nodes import recorder, transport
+from noiselab import wire
+from noiselab.recordings.errors import McapWriteError
+from noiselab.recordings.reader import read_recording
+from noiselab.recordings.writer import RecordingWriter
+from noiselab.nodes.analyzer import READY_MARK as ANALYZER_READY
+from noiselab.nodes.analyzer import LiveAnalyzer
+from noiselab.nodes.recorder import Ingest
+from noiselab.nodes.recorder_summary import RecorderSummary
+from noiselab.nodes.runner import READY_MARK, free_port
 from helpers.live import (CONTROLLER, EMULATE_MARK, ROOT, ROUTER_MARK, Collector, check_summary_topics, ep,
                           file_messages, session_config, waited_for_subscribers)
 from helpers.models import LOOP_TOML
@@ -52,7 +52,7 @@ def sample(kind: str, seq: int, vec, Ts: float = 0.01) -> bytes:
 
 
 def cli(*args, timeout: float = 120) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "service.cli", *map(str, args)], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "noiselab.cli", *map(str, args)], capture_output=True, text=True,
                           cwd=ROOT, timeout=timeout)
 
 

@@ -22,12 +22,14 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-PACKAGES = ("service", "viewers")
+# source folder -> the package it installs as (pyproject.toml's package-dir)
+PACKAGES = {"service": "noiselab", "viewers": "noiselab.viewers"}
 # modules below the command line: none of them imports it (the CLI imports them)
-BELOW_CLI = ("service.nodes", "service.diagnose", "service.model", "service.stats", "service.commands",
-             "service.recordings", "service.wire", "viewers")
+BELOW_CLI = ("noiselab.nodes", "noiselab.diagnose", "noiselab.model", "noiselab.stats", "noiselab.commands",
+             "noiselab.recordings", "noiselab.wire", "noiselab.viewers")
 # the recordings (and the wire contract they are written in) sit below these: none of them is imported by them
-ABOVE_RECORDINGS = ("service.diagnose", "service.nodes", "service.commands", "service.cli", "service.demo", "viewers")
+ABOVE_RECORDINGS = ("noiselab.diagnose", "noiselab.nodes", "noiselab.commands", "noiselab.cli", "noiselab.demo",
+                    "noiselab.viewers")
 # third-party libraries a command loads when it runs, never to read its flags
 HEAVY = ("numpy", "scipy", "zenoh", "mcap", "rerun", "matplotlib", "rosbags")
 
@@ -35,13 +37,23 @@ HEAVY = ("numpy", "scipy", "zenoh", "mcap", "rerun", "matplotlib", "rosbags")
 def _modules() -> dict[str, Path]:
     """Dotted module name -> source file, for every module of the packages."""
     mods = {}
-    for pkg in PACKAGES:
-        for path in sorted((ROOT / pkg).rglob("*.py")):
-            parts = path.relative_to(ROOT).with_suffix("").parts
+    for folder, pkg in PACKAGES.items():
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            parts = (pkg, *path.relative_to(ROOT / folder).with_suffix("").parts)
             if parts[-1] == "__init__":
                 parts = parts[:-1]
             mods[".".join(parts)] = path
     return mods
+
+
+def test_the_installed_packages_are_every_folder_of_the_source():
+    """pyproject.toml lists the packages by their installed names (setuptools cannot find renamed
+    packages): the list must be exactly the source folders that hold an ``__init__.py``, so a new
+    subpackage is not left out of a wheel."""
+    import tomllib
+    listed = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]
+    folders = sorted(m for m, path in _modules().items() if path.name == "__init__.py")
+    assert sorted(listed) == folders
 
 
 def _resolve(node: ast.ImportFrom, module: str, is_pkg: bool) -> str:
@@ -105,8 +117,8 @@ def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
 def test_the_graph_sees_imports_inside_functions():
     """The walk finds a deferred import (the run command imports the runner inside its function)."""
     graph = import_graph()
-    assert "service.nodes.runner" in graph["service.commands.run"]
-    assert "service.errors" in graph["service.commands.allan"]
+    assert "noiselab.nodes.runner" in graph["noiselab.commands.run"]
+    assert "noiselab.errors" in graph["noiselab.commands.allan"]
 
 
 def test_the_package_has_no_import_cycle():
@@ -117,29 +129,29 @@ def test_the_package_has_no_import_cycle():
 def test_nothing_below_the_command_line_imports_it():
     graph = import_graph()
     offenders = sorted(m for m, deps in graph.items()
-                       if m.startswith(BELOW_CLI) and any(d == "service.cli" for d in deps))
+                       if m.startswith(BELOW_CLI) and any(d == "noiselab.cli" for d in deps))
     assert offenders == [], offenders
 
 
 def test_the_recordings_sit_below_the_analysis_and_the_nodes():
     """Reading, writing and salvaging recordings and turning one into a series
-    (``service.recordings``, in the wire contract ``service.wire``) import neither the analysis,
+    (``noiselab.recordings``, in the wire contract ``noiselab.wire``) import neither the analysis,
     the diagnosis, a node, a command nor the CLI: those take a series, never a file."""
     graph = import_graph()
-    lower = sorted(m for m in graph if m == "service.wire" or m.startswith("service.recordings."))
-    assert "service.recordings.reader" in lower and "service.wire" in graph["service.recordings.reader"]
+    lower = sorted(m for m in graph if m == "noiselab.wire" or m.startswith("noiselab.recordings."))
+    assert "noiselab.recordings.reader" in lower and "noiselab.wire" in graph["noiselab.recordings.reader"]
     offenders = sorted((m, d) for m in lower for d in graph[m] if d.startswith(ABOVE_RECORDINGS))
     assert offenders == [], offenders
 
 
 def test_the_command_line_builds_its_parser_without_the_heavy_libraries():
     """``noiselab --help`` and the parsing of any command's flags: the CLI and every command
-    module (``service.commands``, registered at parser-build time) import what a command needs
+    module (``noiselab.commands``, registered at parser-build time) import what a command needs
     when it runs, so reading the flags loads none of the numeric, transport, file-format or
     plotting libraries."""
     code = ("import json, sys\n"
-            "import service.cli\n"
-            "service.cli.build_parser()\n"
+            "import noiselab.cli\n"
+            "noiselab.cli.build_parser()\n"
             f"heavy = {HEAVY!r}\n"
             "print(json.dumps(sorted({m.split('.')[0] for m in sys.modules} & set(heavy))))\n")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120,
@@ -156,7 +168,7 @@ def test_help_prints_without_the_heavy_libraries():
             "atexit.register(lambda: sys.stderr.write('LOADED ' + json.dumps(sorted({m.split('.')[0] for m in "
             "sys.modules} & set(heavy))) + '\\n'))\n"
             "sys.argv = ['noiselab', '--help']\n"
-            "from service.cli import main\n"
+            "from noiselab.cli import main\n"
             "sys.exit(main())\n")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120,
                        check=False)

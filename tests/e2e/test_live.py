@@ -38,14 +38,14 @@ from helpers.live import (CONTROLLER, DATA_KINDS, EMULATE_MARK, ROOT, ROUTER_MAR
                           waited_for_subscribers)
 from helpers.models import LOOP_TOML
 from helpers.processes import Child
-from service.model import load_model
-from service.nodes import transport
-from service import wire
-from service.recordings.reader import read_recording
-from service.recordings.writer import RecordingWriter
-from service.nodes.recorder import Ingest
-from service.nodes.recorder_summary import TopicBook
-from service.nodes.runner import READY_MARK, free_port
+from noiselab.model import load_model
+from noiselab.nodes import transport
+from noiselab import wire
+from noiselab.recordings.reader import read_recording
+from noiselab.recordings.writer import RecordingWriter
+from noiselab.nodes.recorder import Ingest
+from noiselab.nodes.recorder_summary import TopicBook
+from noiselab.nodes.runner import READY_MARK, free_port
 
 pytestmark = pytest.mark.slow   # live end-to-end runs: real processes and sessions
 
@@ -78,11 +78,11 @@ def separate_recording(fast_model_file, tmp_path_factory):
     port = free_port()
     children = []
     try:
-        rec = Child([sys.executable, "-m", "service.cli", "record", "--listen", ep(port), "--out", str(out),
+        rec = Child([sys.executable, "-m", "noiselab.cli", "record", "--listen", ep(port), "--out", str(out),
                      "--json"], "record")
         children.append(rec)
         rec.wait_line(READY_MARK)
-        emu = Child([sys.executable, "-m", "service.cli", "emulate", str(fast_model_file), "--duration", "5",
+        emu = Child([sys.executable, "-m", "noiselab.cli", "emulate", str(fast_model_file), "--duration", "5",
                      "--seed", str(SEED_FAST), "--connect", ep(port), "--wait-subscribers", "10", "--json"],
                     "emulate")
         children.append(emu)
@@ -102,7 +102,7 @@ def test_run_records_5000_consecutive_messages_equal_to_the_batch_simulation(fas
                                                                                tmp_path):
     """`noiselab run` at Ts = 1 ms for 5 s: 5,000 consecutive messages per topic, payloads equal
     to simulate(5000, seed) and to the step API; its --json summary says so too."""
-    r = subprocess.run([sys.executable, "-m", "service.cli", "run", str(fast_model_file), "--duration", "5",
+    r = subprocess.run([sys.executable, "-m", "noiselab.cli", "run", str(fast_model_file), "--duration", "5",
                         "--seed", str(SEED_FAST), "--out", str(tmp_path / "rec"), "--json"],
                        capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert r.returncode == 0, r.stderr
@@ -166,7 +166,7 @@ def test_replay_paced_and_prefixed(spawn, tmp_path):
     before the replay was started (CLOCK_MONOTONIC is the machine's, shared by both processes), and
     the arrivals spread over less than real time; --prefix P publishes under P/noiselab/...,
     nothing under noiselab/... ."""
-    from service.recordings.simulated import write_simulation
+    from noiselab.recordings.simulated import write_simulation
 
     f = tmp_path / "paced.toml"
     f.write_text(model_text("paced", 0.04))
@@ -245,8 +245,8 @@ def test_replay_puts_say_their_encoding_and_the_replays_own_start(separate_recor
     no start. A ROS bag's messages, republished as JSON, say application/json;<ROS type>; a foreign
     MCAP channel says its message encoding and schema (JSON), or Zenoh's default for an encoding
     Zenoh has no name for; none of these carries a start."""
-    from service.nodes.replay import run_replay
-    from service.recordings.simulated import write_simulation
+    from noiselab.nodes.replay import run_replay
+    from noiselab.recordings.simulated import write_simulation
 
     path, _, emu = separate_recording
     bag = tmp_path / "bag"
@@ -591,7 +591,7 @@ def test_sigkilled_recorder_is_recovered_up_to_what_it_had_written(fast_model_fi
     broken_rec = read_recording(broken)
     assert broken_rec.complete is False and "incomplete" in broken_rec.note
     fixed = tmp_path / "fixed.mcap"
-    r = subprocess.run([sys.executable, "-m", "service.cli", "recover", str(broken), "-o", str(fixed), "--json"],
+    r = subprocess.run([sys.executable, "-m", "noiselab.cli", "recover", str(broken), "-o", str(fixed), "--json"],
                        capture_output=True, text=True, cwd=ROOT, timeout=60)
     assert r.returncode == 0, r.stderr
     rep = json.loads(r.stdout)
@@ -762,7 +762,7 @@ def test_recorder_starts_each_topic_where_its_stream_has_no_hole(tmp_path):
 def test_rust_log_goes_to_stderr_and_json_stays_clean():
     """RUST_LOG turns on Zenoh's own log: on stderr; stdout keeps only the --json summary."""
     port = free_port()
-    r = subprocess.run([sys.executable, "-m", "service.cli", "emulate", "seed", "--duration", "0.1", "--listen",
+    r = subprocess.run([sys.executable, "-m", "noiselab.cli", "emulate", "seed", "--duration", "0.1", "--listen",
                         ep(port), "--json"], capture_output=True, text=True, timeout=60,
                        env=dict(os.environ, RUST_LOG="info"))
     assert r.returncode == 0, r.stderr
@@ -977,7 +977,7 @@ def test_bad_input_is_one_line_exit_2(case, tmp_path):
         args = ["emulate", "seed", "--config", str(tmp_path / "missing.json5"), "--duration", "1"]
         expect = "missing.json5: no such file"
     try:
-        r = subprocess.run([sys.executable, "-m", "service.cli", *args], capture_output=True, text=True,
+        r = subprocess.run([sys.executable, "-m", "noiselab.cli", *args], capture_output=True, text=True,
                            cwd=ROOT, timeout=60)
     finally:
         if held is not None:

@@ -1,4 +1,4 @@
-"""Progress on stderr (service.progress) for the commands that run for tens of seconds: shown at a
+"""Progress on stderr (noiselab.progress) for the commands that run for tens of seconds: shown at a
 terminal, never on stdout, never with --json, never when stderr is not a terminal unless
 --progress forces it.
 
@@ -23,10 +23,10 @@ from pathlib import Path
 
 import pytest
 
-from service import parallel
-from service.model import load_model
-from service.progress import Progress, Steps, wanted
-from service.recordings.simulated import write_simulation
+from noiselab import parallel
+from noiselab.model import load_model
+from noiselab.progress import Progress, Steps, wanted
+from noiselab.recordings.simulated import write_simulation
 
 ROOT = Path(__file__).resolve().parents[2]
 T_RUN = 300                  # an upper bound on a command's run: a test never passes on it
@@ -41,7 +41,7 @@ def recording(tmp_path_factory) -> Path:
 
 
 def run_on_pty(args: list[str], cols: int | None = 120) -> tuple[int, str, str]:
-    """``python -m service.cli ARGS`` with stderr on a pseudo-terminal (``cols`` x 40, or left
+    """``python -m noiselab.cli ARGS`` with stderr on a pseudo-terminal (``cols`` x 40, or left
     unsized: 0 x 0) and stdout on a pipe: (exit code, stdout, what the terminal received)."""
     master, slave = pty.openpty()
     if cols is not None:
@@ -60,7 +60,7 @@ def run_on_pty(args: list[str], cols: int | None = 120) -> tuple[int, str, str]:
 
     reader = threading.Thread(target=drain)
     try:
-        proc = subprocess.Popen([sys.executable, "-m", "service.cli", *args], stdout=subprocess.PIPE,
+        proc = subprocess.Popen([sys.executable, "-m", "noiselab.cli", *args], stdout=subprocess.PIPE,
                                 stderr=slave, stdin=subprocess.DEVNULL, cwd=ROOT)
     finally:
         os.close(slave)
@@ -84,7 +84,7 @@ def os_thread_count() -> int:
 
 def run_on_pipe(args: list[str]) -> subprocess.CompletedProcess:
     """The command with stdout and stderr on pipes (text: a bar's carriage returns read as newlines)."""
-    return subprocess.run([sys.executable, "-m", "service.cli", *args], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "noiselab.cli", *args], capture_output=True, text=True,
                           cwd=ROOT, timeout=T_RUN, check=False)
 
 

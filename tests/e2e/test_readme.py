@@ -94,7 +94,7 @@ def test_three_terminal_example(default_endpoint, scratch):
     assert [ln.split()[1] for ln in lines] == ["record", "emulate", "replay"]
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     (scratch / "recordings").mkdir()
-    rec = subprocess.Popen([sys.executable, "-m", "service.cli", *lines[0].split()[1:]], cwd=scratch, env=env,
+    rec = subprocess.Popen([sys.executable, "-m", "noiselab.cli", *lines[0].split()[1:]], cwd=scratch, env=env,
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         res = run_noiselab(lines[1], scratch)

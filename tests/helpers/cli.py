@@ -6,7 +6,7 @@ from __future__ import annotations
 def cli_in_process(capsys, *argv) -> tuple[int, str, str]:
     """``noiselab ARGV`` in this process: (exit code, stdout, stderr). argparse's own errors exit
     through SystemExit; anything else raised is a traceback and fails the test."""
-    from service.cli import main
+    from noiselab.cli import main
     try:
         rc = main([str(a) for a in argv])
     except SystemExit as exc:

@@ -15,10 +15,10 @@ import numpy as np
 import zenoh
 from helpers.processes import Child
 
-from service import wire
-from service.recordings.errors import NotMcapError
-from service.recordings.reader import read_recording
-from service.recordings.scan import iter_messages
+from noiselab import wire
+from noiselab.recordings.errors import NotMcapError
+from noiselab.recordings.reader import read_recording
+from noiselab.recordings.scan import iter_messages
 
 ROOT = Path(__file__).resolve().parents[2]
 SEED_TOML = (ROOT / "service" / "scenarios" / "seed.toml").read_text()

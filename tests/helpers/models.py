@@ -1,7 +1,7 @@
 """Model files shared by tests in several folders (the statistical tests, the live runs, the
 analysis and the diagnosis)."""
 
-from service.model import parse_model
+from noiselab.model import parse_model
 
 # Closed loop: the seed plant (m = 1.2 kg, c = 0.35 N s/m, k = 4 N/m), zoh, commands from Zenoh,
 # modest noise: force noise of continuous two-sided intensity 1e-4 N^2/Hz, 2 mm white sensor

@@ -1,4 +1,4 @@
-"""A child process of the live tests (``python -m service.cli ...`` or a helper script) with its
+"""A child process of the live tests (``python -m noiselab.cli ...`` or a helper script) with its
 stdout and stderr lines collected by threads, so a test waits for a line (an event) instead of
 sleeping. The ``spawn`` fixture (tests/conftest.py) starts them and kills them at teardown."""
 

@@ -27,10 +27,10 @@ def main_command_steps() -> list[str]:
 
 
 def run_noiselab(cmd: str, cwd: Path):
-    """A README line ``noiselab ...`` run as ``python -m service.cli ...`` in ``cwd``, its words
+    """A README line ``noiselab ...`` run as ``python -m noiselab.cli ...`` in ``cwd``, its words
     split as a POSIX shell splits them (quotes keep a field path's ``*`` from the shell's glob)."""
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    return subprocess.run([sys.executable, "-m", "service.cli", *shlex.split(cmd)[1:]], cwd=cwd, env=env,
+    return subprocess.run([sys.executable, "-m", "noiselab.cli", *shlex.split(cmd)[1:]], cwd=cwd, env=env,
                           capture_output=True, text=True, timeout=900)
 
 

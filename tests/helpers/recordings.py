@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 from mcap.writer import Writer
 
-from service import wire
-from service.recordings.writer import RecordingWriter
+from noiselab import wire
+from noiselab.recordings.writer import RecordingWriter
 
 Ts = 0.01       # s, the sample period of write_sample's and raw_file's streams
 DIMS = {"truth": 2, "command": 1, "measurement": 2}     # write_sample's vector sizes per kind

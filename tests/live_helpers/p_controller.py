@@ -25,8 +25,8 @@ import signal
 import sys
 import threading
 
-from service import wire
-from service.nodes import transport
+from noiselab import wire
+from noiselab.nodes import transport
 
 READY = "p_controller: ready"
 

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from service import wire
-from service.cli import main
-from service.model import load_model
-from service.recordings.reader import read_recording
+from noiselab import wire
+from noiselab.cli import main
+from noiselab.model import load_model
+from noiselab.recordings.reader import read_recording
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -48,8 +48,8 @@ def test_predict_modifiers_report_the_change_they_cause(capsys):
     f = ROOT / "service" / "scenarios" / "seed-nominal.toml"
     text = f.read_text() + "\n[actuator.lag]\ntau_s = 0.5\n"
     mdl = load_model("seed-nominal")
-    from service.commands.predict import predict_report
-    from service.model import parse_model
+    from noiselab.commands.predict import predict_report
+    from noiselab.model import parse_model
     rep = predict_report(parse_model(text, "lagged"))
     base = mdl.predictor().steady_state().var_y[0]
     assert rep["modifiers"]["actuator.lag"][0] == pytest.approx(rep["var_y"][0] - base, rel=1e-9)
@@ -95,11 +95,11 @@ def test_simulate_refuses_existing_and_shows_progress(tmp_path):
     out = tmp_path / "x.mcap"
     out.write_bytes(b"precious")
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    res = subprocess.run([sys.executable, "-m", "service.cli", "simulate", "seed", "--duration", "2",
+    res = subprocess.run([sys.executable, "-m", "noiselab.cli", "simulate", "seed", "--duration", "2",
                           "--out", str(out)], capture_output=True, text=True, env=env)
     assert res.returncode == 2 and out.read_bytes() == b"precious"
     assert res.stderr.count("\n") == 1 and "exists" in res.stderr
-    res = subprocess.run([sys.executable, "-m", "service.cli", "simulate", "seed", "--duration", "2",
+    res = subprocess.run([sys.executable, "-m", "noiselab.cli", "simulate", "seed", "--duration", "2",
                           "--out", str(out), "--force", "--progress"], capture_output=True, text=True, env=env)
     assert res.returncode == 0, res.stderr
     assert "100%" in res.stderr and "200/200" in res.stderr and "samples/s" in res.stderr

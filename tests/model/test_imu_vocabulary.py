@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 from ruamel.yaml import YAML
 
-from service.cli import main
-from service.commands.export import yaml_float
-from service.model import load_model, parse_model
-from service.model.coefficients import model_coefficients, white_density
-from service.model.effects import CATALOGUE
-from service.model.errors import ModelError
+from noiselab.cli import main
+from noiselab.commands.export import yaml_float
+from noiselab.model import load_model, parse_model
+from noiselab.model.coefficients import model_coefficients, white_density
+from noiselab.model.effects import CATALOGUE
+from noiselab.model.errors import ModelError
 
 TS = 0.005
 
@@ -109,7 +109,7 @@ def test_coefficients_follow_the_closed_forms():
 def test_white_coefficient_is_the_allan_deviation_at_one_second():
     """N is where the white noise's Allan deviation, N / sqrt(tau), crosses tau = 1 s (IEEE 952):
     checked on a simulated record against the overlapping ADEV, within its estimator's spread."""
-    from service.stats.allan import oadev
+    from noiselab.stats.allan import oadev
     d = 2.0e-3
     m = parse_model(sensor_model(f"[sensor.white]\ndensity = {d}\n"), "w")
     y = m.simulate(200_000, seed=11).y.reshape(-1)

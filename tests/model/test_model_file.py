@@ -21,9 +21,9 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from service.model import ModelError, dumps_toml, load_model, parse_model, scenario_names
-from service.model.effects import CATALOGUE
-from service.model.model import scenario_text
+from noiselab.model import ModelError, dumps_toml, load_model, parse_model, scenario_names
+from noiselab.model.effects import CATALOGUE
+from noiselab.model.model import scenario_text
 
 SEED = scenario_text("seed")
 
@@ -555,7 +555,7 @@ def test_garbled_model_file_gives_model_or_one_line_error(text):
 
 # -- 3. the CLI -------------------------------------------------------------------------------------------
 def _cli(args, cwd):
-    return subprocess.Popen([sys.executable, "-m", "service.cli", *args], cwd=cwd, text=True,
+    return subprocess.Popen([sys.executable, "-m", "noiselab.cli", *args], cwd=cwd, text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
 
 
@@ -571,13 +571,13 @@ def _assert_bad_input(result, *parts):
 
 
 def test_cli_has_a_module_entry_point():
-    """`python -m service.cli` runs the command line, and a usage error a node raises (imported from
-    service.cli, not __main__) is still a one-line error with exit 2 (it was a traceback)."""
+    """`python -m noiselab.cli` runs the command line, and a usage error a node raises (imported from
+    noiselab.cli, not __main__) is still a one-line error with exit 2 (it was a traceback)."""
     from pathlib import Path
     root = Path(__file__).resolve().parents[2]
-    ok = subprocess.run([sys.executable, "-m", "service.cli", "--version"], capture_output=True, text=True, cwd=root)
+    ok = subprocess.run([sys.executable, "-m", "noiselab.cli", "--version"], capture_output=True, text=True, cwd=root)
     assert ok.returncode == 0 and ok.stdout.startswith("noiselab "), (ok.returncode, ok.stdout, ok.stderr)
-    bad = subprocess.run([sys.executable, "-m", "service.cli", "analyze", "--live", "some.mcap", "--model", "seed"],
+    bad = subprocess.run([sys.executable, "-m", "noiselab.cli", "analyze", "--live", "some.mcap", "--model", "seed"],
                          capture_output=True, text=True, cwd=root)
     assert bad.returncode == 2 and bad.stderr.strip() == "noiselab: --live analyses a Zenoh stream: give no RECORDING", \
         (bad.returncode, bad.stderr[-2000:])
@@ -758,7 +758,7 @@ def test_two_outputs_linear_plant_variances_are_per_output():
 
 def test_scenario_files_are_in_the_package():
     """Addressable by name needs the files shipped with the package (pyproject package-data)."""
-    import service.scenarios as pkg
+    import noiselab.scenarios as pkg
     from pathlib import Path
     here = {p.stem for p in Path(pkg.__file__).parent.glob("*.toml")}
     assert {"seed", "seed-nominal"} <= here == set(scenario_names())

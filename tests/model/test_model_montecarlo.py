@@ -12,7 +12,7 @@ import pytest
 from scipy import stats
 
 from helpers.models import ALL_LINEAR, EVERYTHING, load
-from service.model import load_model
+from noiselab.model import load_model
 
 ALPHA = 1e-3
 
@@ -288,7 +288,7 @@ def test_a_damped_cosine_fit_that_stalled_scipys_nnls_still_holds_the_variance(m
     Checked as scipy runs it here, and with nnls made to fail always (the fallback alone, whatever
     a later scipy does on this problem)."""
     import scipy.optimize
-    from service.model.spectra import _damped_cosines
+    from noiselab.model.spectra import _damped_cosines
 
     path = Path(__file__).resolve().parents[1] / "data" / "distortion_acf_nnls_maxiter.txt"
     h = np.loadtxt(path)

@@ -10,7 +10,7 @@ import pytest
 from scipy.linalg import solve_discrete_lyapunov
 
 import seed_reference as ref
-from service.model import load_model
+from noiselab.model import load_model
 
 N = 6000
 

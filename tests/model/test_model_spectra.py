@@ -1,7 +1,7 @@
 """Long simulations against the predicted PSD, ACF and Allan deviation, one effect at a time
 (issue 2). The data are the residual r = y - (predicted mean response to the command).
 
-PSD: scipy-backed Welch (service.stats.welch, Hann, 50 % overlap) against the model's expected
+PSD: scipy-backed Welch (noiselab.stats.welch, Hann, 50 % overlap) against the model's expected
 Welch estimate (Predictor.expected_welch: the prediction seen through the same window). Each bin
 is ~ E chi2(nu)/nu with nu the estimator's equivalent dof; every other bin is used (Hann bins two
 apart are nearly uncorrelated) and the number outside the two-sided 99.9 % interval must not
@@ -15,7 +15,7 @@ import pytest
 from scipy import stats
 
 from helpers.models import ALL_LINEAR, load
-from service.stats import acf, oadev, welch
+from noiselab.stats import acf, oadev, welch
 
 BASE = """
 name = "one"

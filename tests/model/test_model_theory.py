@@ -7,9 +7,9 @@ from scipy import stats
 from scipy.integrate import quad_vec
 from scipy.linalg import expm
 
-from service.model import discretize, parse_model
-from service.model.linearize import gauss_pwl
-from service.model.spectra import allan_from_variogram
+from noiselab.model import discretize, parse_model
+from noiselab.model.linearize import gauss_pwl
+from noiselab.model.spectra import allan_from_variogram
 
 
 def model(body: str, Ts=0.01, disc="zoh", plant="m = 1.0\nc = 0.4\nk = 2.0"):
@@ -153,7 +153,7 @@ def test_quantization_error_autocovariance_monte_carlo(sigma_over_step, rho, mot
     sample, whose error with a small dither is a sawtooth). The error e_k = Q(x_k) - x_k is
     correlated at short lags (0.5 to 0.9 at lag 1 here); every lag up to 60 must be within 5
     standard errors (Bartlett's, from the predicted autocovariance) of the prediction."""
-    from service.model.effects.sensor_quantization import quantization_acf
+    from noiselab.model.effects.sensor_quantization import quantization_acf
 
     step, n, L = 0.1, 200_000, 61
     rng = np.random.default_rng(7)
@@ -236,7 +236,7 @@ def test_quantizer_conditional_moments_closed_form_and_monte_carlo(sigma_over_st
     sin(2 pi m mu / Delta) exp(-2 pi^2 m^2 s^2 / Delta^2)), and the mean variance of the error and
     Stein's h = E[e'(x)] (Cov(n, e) = s^2 h) against 400 000 draws at each of 6 means, within 5
     standard errors of the draws."""
-    from service.model.effects.sensor_quantization import _level_sums, conditional_moments
+    from noiselab.model.effects.sensor_quantization import _level_sums, conditional_moments
 
     D, s = 0.1, sigma_over_step * 0.1
     mu = np.array([0.013, 0.037, 0.05 - 1e-4, 0.277, -0.121, 0.5])
@@ -270,7 +270,7 @@ def test_quantizer_conditional_moments_closed_form_and_monte_carlo(sigma_over_st
 def test_quantizer_conditional_moments_limits():
     """No noise: the mean is the rounding itself; noise above 0.84 step: the uniform model (no mean,
     Delta^2 / 12, h = 0), the output marked inactive."""
-    from service.model.effects.sensor_quantization import conditional_moments
+    from noiselab.model.effects.sensor_quantization import conditional_moments
 
     D = 0.5
     mu = np.array([[0.1], [0.37], [1.2]])
@@ -291,7 +291,7 @@ def test_quantizer_covariance_about_its_conditional_mean_monte_carlo():
     quantizer holds the measurement while mu sits near a level."""
     from scipy.signal import lfilter
 
-    from service.model.effects.sensor_quantization import conditional_moments, quantization_acf
+    from noiselab.model.effects.sensor_quantization import conditional_moments, quantization_acf
 
     step, n, L, rho = 0.1, 200_000, 21, 0.9
     sigma = 0.1 * step
@@ -441,9 +441,9 @@ def test_a_steady_state_that_shares_its_mean_response_equals_one_computed_alone(
     shared mean equals one computed with the share emptied, whether the change is in a noise or a
     jitter (shared), a mean effect or the command (not shared: their means differ). A shared mean's
     arrays are read-only; one over the share's size bound is not kept."""
-    from service.model import load_model
-    from service.model import predict as P
-    from service.model.model import dumps_toml
+    from noiselab.model import load_model
+    from noiselab.model import predict as P
+    from noiselab.model.model import dumps_toml
     seed = load_model("seed")
     louder = seed.to_dict()
     louder["command"]["amplitude"] = 2.0
@@ -513,7 +513,7 @@ def test_a_horizon_longer_than_the_samples_held_averages_over_all_of_it(extra, m
     rounding differs, which the plant's slow pole (|lambda| = 1 - 2.9e-6 per sample) carries over
     ~1 / (1 - |lambda|) = 3.4e5 samples: ~3e5 * 1e-16 ~ 4e-11 per step's error, ~1e-9 accumulated.
     rtol 1e-6 is far below any change of the averaging window (percent for a partial period)."""
-    from service.model import predict
+    from noiselab.model import predict
 
     Ts = 2e-5
     text = SLOW_SINE.format(jitter=Ts / 4) + extra
@@ -547,7 +547,7 @@ def test_the_horizon_averages_take_the_memory_of_one_block(monkeypatch):
     variance is still the whole horizon's."""
     import tracemalloc
 
-    from service.model import predict
+    from noiselab.model import predict
 
     Ts = 2e-5
     mdl = model(SLOW_SINE.format(jitter=Ts / 4), Ts=Ts, plant="m = 1.2\nc = 0.35\nk = 4.0")

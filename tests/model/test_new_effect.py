@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.diagnose.compare import cache_clear, compare
-from service.model import parse_model
-from service.model.effects import CATALOGUE
-from service.model.effects.base import Effect
-from service.model.schema import nonnegative
+from noiselab.diagnose.compare import cache_clear, compare
+from noiselab.model import parse_model
+from noiselab.model.effects import CATALOGUE
+from noiselab.model.effects.base import Effect
+from noiselab.model.schema import nonnegative
 
 
 class SensorFloor(Effect):

@@ -17,7 +17,7 @@ from helpers.cli import cli_in_process as cli
 from helpers.live import check_recording
 from helpers.recordings import write_record
 
-from service.model import ModelError, parse_model
+from noiselab.model import ModelError, parse_model
 
 GYRO = """name = "gyro"
 [sampling]
@@ -153,7 +153,7 @@ def test_predict_json_of_a_gyro_at_rest(tmp_path, capsys):
 def test_spectra_of_a_gyro_at_rest_are_the_closed_forms():
     """One-sided PSD of white noise 2 Ts std^2; ACF std^2 at lag 0, 0 beyond; Allan variance of
     white std^2 / m and of the walk (increment variance q = K^2 Ts) q (2 m^2 + 1) / (6 m) (the
-    sampled forms, module docstring of service.model.spectra)."""
+    sampled forms, module docstring of noiselab.model.spectra)."""
     m = parse_model(GYRO_WALK)
     pr = m.predictor()
     Ts = m.Ts

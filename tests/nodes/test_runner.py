@@ -1,6 +1,6 @@
 """`noiselab run`'s pipeline when the port a node was given is taken before it binds it.
 
-:func:`service.nodes.runner.free_port` learns a free port by binding and closing it; another
+:func:`noiselab.nodes.runner.free_port` learns a free port by binding and closing it; another
 process on the machine may take the port before the recorder or the live analyzer binds it (seen
 under a loaded parallel test run). The node then exits saying the address is in use, and the run
 starts it again on a new port instead of failing.
@@ -12,8 +12,8 @@ import socket
 
 import pytest
 
-from service.nodes import runner
-from service.recordings.load import load_noiselab
+from noiselab.nodes import runner
+from noiselab.recordings.load import load_noiselab
 
 GYRO = """
 name = "taken"

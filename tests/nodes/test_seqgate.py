@@ -6,7 +6,7 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from service.nodes.seqgate import HOLD, SeqGate
+from noiselab.nodes.seqgate import HOLD, SeqGate
 
 
 def offers(gate, messages):

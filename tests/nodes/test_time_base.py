@@ -20,12 +20,12 @@ import zenoh
 from mcap.records import Message, Metadata
 from mcap.stream_reader import StreamReader
 
-from service.model import parse_model
-from service.nodes import emulator
-from service import wire
-from service.recordings.writer import RecordingWriter
-from service.nodes.recorder import Ingest
-from service.nodes.runner import free_port
+from noiselab.model import parse_model
+from noiselab.nodes import emulator
+from noiselab import wire
+from noiselab.recordings.writer import RecordingWriter
+from noiselab.nodes.recorder import Ingest
+from noiselab.nodes.runner import free_port
 
 T_EVENT = 30.0
 TOML = """

@@ -8,8 +8,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from service import wire
-from service.wire import WireError
+from noiselab import wire
+from noiselab.wire import WireError
 
 from helpers.models import LOOP_TOML
 
@@ -592,11 +592,11 @@ def test_one_magnitude_bound_from_the_wire_to_the_analysis(tmp_path):
     (accepted, it drove the plant to y ~ 4e55, a recording the loader refuses); a plant driven
     by the largest control the wire accepts, for one sample, gives a recording the loader
     analyses."""
-    from service import bounds
-    from service.model import parse_model, schema
-    from service.recordings import load
-    from service.recordings.series import MAGNITUDE_MAX as SERIES_MAX
-    from service.recordings.writer import RecordingWriter
+    from noiselab import bounds
+    from noiselab.model import parse_model, schema
+    from noiselab.recordings import load
+    from noiselab.recordings.series import MAGNITUDE_MAX as SERIES_MAX
+    from noiselab.recordings.writer import RecordingWriter
 
     assert wire.MAGNITUDE_MAX is bounds.MAGNITUDE_MAX is schema.MAGNITUDE_MAX is SERIES_MAX
     with pytest.raises(WireError, match="exceeds 1e\\+50"):

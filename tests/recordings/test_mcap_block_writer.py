@@ -1,7 +1,7 @@
 """The recordings' block writer writes the file mcap's own Writer writes, byte for byte.
 
 ``RecordingWriter`` builds a whole block's Message and MessageIndex records at once
-(``service.recordings.blockwriter.BlockWriter``) instead of calling ``mcap.writer.Writer.add_message`` per message. These
+(``noiselab.recordings.blockwriter.BlockWriter``) instead of calling ``mcap.writer.Writer.add_message`` per message. These
 tests hold it to the reference: the same calls (schemas, channels, metadata, flushes, messages
 with extreme times and sequences, empty payloads) through both writers give identical bytes, for
 every compression and for chunk sizes from one byte (a chunk per message) to more than the file;
@@ -20,13 +20,13 @@ from mcap.records import Message
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
-from service import wire
-from service.model.model import load_model
-from service.recordings.blockwriter import BlockWriter
-from service.recordings.mcapformat import COMPRESSIONS, DEFAULT_COMPRESSION
-from service.recordings.reader import read_recording
-from service.recordings.simulated import write_simulation
-from service.recordings.writer import RecordingWriter, library_id
+from noiselab import wire
+from noiselab.model.model import load_model
+from noiselab.recordings.blockwriter import BlockWriter
+from noiselab.recordings.mcapformat import COMPRESSIONS, DEFAULT_COMPRESSION
+from noiselab.recordings.reader import read_recording
+from noiselab.recordings.simulated import write_simulation
+from noiselab.recordings.writer import RecordingWriter, library_id
 
 CT = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 

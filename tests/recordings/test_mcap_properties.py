@@ -19,16 +19,16 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from mcap.writer import CompressionType, Writer
 
-from service import wire
-from service.recordings.errors import McapIoError, NotMcapError
-from service.recordings.load import load_noiselab
-from service.recordings.mcapformat import MAGIC
-from service.recordings.merge import iter_time_ordered
-from service.recordings.reader import read_recording
-from service.recordings.recording import Recording
-from service.recordings.salvage import RecoverStats, recover
-from service.recordings.scan import ScanReport, iter_messages
-from service.recordings.writer import RecordingWriter
+from noiselab import wire
+from noiselab.recordings.errors import McapIoError, NotMcapError
+from noiselab.recordings.load import load_noiselab
+from noiselab.recordings.mcapformat import MAGIC
+from noiselab.recordings.merge import iter_time_ordered
+from noiselab.recordings.reader import read_recording
+from noiselab.recordings.recording import Recording
+from noiselab.recordings.salvage import RecoverStats, recover
+from noiselab.recordings.scan import ScanReport, iter_messages
+from noiselab.recordings.writer import RecordingWriter
 
 SETTINGS = settings(max_examples=60, deadline=None, derandomize=True,
                     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])

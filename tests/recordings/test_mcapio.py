@@ -21,8 +21,8 @@ from mcap.records import Chunk, Message
 from mcap.stream_reader import breakup_chunk
 from mcap.writer import Writer
 
-from service import wire
-from service.recordings.errors import (
+from noiselab import wire
+from noiselab.recordings.errors import (
     CorruptRecordingError,
     McapIoError,
     McapWriteError,
@@ -30,15 +30,15 @@ from service.recordings.errors import (
     RecordingExistsError,
     SeriesError,
 )
-from service.recordings.load import load_noiselab
-from service.recordings.mcapformat import COMPRESSIONS
-from service.recordings.merge import iter_time_ordered
-from service.recordings.output import PARTIAL_SUFFIX
-from service.recordings.reader import read_recording
-from service.recordings.recording import gaps
-from service.recordings.salvage import recover
-from service.recordings.scan import ScanReport, iter_messages
-from service.recordings.writer import RecordingWriter
+from noiselab.recordings.load import load_noiselab
+from noiselab.recordings.mcapformat import COMPRESSIONS
+from noiselab.recordings.merge import iter_time_ordered
+from noiselab.recordings.output import PARTIAL_SUFFIX
+from noiselab.recordings.reader import read_recording
+from noiselab.recordings.recording import gaps
+from noiselab.recordings.salvage import recover
+from noiselab.recordings.scan import ScanReport, iter_messages
+from noiselab.recordings.writer import RecordingWriter
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -262,9 +262,9 @@ def test_write_errors_of_a_regular_file_keep_the_old_file_and_what_was_written(t
     old = path.read_bytes()
     script = textwrap.dedent(f"""
         import resource, signal, sys
-        from service import wire
-        from service.recordings.errors import McapIoError
-        from service.recordings.writer import RecordingWriter
+        from noiselab import wire
+        from noiselab.recordings.errors import McapIoError
+        from noiselab.recordings.writer import RecordingWriter
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)     # EFBIG instead of the signal
         resource.setrlimit(resource.RLIMIT_FSIZE, (20000, 20000))
         try:
@@ -299,9 +299,9 @@ def test_a_write_error_at_the_close_keeps_what_was_flushed(tmp_path):
     path = tmp_path / "run.mcap"
     script = textwrap.dedent(f"""
         import os, resource, signal, sys
-        from service import wire
-        from service.recordings.errors import McapWriteError
-        from service.recordings.writer import RecordingWriter
+        from noiselab import wire
+        from noiselab.recordings.errors import McapWriteError
+        from noiselab.recordings.writer import RecordingWriter
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
         w = RecordingWriter({str(path)!r}, chunk_size=1 << 20)
         for k in range(110):                  # the last chunk and the summary wait in the file's buffer
@@ -351,8 +351,8 @@ def test_killed_forced_writer_leaves_the_old_file_and_a_recoverable_partial(tmp_
     script = textwrap.dedent(f"""
         import os, signal
         import numpy as np
-        from service import wire
-        from service.recordings.writer import RecordingWriter
+        from noiselab import wire
+        from noiselab.recordings.writer import RecordingWriter
         w = RecordingWriter({str(path)!r}, force=True, chunk_size=1 << 20)
         print(getattr(w, "writing_path", None), flush=True)
         t, pub = wire.sample_times(0, 65, 0.01)
@@ -469,7 +469,7 @@ def test_a_seq_that_comes_twice_with_different_data_is_an_error(tmp_path, capsys
     msg = str(e.value)
     assert msg.startswith(f"{path}: topic 'noiselab/dev/measurement': seq 40 comes twice with different data")
     assert "1 more" in msg and "\n" not in msg
-    from service.cli import main
+    from noiselab.cli import main
     assert main(["analyze", str(path), "--model", "seed"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "seq 40 comes twice" in err
@@ -599,8 +599,8 @@ def test_analyze_takes_each_run_of_a_lossy_restart_with_segment(tmp_path, capsys
     """noiselab analyze of a recording whose source restarted and lost the first 5 samples of its
     second run: each run is a stream segment, analysed as the same run recorded alone would be
     (--segment 1, 2; by default the longer one), and the note names the restart."""
-    from service.cli import main
-    from service.model import load_model
+    from noiselab.cli import main
+    from noiselab.model import load_model
 
     seed = load_model("seed")
     runs = [(3, 1500, 0), (4, 3000, 5)]
@@ -629,7 +629,7 @@ def test_analyze_takes_each_run_of_a_lossy_restart_with_segment(tmp_path, capsys
 
 
 def test_without_a_command_topic_the_assumed_command_is_named(tmp_path):
-    from service.model import load_model
+    from noiselab.model import load_model
 
     seed = load_model("seed")
     bare = tmp_path / "bare.mcap"
@@ -640,7 +640,7 @@ def test_without_a_command_topic_the_assumed_command_is_named(tmp_path):
                          "offset": 0.0, "phase_rad": 0.0}
     assert ("no command topic in the recording: the analysis assumes the model's own command ([command] "
             "kind = 'sine', amplitude = 0.8, frequency_hz = 0.7, offset = 0.0, phase_rad = 0.0)") in s.notes
-    from service.recordings.load import load_foreign
+    from noiselab.recordings.load import load_foreign
     s = load_foreign(str(bare), "noiselab/dev/measurement:y[0]", None, seed.Ts, model=seed)   # a foreign file
     assert s.u is None and s.command["source"] == "model" and any("assumes the model's own" in n for n in s.notes)
     full = tmp_path / "full.mcap"
@@ -653,7 +653,7 @@ def test_without_a_command_topic_the_assumed_command_is_named(tmp_path):
 def test_replay_topics_of_an_unfinished_file_do_not_depend_on_its_payloads(tmp_path):
     """replay republishes messages as recorded: the topics of a cut file whose measurements a
     reader refuses (a bad payload, a seq twice with different data) are still listed."""
-    from service.nodes.replay import replay_topics
+    from noiselab.nodes.replay import replay_topics
 
     full = tmp_path / "full.mcap"
     with RecordingWriter(full, chunk_size=1 << 20, compression="none") as w:
@@ -858,7 +858,7 @@ def test_analyze_of_a_cut_file_without_a_measurement_names_recover(tmp_path, cap
     (start, end, msgs, comp, rec_ends), = top_level_chunks(full)
     path = tmp_path / "cut.mcap"
     path.write_bytes(full.read_bytes()[:rec_ends[1]])          # the first truth and command messages
-    from service.cli import main
+    from noiselab.cli import main
     assert main(["analyze", str(path), "--model", "seed"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "incomplete MCAP" in err and "read 2 intact messages" in err
@@ -915,8 +915,8 @@ def test_killed_writer_process_keeps_what_was_flushed(tmp_path):
     script = textwrap.dedent(f"""
         import os, signal, sys
         import numpy as np
-        from service import wire
-        from service.recordings.writer import RecordingWriter
+        from noiselab import wire
+        from noiselab.recordings.writer import RecordingWriter
         w = RecordingWriter({str(path)!r}, chunk_size=1 << 20)
         t, pub = wire.sample_times(0, 65, 0.01)
         y = np.arange(65.0).reshape(65, 1)

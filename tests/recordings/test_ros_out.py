@@ -1,5 +1,5 @@
-"""`simulate`'s output: the rosbag2 bag (service.recordings.rosbag_out) and the wall-clock anchor of both
-formats (service.recordings.simulated). Real files: written, then read back with rosbags and mcap."""
+"""`simulate`'s output: the rosbag2 bag (noiselab.recordings.rosbag_out) and the wall-clock anchor of both
+formats (noiselab.recordings.simulated). Real files: written, then read back with rosbags and mcap."""
 
 from __future__ import annotations
 
@@ -16,11 +16,11 @@ from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 from ruamel.yaml import YAML
 
-from service import wire
-from service.errors import BadInput
-from service.model import load_model, parse_model
-from service.recordings import rosbag_out
-from service.recordings.simulated import write_simulation
+from noiselab import wire
+from noiselab.errors import BadInput
+from noiselab.model import load_model, parse_model
+from noiselab.recordings import rosbag_out
+from noiselab.recordings.simulated import write_simulation
 
 STORE = get_typestore(Stores.ROS2_JAZZY)
 START = 1_700_000_000_123_456_789           # a wall-clock anchor, ns since the Unix epoch
@@ -371,7 +371,7 @@ def test_sensor_only_imu_has_no_truth_topic(tmp_path):
 def test_noiselab_reads_its_own_bag_back(tmp_path):
     """What `simulate --format ros2` writes, `analyze`/`diagnose` read back: the IMU's six axes bit
     for bit, the time from header.stamp (s from the first sample)."""
-    from service.recordings.load import load_recording
+    from noiselab.recordings.load import load_recording
 
     model = parse_model(IMU, "imu6.toml")
     n = 3000

@@ -1,6 +1,6 @@
 """ROS bags in: rosbag2 (MCAP and SQLite3 storage, a bag directory, a split bag, one storage file)
 and ROS 1 bags, written here with rosbags' own writers, read by ``analyze``, ``diagnose``, the
-loader (``service.recordings.load``) and ``replay``.
+loader (``noiselab.recordings.load``) and ``replay``.
 
 What is checked: field paths (``a.b``, ``[i]``, a final ``.*``, comma lists), time (header.stamp
 in exact integer ns by default, ``--time`` on a Time or a numeric field, the log time without a
@@ -29,10 +29,10 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from ruamel.yaml import YAML
 
-from service.cli import main
-from service.nodes.replay import replay_topics, run_replay
-from service.nodes.runner import free_port
-from service.recordings import load, rosbag_in, series
+from noiselab.cli import main
+from noiselab.nodes.replay import replay_topics, run_replay
+from noiselab.nodes.runner import free_port
+from noiselab.recordings import load, rosbag_in, series
 
 TS_NS = 10_000_000                              # 100 Hz
 START_NS = 1_700_000_000_123_456_789            # an epoch stamp whose last digits float64 ns cannot hold

@@ -3,7 +3,7 @@ recordings written by ``noiselab simulate`` (and a foreign JSON MCAP of real OCX
 
 Tolerances of the readings come from the estimator: each reading's interval is one sigma
 (conf 0.683) of the fitted line's offset, bounded as for fully correlated octaves
-(:func:`service.stats.ieee952.ieee952_readings`), so a right value lies within 3 of those sigmas.
+(:func:`noiselab.stats.ieee952.ieee952_readings`), so a right value lies within 3 of those sigmas.
 """
 
 from __future__ import annotations
@@ -18,10 +18,10 @@ from helpers.allan_reference import BOUNDS_RTOL, half_unit, ocxo_y, read_stable3
 from helpers.cli import assert_bad, cli_in_process
 from helpers.recordings import raw_json_mcap
 
-from service.cli import main
-from service.recordings.load import load_noiselab
-from service.stats import StatsError
-from service.stats.allan import oadev, oadev_from_phase
+from noiselab.cli import main
+from noiselab.recordings.load import load_noiselab
+from noiselab.stats import StatsError
+from noiselab.stats.allan import oadev, oadev_from_phase
 
 TS = 0.01
 N_WHITE = 2e-3          # rad/s/sqrt(Hz): sensor.white std = N / sqrt(Ts) = 0.02 rad/s
@@ -148,7 +148,7 @@ def test_csv_and_png_need_force_to_overwrite(recordings, capsys, tmp_path):
 def test_png_shows_the_lines(recordings, capsys, tmp_path):
     """The figure is drawn from the report: one panel, the band, the data, the model and the
     lines read (legend entries name N and K with their values)."""
-    from viewers.allan_png import allan_figure
+    from noiselab.viewers.allan_png import allan_figure
 
     rec, model = recordings["walk"]
     code, out, err = run(capsys, rec, "--model", model, "--json")
@@ -304,9 +304,9 @@ def test_a_moving_mean_is_noted(tmp_path, capsys):
 def test_ros2_bag(tmp_path, capsys):
     """A rosbag2 bag of sensor_msgs/Imu (the emulator's own ROS 2 writer), read through the one
     loader: the bag directory, the six axes by two '.*' paths, time from header.stamp."""
-    from service.model import load_model
-    from service.recordings import rosbag_in
-    from service.recordings.simulated import write_simulation
+    from noiselab.model import load_model
+    from noiselab.recordings import rosbag_in
+    from noiselab.recordings.simulated import write_simulation
 
     bag = tmp_path / "imu_bag"
     write_simulation(load_model("imu-nominal"), 20_000, 5, bag, fmt="ros2")

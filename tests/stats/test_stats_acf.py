@@ -1,4 +1,4 @@
-"""Sample ACF (service.stats.acf): FFT equals the direct sum; Bartlett bands hold for AR(1).
+"""Sample ACF (noiselab.stats.acf): FFT equals the direct sum; Bartlett bands hold for AR(1).
 
 References: Brockwell & Davis, Time Series: Theory and Methods (1991), eq. (7.2.5) and
 example 7.2.3 (AR(1): w_kk = (1 + phi^2)(1 - phi^(2k))/(1 - phi^2) - 2 k phi^(2k)).
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy import signal, stats
 
-from service.stats import StatsError, acf, bartlett_se
+from noiselab.stats import StatsError, acf, bartlett_se
 
 
 def direct_autocovariance(x: np.ndarray, maxlag: int, demean: bool) -> np.ndarray:

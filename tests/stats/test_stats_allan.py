@@ -1,4 +1,4 @@
-"""Allan-family deviations (service.stats.allan) against published values and a peer.
+"""Allan-family deviations (noiselab.stats.allan) against published values and a peer.
 
 Sources, each kept next to its numbers:
 - NBS14 9-point frequency / 10-point phase set and the 1000-point set: NIST SP 1065 (W. J.
@@ -20,7 +20,7 @@ import pytest
 from helpers.allan_reference import BOUNDS_RTOL, half_unit, ocxo_frequency, ocxo_y, read_stable32
 from scipy import stats
 
-from service.stats import (
+from noiselab.stats import (
     StatsError,
     adev,
     chi2_bounds,

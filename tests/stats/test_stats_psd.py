@@ -1,4 +1,4 @@
-"""Welch PSD (service.stats.psd): levels, degrees of freedom, intervals, integral.
+"""Welch PSD (noiselab.stats.psd): levels, degrees of freedom, intervals, integral.
 
 Tolerances come from the estimator's own distribution: psd * dof / G ~ chi2(dof) per bin
 (Percival & Walden 1993, eq. (292b)); counts of bins outside a band are binomial when the bins
@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from scipy import signal, stats
 
-from service.stats import StatsError, psd_band, psd_log_bins, welch
+from noiselab.stats import StatsError, psd_band, psd_log_bins, welch
 
 
 def binomial_region(n: int, p: float, level: float = 0.999) -> tuple[float, float]:

@@ -1,4 +1,4 @@
-"""Rolling variance (service.stats.rolling): the streaming form (live analysis node) equals the
+"""Rolling variance (noiselab.stats.rolling): the streaming form (live analysis node) equals the
 batch form (offline analysis) on the same data, and both equal the definition."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.stats import RollingVariance, StatsError, rolling_variance
+from noiselab.stats import RollingVariance, StatsError, rolling_variance
 
 
 def reference(x: np.ndarray, window: int, ddof: int) -> np.ndarray:

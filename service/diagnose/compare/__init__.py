@@ -16,10 +16,10 @@ mean removal are inside the predictions instead of being excluded:
   E[r(d)] = (1/M) [(M - d)(-gamma(d) - G) + sum_{n<M-d} (g(n) + g(n+d))], g(a) = (1/M) sum_m
   gamma(|a - m|), G = mean(g).
 * ``psd``: Welch (Hann, 50 % overlap, segment mean removed, one-sided, every bin doubled as
-  :func:`service.stats.welch`), averaged in log bands (frequency bands); per bin
+  :func:`noiselab.stats.welch`), averaged in log bands (frequency bands); per bin
   E|X_j|^2 = -sum_{n,m} h_n conj(h_m) gamma(|n-m|), h_n = w_n e^{-i w_j n} - W_j / L.
 * ``allan``: overlapping Allan deviation at octave taus (taus), the exact discrete Allan variance
-  of the model (:func:`service.model.spectra.allan_from_variogram`), its bounds from the
+  of the model (:func:`noiselab.model.spectra.allan_from_variogram`), its bounds from the
   estimator's equivalent degrees of freedom (Greenhall).
 
 Standardized deviations z (E[z^2] = 1 when the model is right):
@@ -44,11 +44,11 @@ modulation (:func:`.modulation.modulation_kappa`; the variance view predicts eac
 
 The error of an effect acting after the sum (a quantizer) is correlated when the signal crosses
 few steps per sample; how much depends on the other sources and on the mean response's increments
-over the record (:func:`.cache.quantization_gamma`, :mod:`service.model.effects.sensor_quantization`).
+over the record (:func:`.cache.quantization_gamma`, :mod:`noiselab.model.effects.sensor_quantization`).
 
 One module per concept: :mod:`.run` (compare(): settings, the record's predictions, the views run),
 :mod:`.views` (the five views), :mod:`.spread` (each estimator's spread under the model; the
-expectations are :mod:`service.model.expected`'s), :mod:`.modulation` (a noise whose variance
+expectations are :mod:`noiselab.model.expected`'s), :mod:`.modulation` (a noise whose variance
 changes over the record), :mod:`.summary` (the model error, the regions) and :mod:`.cache` (the
 predictions kept per model).
 """

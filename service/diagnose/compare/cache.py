@@ -2,12 +2,12 @@
 
 Predictions depend on the model and the estimator sizes only, never on the data (except where a
 quantizer's correlated error makes them depend on the record's mean response, whose hash is then
-in the key): they are kept in one bounded :class:`service.memo.Memo` so that a live analyzer, which
+in the key): they are kept in one bounded :class:`noiselab.memo.Memo` so that a live analyzer, which
 recomputes its views at 2 Hz on a window that fills up and then keeps its size, pays for them once
 per model revision. The memo is least-recently-used (a live analyzer's cache must keep the views
 it reads at every update however early they were put), bounded in count and in the bytes of the
 arrays its values hold (dicts, lists and tuples of arrays, counted through), and keyed by the
-model's content (:meth:`service.model.model.Model.cache_key`). Cached arrays are read-only: every
+model's content (:meth:`noiselab.model.model.Model.cache_key`). Cached arrays are read-only: every
 comparison that uses them shares them.
 """
 
@@ -64,7 +64,7 @@ def _cached(model, what: str, key, compute):
 
 
 def predictor_of(model):
-    """The model's :class:`~service.model.predict.Predictor`, one per model (its steady state and
+    """The model's :class:`~noiselab.model.predict.Predictor`, one per model (its steady state and
     linear system are computed once, not at every comparison)."""
     return _cached(model, "predictor", None, model.predictor)
 
@@ -109,7 +109,7 @@ def record_hash(a: np.ndarray) -> str:
 def quantization_gamma(model, gam: dict, mean_y: np.ndarray, k0: int, jkey=None, h: str | None = None):
     """The variogram (L, p) over this record of the effect acting after the sum (a quantizer,
     :meth:`Predictor.after_sum`), and its part's lag 0 (p,): its error is correlated when the signal
-    moves by less than a step between samples (:mod:`service.model.effects.sensor_quantization`),
+    moves by less than a step between samples (:mod:`noiselab.model.effects.sensor_quantization`),
     and its conditional mean (in the mean response: :func:`quantizer_moments`) and variance depend
     on where the signal sits between the steps, so it depends on the record's own mean response
     (``mean_y`` from sample ``k0``), cached by it."""

@@ -1,7 +1,7 @@
 """Noises whose local variance is modulated over a record, and the estimators' spreads under it.
 
 A white noise whose variance follows the signal's slope (the ``("jitter", s2)`` primitive of
-:mod:`service.model.effects.base`: variance s2 ydot_k^2) is predicted as white noise of its mean
+:mod:`noiselab.model.effects.base`: variance s2 ydot_k^2) is predicted as white noise of its mean
 variance, right on average; the estimators' spreads depend on how that variance is spread over
 the record (:func:`modulation_kappa`). A quantizer's variance follows where the mean sits between
 its levels the same way (``qmod`` of the views).

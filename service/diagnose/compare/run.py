@@ -1,5 +1,5 @@
 """compare(): a recording against a model, the views computed (in threads on long records) and
-summed up in a :class:`.results.Comparison` (formulas in :mod:`service.diagnose.compare`)."""
+summed up in a :class:`.results.Comparison` (formulas in :mod:`noiselab.diagnose.compare`)."""
 
 from __future__ import annotations
 
@@ -97,7 +97,7 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
     one (:attr:`Model.predicts_level`: not a sensor-only model's): add the level view.
     ``free_start``: the record does not start at rest (cut mid-stream, or the longest run after a
     gap); under a command, the mean state after the burn is fitted
-    (:func:`service.model.mean_response.free_response_fit`).
+    (:func:`noiselab.model.mean_response.free_response_fit`).
     """
     y, t = check_samples(model, t, y, u)
     pr = predictor_of(model)

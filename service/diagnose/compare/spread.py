@@ -1,6 +1,6 @@
 """The spread of each estimator of the comparison under the model (Gaussian), from the variogram.
 
-The views' expectations are :mod:`service.model.expected`'s (one place for every estimator's
+The views' expectations are :mod:`noiselab.model.expected`'s (one place for every estimator's
 expected value); here are their sampling distributions: the variance of a window's sample
 variance (:func:`windowed_variance_var`) and its kurtosis (:func:`window_kurtosis`), the
 covariance between windows (:func:`_window_covariances`), the equivalent dof of the overlapping
@@ -224,7 +224,7 @@ def psd_band_dof_factor(gam_total: np.ndarray, gam_lines: np.ndarray | None, L: 
                         window: str = "hann") -> np.ndarray:
     """Factor on each band's equivalent dof of the Welch mean under the model's spectrum S.
 
-    The flat dof nu_flat (:func:`service.stats.psd._average_groups`) holds for a spectrum flat
+    The flat dof nu_flat (:func:`noiselab.stats.psd._average_groups`) holds for a spectrum flat
     across the band's spectral window W_b (the mean over the band's bins of the segment window's
     |H(f - f_j)|^2). A resonance narrower than a bin (half-power width 2 zeta f_n < 1 / (L Ts)) is
     not flat there: its correlation time is longer than a segment, the segments and bins are not

@@ -1,6 +1,6 @@
 """The comparison's five views of a residual against the model: each its estimate on the record,
-the expectation of that very estimator under the model (:mod:`service.model.expected`), its spread
-(:mod:`.spread`), standardized deviations z and the view's error (formulas in :mod:`service.diagnose.compare`).
+the expectation of that very estimator under the model (:mod:`noiselab.model.expected`), its spread
+(:mod:`.spread`), standardized deviations z and the view's error (formulas in :mod:`noiselab.diagnose.compare`).
 
 ``variance`` (time windows), ``level`` (the windows' means, for a record from rest), ``acf``
 (lags), ``psd`` (log frequency bands) and ``allan`` (octave taus). ``mod`` (:class:`.modulation.LocalVariance`):

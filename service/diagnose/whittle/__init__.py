@@ -48,7 +48,7 @@ Why this form:
   bias walk's likelihood-ratio score had 4x its model spread).
 
 Every autocovariance is a sum of exponentials: with F = V diag(lambda) V^-1 (the augmented
-dynamics of :class:`service.model.predict.LinearSystem`), R(h) = Re sum_i c_i lambda_i^(h-1) for
+dynamics of :class:`noiselab.model.predict.LinearSystem`), R(h) = Re sum_i c_i lambda_i^(h-1) for
 h >= 1 (Percival & Walden 1993 ch. 9 for AR forms), computed in blocks up to where it has decayed
 below 1e-13 of its start. Defective F (e.g. a critically damped plant) falls back to repeated
 products of F.

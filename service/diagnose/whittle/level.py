@@ -13,7 +13,7 @@ def level_density(model, N: int, slope_sq: np.ndarray | None = None, at_rest: bo
 
     C: the covariance of the stationary parts' mean over the record, (1/N) [R(0) + sum_{h=1}^{N-1}
     (1 - h/N) (R(h) + R(h)^T)], with R(h) = H F^(h-1) (F P H^T + Gamma J^T) for h >= 1 (the
-    augmented system of :meth:`service.model.predict.Predictor.linear_system`, P its stationary
+    augmented system of :meth:`noiselab.model.predict.Predictor.linear_system`, P its stationary
     state covariance) summed in closed form: sum (1 - h/N) F^(h-1) = A1 - A2 / N, A1 = (I - F^(N-1))
     (I - F)^-1, A2 = (I - N F^(N-1) + (N-1) F^N) (I - F)^-2. ``at_rest``: every state starts at 0,
     Cov(s_k, s_l) = [stationary] - F^k P F^T^l, so the mean's covariance loses (1/N^2) v P v^T,

@@ -35,7 +35,7 @@ def acf_part(R: np.ndarray, M: int, groups: Groups | None = None, cross: bool = 
     over a nonstationary record (the quantizer's error follows the mean response), so its transform
     is floored at 0 where the averaging leaves it slightly negative; ``floor=False`` keeps a part
     negative by design (a quantizer that holds the measurement cancels part of the noise's own
-    spectrum: Stein's term, :func:`service.model.effects.sensor_quantization.quantization_acf`)."""
+    spectrum: Stein's term, :func:`noiselab.model.effects.sensor_quantization.quantization_acf`)."""
     R = np.asarray(R, float)
     K, p = R.shape
     Rp = np.concatenate([R, np.zeros((2, p))])
@@ -81,7 +81,7 @@ def linear_part(F, G, H, J, Pe, M: int, k0: int, at_rest: bool, groups: Groups |
     """E I_f (nf, p) of one source of the augmented linear system (see the module docstring);
     ``groups``: their means (nb, p); ``cross``: the expected cross-periodogram matrices (nf or nb,
     p, p), complex Hermitian (Cov(d_{q+h}, d_q) for every pair of outputs). ``De``: (I - F) P, given
-    for a plant that integrates (:func:`service.model.lyapunov.lyap_leaky`): every term is then
+    for a plant that integrates (:func:`noiselab.model.lyapunov.lyap_leaky`): every term is then
     formed from it, without the cancellation between lags at the walk's scale."""
     p = H.shape[0]
     n = F.shape[0]

@@ -59,7 +59,7 @@ Prediction hooks that say how an effect takes part (class attributes and methods
   for this model (``avg``: the horizon averages of the mean response, ``others_var``: the variance
   the other effects add), or None.
 
-Diagnosis hooks (how the effect is found and fitted from a residual, :mod:`service.diagnose`).
+Diagnosis hooks (how the effect is found and fitted from a residual, :mod:`noiselab.diagnose`).
 The diagnosis never names an effect: it asks these, and each default contributes nothing.
 
 * ``fit``: a :class:`FitSpec`: which parameter scales the noise variance, which are searched and
@@ -96,7 +96,7 @@ The diagnosis never names an effect: it asks these, and each default contributes
 * ``explain(params, Ts)``: one sentence of evidence in physical terms; ``equivalents(params, Ts)``:
   the same fit in the file's other spellings, e.g. ``rho`` for ``tau_s``, for users' scripts.
 
-:func:`service.model.effects.of_kind` finds the effect of a kind among a model's.
+:func:`noiselab.model.effects.of_kind` finds the effect of a kind among a model's.
 
 Spelling hooks: a parameter the file may give in another spelling (``sensor.white``'s ``density``
 for its ``std``) is held in ``params`` under the catalogue's name, which the simulation, the
@@ -105,7 +105,7 @@ predictions and the diagnosis read; ``param_dict()`` writes it back as the file 
 spelling, so a fitted model keeps the user's words.
 
 IMU vocabulary: ``coefficients()`` gives the effect's IEEE Std 952 coefficients (N, K, B, ...) as
-:class:`Coefficient` values per output (default: none); :mod:`service.model.coefficients` collects
+:class:`Coefficient` values per output (default: none); :mod:`noiselab.model.coefficients` collects
 them for a model without naming any effect. A bias-instability effect (a flicker floor) would give
 ``B`` through the same hook.
 """
@@ -123,7 +123,7 @@ from ..schema import Table
 
 @dataclass(frozen=True)
 class FitSpec:
-    """How the diagnosis fits an effect (see :mod:`service.diagnose.search`).
+    """How the diagnosis fits an effect (see :mod:`noiselab.diagnose.search`).
 
     kind: ``noise`` (a source whose variance scales with ``scale``^2, fitted by the spectral
     likelihood), ``mean`` (changes the mean response to the command), ``grid`` (quantization: values

@@ -257,7 +257,7 @@ def quantization_acf(step, gamma: np.ndarray, motion: np.ndarray | None = None,
     docstring). ``step`` (p,); ``gamma`` (L, p) the variogram E[(x_{k+d} - x_k)^2] / 2 of the random
     part of the signal before the quantizer (everything else in the model); ``motion`` (n, p) its
     deterministic part over the record (None: none). Lags d >= n of the motion have no pairs in the
-    record and are set to 0 (no estimator uses them). ``cache``: a :class:`service.memo.Memo` for
+    record and are set to 0 (no estimator uses them). ``cache``: a :class:`noiselab.memo.Memo` for
     the motion's factors C_m(d), keyed by output, term and step: one per motion, the caller's to
     keep apart (the diagnosis varies the noise, not the motion; its threads share it).
 
