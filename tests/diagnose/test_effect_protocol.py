@@ -152,19 +152,21 @@ def _docstrings(tree) -> set[int]:
     return out
 
 
-def test_generic_diagnosis_modules_name_no_effect():
-    """No string in the code of service/diagnose (docstrings aside) is an effect id: the diagnosis
-    asks the effects' hooks (compare.py is the views' module, kept apart)."""
+def test_generic_code_names_no_effect():
+    """No string in the code of the package outside the effects' own modules (docstrings aside)
+    is an effect id: the simulation, the prediction, the comparison, the diagnosis and the viewers
+    ask the effects' hooks (service/model/effects/base.py)."""
     found = []
-    for path in sorted((ROOT / "service" / "diagnose").glob("*.py")):
-        if path.name == "compare.py":
+    effects = ROOT / "service" / "model" / "effects"
+    for path in sorted([*(ROOT / "service").rglob("*.py"), *(ROOT / "viewers").rglob("*.py")]):
+        if effects in path.parents:
             continue
         tree = ast.parse(path.read_text())
         docs = _docstrings(tree)
         for node in ast.walk(tree):
             if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docs \
                     and (ID.fullmatch(node.value) or node.value in CATALOGUE):
-                found.append(f"{path.name}:{node.lineno}: {node.value!r}")
+                found.append(f"{path.relative_to(ROOT)}:{node.lineno}: {node.value!r}")
     assert not found, found
 
 
