@@ -113,8 +113,7 @@ class Evaluator:
         d = self.data
         pr = model.predictor()
         # white noises bound the variogram at lags >= 1 from below: often white already. Decided from
-        # the parameters alone, before any steady state: on the 10^6-sample seed record 1,516 calls
-        # all ended here, and the Lyapunov solutions they did first cost 4.4 s of CPU
+        # the parameters alone, before any steady state (a Lyapunov solution per call otherwise)
         qid = of_kind(model.effects, "grid")
         white = sum((np.broadcast_to(prm[0], (d.p,)) for eid, kind, *prm in pr._primitives()
                      if kind == "white" and eid != qid), np.zeros(d.p))
@@ -155,7 +154,7 @@ class Evaluator:
 
     def slope_power(self, model, ydot: np.ndarray) -> np.ndarray:
         """:func:`.whittle.slope_power` of the model's mean slope ``ydot``, cached by its mean response
-        (an O(N) pass per evaluation cost 4 s of a 10^6-sample diagnosis)."""
+        (it is an O(N) pass, and the evaluations of one diagnosis share few mean responses)."""
         return self._slope.get_or_compute(_mean_key(model), lambda: W.slope_power(ydot[self.data.k0:], self.data.p > 1))
 
     def grouped_periodogram(self, model, free_tone: bool):

@@ -23,10 +23,9 @@ class Modulation:
     ``base`` (M, p), optional: the part of E[z_q] the model already predicts to change with the
     slope (a quantizer's error decorrelates between samples as the signal moves through the steps,
     :meth:`.hypotheses.Hypotheses._quant_slope`: for small slopes it grows as ydot^2 too, and a coarse
-    quantizer's own modulation was read as a jitter: coarse case 23, a jitter of 0.7 ms added, +529
-    in log-likelihood, model error 12). It is subtracted from z_q before the regression: known
-    from the model, it leaves the jitter's slope its whole information (a free coefficient for it,
-    tried first, absorbed a real jitter of 1.5 ms in 2 of 3 records)."""
+    quantizer's own modulation would be read as a jitter). It is subtracted from z_q before the regression: known
+    from the model, it leaves the jitter's slope its whole information (a free coefficient for it
+    would absorb part of a real jitter)."""
 
     def __init__(self, d: np.ndarray, ydot: np.ndarray, k0: int, unit: float, base: np.ndarray | None = None):
         z = d**2                                                    # (M, p)

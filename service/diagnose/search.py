@@ -323,8 +323,7 @@ class Search:
         (:meth:`.evaluator.Evaluator.parts`' cache, of the whole record and of the screened prefix) come back
         to this process, so that the next map's fits find them. The joint refits of a step's
         leaders share every correlation time of their coarse grids, and later steps' refits the
-        same again: serially the second and third leader's refit took 0.8 s after the first's
-        3.2 s (10^6 samples), forked each took 4.5 s, the child's parts lost with it."""
+        same again: without this, each forked refit recomputes what an earlier one already had."""
         caches = [ev._parts for ev in {id(h.ev): h.ev for h in (self.H, self.Hs)}.values()]
 
         def mark():
