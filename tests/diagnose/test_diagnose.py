@@ -782,7 +782,7 @@ def test_a_mean_candidate_is_searched_beside_the_fitted_mean_effects_before_they
     S = Search(nominal, Data(rec.y, rec.u, nominal.Ts, True))
     H = S.H
     lag = H.fit(nominal.with_effect("actuator.lag", {"tau_s": 0.01}), {"actuator.lag": ["tau_s"]}, new=("actuator.lag",))
-    st = S._noise_or_mean(lag, "sensor.scale_factor", "add")[0]
+    st = S._noise_or_mean(lag, "sensor.scale_factor", ADD)[0]
     assert st.model.effects["sensor.scale_factor"].param_dict()["error"] == pytest.approx(0.25)
     fit = H.fit(st.model, st.free, new=("sensor.scale_factor", "actuator.lag"),
                 only=("sensor.scale_factor", "actuator.lag"))
