@@ -94,17 +94,21 @@ def test_psd_of_the_sum_is_1_over_f_within_the_stated_db(ts, band):
     assert np.max(np.abs(err[mid])) < 0.06
 
 
-def test_allan_deviation_is_flat_at_0664_B_over_the_band():
+@pytest.mark.parametrize("ts,band", [(0.01, (0.01, None)), (0.01, None), (1.0, (1e-4, 0.1)), (0.005, (0.05, 20.0))])
+def test_allan_deviation_is_flat_at_0664_B_over_the_band(ts, band):
     B = 0.002
-    m = parse_model(gyro(f"B = {B}\nf_lo_hz = 0.01", ts=0.01))
+    body = f"B = {B}" + ("" if band is None else f"\nf_lo_hz = {band[0]}") + \
+        ("" if band is None or band[1] is None else f"\nf_hi_hz = {band[1]}")
+    m = parse_model(gyro(body, ts))
     e = m.effects[ID]
     taus = np.geomspace(3 / e.f_hi, 0.1 / e.f_lo, 25)
-    mm = np.unique(np.round(taus / 0.01).astype(int))
+    mm = np.unique(np.round(taus / ts).astype(int))
     adev = np.sqrt(m.predictor().allan(mm)[ID][:, 0])
     np.testing.assert_allclose(adev / (FLOOR * B), 1.0, atol=0.03)
-    # and it leaves the floor beyond the band: white-like (falling) far above 1/f_lo
-    far = np.sqrt(m.predictor().allan(np.array([int(5 / e.f_lo / 0.01)]))[ID][0, 0])
-    assert far < 0.8 * FLOOR * B
+    if band == (0.01, None):
+        # and it leaves the floor beyond the band: white-like (falling) far above 1/f_lo
+        far = np.sqrt(m.predictor().allan(np.array([int(5 / e.f_lo / ts)]))[ID][0, 0])
+        assert far < 0.8 * FLOOR * B
 
 
 def test_simulation_starts_stationary_as_the_covariance_recursion_says():
