@@ -52,7 +52,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from ..schema import nonnegative
-from .base import Coefficient, Effect, _g
+from .base import Coefficient, Effect, FitSpec, _g
 
 PER_DECADE = 3            # correlation times per decade of the sum
 LO_MARGIN = 1.0           # decades of correlation times beyond 1 / (2 pi f_lo)
@@ -83,6 +83,9 @@ class SensorBiasInstability(Effect):
     chain_order = 8.5          # beside the other biases: added before the white noise and the quantizer
     draw_order = 7             # after every existing source: a model without it draws as before
     summary = "flicker (1/f) sensor bias (bias instability B)"
+    # the diagnosis fits B alone: its variance is B^2 times a fixed shape (the sum's PSD over the
+    # default band); one B per output, and a slow sensor drift, as the walk and the Gauss-Markov bias
+    fit = FitSpec("noise", scale="B")
     channels = "output"
     drift = "sensor"
 
