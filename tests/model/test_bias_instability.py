@@ -60,8 +60,10 @@ def test_parsing_defaults_and_per_output_values():
     band = parse_model(gyro("B = 0.002\nf_lo_hz = 0.01\nf_hi_hz = 2.0")).effects[ID]
     assert band.param_dict() == {"B": 0.002, "f_lo_hz": 0.01, "f_hi_hz": 2.0}
     assert band.taus[0] < 1 / (2 * np.pi * 2.0) and band.taus[-1] > 1 / (2 * np.pi * 0.01)
-    # a model that does not name it draws and predicts as before: it is no candidate of the diagnosis
-    assert CATALOGUE[ID].fit.kind == "none"
+    # a diagnosis candidate: B scales a noise of fixed shape, one per output, a slow sensor drift
+    cls = CATALOGUE[ID]
+    assert (cls.fit.kind, cls.fit.scale, cls.fit.shape) == ("noise", "B", ())
+    assert (cls.channels, cls.drift) == ("output", "sensor")
 
 
 @pytest.mark.parametrize("body,parts", [
