@@ -359,9 +359,10 @@ class Predictor(MeanResponses, Linearization, Spectra):
 
     # -- covariance recursion (seed section 4) -----------------------------------------------------------
     def covariance(self, n: int, command: np.ndarray | None = None) -> Covariance:
-        """P_k and S_y,k for k = 0..n-1 from P_0 = 0 (all noise states start at zero, as in the
-        simulation); S_y,k includes R_b,k = R_b,0 + k Q_b, the white primitives and the jitter's
-        signal-dependent variance std_s^2 E[ydot_k^2]."""
+        """P_k and S_y,k for k = 0..n-1 from P_0 = 0 (the noise states start at zero, as in the
+        simulation, but a sensor source's that start in its steady state: its ``initial_cov()``);
+        S_y,k includes R_b,k = R_b,0 + k Q_b, the white primitives and the jitter's signal-dependent
+        variance std_s^2 E[ydot_k^2]."""
         mean = self.mean_response(n, command)
         n = mean.t.size
         parts: dict = {}
@@ -370,6 +371,12 @@ class Predictor(MeanResponses, Linearization, Spectra):
         ls = self.linear_system(None if const else mean.gain[0], None if const else dstd[0])
         n_s = ls.F.shape[0]
         Pj = {eid: np.zeros((n_s, n_s)) for eid in ls.owners}
+        s0 = ls.n_x + ls.n_act                  # a sensor source that starts stationary (``initial_cov``)
+        for e in self._sen_lin:
+            k = e.sensor_linear()[0].shape[0]
+            if hasattr(e, "initial_cov"):
+                Pj[e.id][s0:s0 + k, s0:s0 + k] = e.initial_cov()
+            s0 += k
         P_hist = np.zeros((n, n_s, n_s))
         Sy = {eid: np.zeros((n, self.model.p)) for eid in ls.owners}
         ydot_var = np.zeros((n, self.model.p))

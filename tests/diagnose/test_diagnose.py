@@ -689,23 +689,46 @@ def test_a_gauss_markov_bias_beats_a_walk_when_its_likelihood_ratio_test_passes(
     assert "sensor.bias_walk" in [a["effect"] for a in rep["missing"][0]["alternatives"]]
 
 
-def test_a_walk_first_taken_for_a_gauss_markov_bias_is_exchanged_once_it_leads():
+def _quiet_white_and_walk():
+    """bench_noise_density's case O2: a sensor's white noise (N = 0.002 sqrt(s)) and bias walk
+    (K = 0.00346 / sqrt(s)) on a quiet first-order plant, 30 min at 20 ms."""
+    sigma = 0.002 / math.sqrt(0.02)
+    return parse_model("name = \"quiet\"\n[sampling]\nTs = 0.02\n[plant]\nA = [[-1.0]]\nB = [[1.0]]\nC = [[1.0]]\n"
+                       f"L = [[1.0]]\n[command]\nkind = \"none\"\n[process.white]\nstd = {0.05 * sigma!r}\n"
+                       f"[sensor.white]\nstd = {sigma!r}\n[sensor.bias_walk]\nstd = {math.sqrt(3.0) * 0.002!r}\n")
+
+
+def test_a_walk_first_taken_for_a_gauss_markov_bias_is_exchanged_once_it_leads(monkeypatch):
     """A sensor's white noise and bias walk on a quiet plant, both missing (bench_noise_density's
     case O2, seed 502: N = 0.002 sqrt(s), K = 0.00346 / sqrt(s), 30 min at 20 ms). With the white
     noise still missing, a Gauss-Markov bias led step 1; once the white noise was in, its tau ran to
     644 s, a walk in all but name, and the walk led it by 1.7 in the choice units (its extra
     parameter fails the likelihood-ratio test: 2 Delta l = 1.0 < 2.71). The exchange pass kept
     the incumbent within its margin of 2, and the model error stayed at 2.04. Between these two
-    nested drift models the choice units decide, as in a step's ranking."""
-    sigma = 0.002 / math.sqrt(0.02)
-    truth = parse_model("name = \"quiet\"\n[sampling]\nTs = 0.02\n[plant]\nA = [[-1.0]]\nB = [[1.0]]\nC = [[1.0]]\n"
-                        f"L = [[1.0]]\n[command]\nkind = \"none\"\n[process.white]\nstd = {0.05 * sigma!r}\n"
-                        f"[sensor.white]\nstd = {sigma!r}\n[sensor.bias_walk]\nstd = {math.sqrt(3.0) * 0.002!r}\n")
-    rep, logs = _diagnose_hidden(truth, ("sensor.white", "sensor.bias_walk"), 90_000, 502)
+    nested drift models the choice units decide, as in a step's ranking. The exchange is tested
+    among the catalogue's white, walk and Gauss-Markov drifts: with the flicker bias a candidate too,
+    the flicker leads step 1 in the Gauss-Markov's place on this record (the test below)."""
+    monkeypatch.delitem(CATALOGUE, "sensor.bias_instability")
+    rep, logs = _diagnose_hidden(_quiet_white_and_walk(), ("sensor.white", "sensor.bias_walk"), 90_000, 502)
     assert any(x.startswith("exchange: sensor.bias_walk in place of sensor.bias_markov") for x in logs), logs
     got = {m["effect"]: m for m in rep["missing"]}
     assert set(got) == {"sensor.white", "sensor.bias_walk"}
     assert "sensor.bias_markov" in [a["effect"] for a in got["sensor.bias_walk"]["alternatives"]]
+    assert got["sensor.bias_walk"]["params"]["std"] == pytest.approx(math.sqrt(3.0) * 0.002, rel=0.3)
+    assert rep["error_after"] <= 1.5
+
+
+def test_a_flicker_bias_that_led_while_the_white_noise_was_missing_is_dropped():
+    """The same record with the whole catalogue: while the white noise is missing, every slow noise
+    scores far above zero (the residual's white power is taken by whatever noise is tried) and the
+    flicker bias leads step 1; once the white noise and the walk are in, its Delta BIC is below
+    zero and the drop pass removes it. The report is the truth's: the white noise and the walk,
+    the walk's K within 30 % and the model error at most 1.5."""
+    rep, logs = _diagnose_hidden(_quiet_white_and_walk(), ("sensor.white", "sensor.bias_walk"), 90_000, 502)
+    assert any(x.startswith("step 1: add sensor.bias_instability") for x in logs), logs
+    assert any(x.startswith("drop: sensor.bias_instability") for x in logs), logs
+    got = {m["effect"]: m for m in rep["missing"]}
+    assert set(got) == {"sensor.white", "sensor.bias_walk"}
     assert got["sensor.bias_walk"]["params"]["std"] == pytest.approx(math.sqrt(3.0) * 0.002, rel=0.3)
     assert rep["error_after"] <= 1.5
 

@@ -79,6 +79,10 @@ initial_std = [0.01, 0.0]
 std = [0.003, 0.002]
 tau_s = [2.0, 5.0]
 
+[sensor.bias_instability]
+B = [0.002, 0.001]
+f_lo_hz = 0.001
+
 [sensor.white]
 std = [0.01, 0.02]
 
@@ -664,6 +668,8 @@ EFFECT_PARAMS = [
     ("sensor.bias_walk", {"std": [0.002, 0.001], "initial_std": [0.01, 0.0]}),
     ("sensor.bias_markov", {"std": [0.003, 0.002], "tau_s": [2.0, 5.0]}),
     ("sensor.bias_markov", {"std": [0.003, 0.002], "rho": [0.999, 0.9]}),
+    ("sensor.bias_instability", {"B": [0.002, 0.001]}),
+    ("sensor.bias_instability", {"B": 0.002, "f_lo_hz": 0.01, "f_hi_hz": 2.0}),
     ("sensor.white", {"std": [0.01, 0.02]}),
     ("sensor.tone", {"amplitude": [0.005, 0.002], "frequency_hz": [20.0, 12.5]}),
     ("sensor.jitter", {"std_s": 0.0005}),

@@ -7,6 +7,7 @@ from .actuator_saturation import ActuatorSaturation
 from .actuator_white import ActuatorWhite
 from .base import Dims, Effect
 from .process_white import ProcessWhite
+from .sensor_bias_instability import SensorBiasInstability
 from .sensor_bias_markov import SensorBiasMarkov
 from .sensor_bias_walk import SensorBiasWalk
 from .sensor_jitter import SensorJitter
@@ -19,7 +20,7 @@ CATALOGUE: dict[str, type[Effect]] = {
     cls.id: cls
     for cls in sorted(
         [ProcessWhite, ActuatorWhite, ActuatorAR1, ActuatorLag, ActuatorSaturation, ActuatorDeadzone,
-         SensorScaleFactor, SensorBiasWalk, SensorBiasMarkov, SensorWhite, SensorTone, SensorJitter,
+         SensorScaleFactor, SensorBiasWalk, SensorBiasMarkov, SensorBiasInstability, SensorWhite, SensorTone, SensorJitter,
          SensorQuantization],
         key=lambda c: c.chain_order)
 }

@@ -32,7 +32,9 @@ Prediction hooks (implemented by the effects they concern; defaults contribute n
 * ``knots()``: a static actuator nonlinearity as a piecewise-linear map, for Gaussian expectations.
 * ``augment()``: continuous states added to the plant (actuator lag).
 * ``process_factor()``: the per-sample state-noise factor S (x_{k+1} += S e_k).
-* ``sensor_linear()``: a sensor source with states (Gauss-Markov bias): (F, G, H), y += H s.
+* ``sensor_linear()``: a sensor source with states (Gauss-Markov bias): (F, G, H), y += H s;
+  ``initial_cov()``: the covariance of those states at k = 0 where the source starts stationary
+  (a flicker bias), for the covariance recursion (without it they start at zero).
 * ``spectral()``: non-state contributions as primitives: ``("white", var)``, ``("walk", q, var0)``
   (increment variance q per sample, initial variance var0 = Var(b_0)), ``("tone", amplitude,
   frequency_hz)``, ``("jitter", s2)`` (white noise whose variance follows the signal's slope,
