@@ -9,6 +9,7 @@ from .base import Dims, Effect
 from .process_white import ProcessWhite
 from .sensor_bias_markov import SensorBiasMarkov
 from .sensor_bias_walk import SensorBiasWalk
+from .sensor_filter import SensorFilter
 from .sensor_jitter import SensorJitter
 from .sensor_quantization import SensorQuantization
 from .sensor_scale_factor import SensorScaleFactor
@@ -19,8 +20,8 @@ CATALOGUE: dict[str, type[Effect]] = {
     cls.id: cls
     for cls in sorted(
         [ProcessWhite, ActuatorWhite, ActuatorAR1, ActuatorLag, ActuatorSaturation, ActuatorDeadzone,
-         SensorScaleFactor, SensorBiasWalk, SensorBiasMarkov, SensorWhite, SensorTone, SensorJitter,
-         SensorQuantization],
+         SensorScaleFactor, SensorBiasWalk, SensorBiasMarkov, SensorWhite, SensorTone, SensorFilter,
+         SensorJitter, SensorQuantization],
         key=lambda c: c.chain_order)
 }
 
