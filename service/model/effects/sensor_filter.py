@@ -33,6 +33,12 @@ Kinds (each with unit gain at DC, so a bias passes unchanged):
   filter); for white x: Var w = s^2 / N, correlation (N - d) / N for d < N, 0 beyond. Two such
   stages in cascade are the Bartlett (triangular) window of the ADIS16405.
 
+IEEE Std 952 terms are unchanged by the filter: with unit DC gain, the mean of m samples over tau
+= m Ts much longer than the filter's memory has the unfiltered variance, so the Allan deviation's
+-1/2 line (N of ``sensor.white``) and the slower terms (K, the Gauss-Markov's) read the same; the
+filter shows at tau of a few Ts (the Allan deviation below the N / sqrt(tau) line there), in the
+ACF at short lags and in the PSD toward Nyquist.
+
 The filter starts at rest (its state zero at k = 0, as the sources' states do): the first samples
 (N - 1 for ``average``, a few 1 / (1 - a) for the low-passes) have less than the stationary variance.
 
