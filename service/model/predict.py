@@ -381,7 +381,8 @@ class Predictor(MeanResponses, Linearization, Spectra):
 
     # -- primitives (non-state effects) ----------------------------------------------------------------
     def _primitives(self, mean: MeanResponse | None = None, jitter_ydot2: np.ndarray | None = None):
-        """[(effect id, kind, params)] for white / walk / tone / jitter contributions."""
+        """[(effect id, kind, params)] for white / walk / tone / jitter contributions; a walk's
+        params (q, var0, filter): the sensor's own filter it passes through (``output_filter``), or None."""
         out = []
         flt = self._filter
         as_states = {e.id for e in self._filtered_whites()}      # in the augmented system instead
@@ -393,6 +394,10 @@ class Predictor(MeanResponses, Linearization, Spectra):
                     if prim[0] == "tone" and flt is not None and e.chain_order < flt.chain_order:
                         # a sinusoid through H(z): amplitude times |H| at its frequency
                         prim = ("tone", np.asarray(prim[1], float) * flt.gain(prim[2]), prim[2])
+                    if prim[0] == "walk":
+                        # ("walk", q, var0, the filter it passes through or None)
+                        prim = tuple(prim[:3]) + ((flt if flt is not None and e.chain_order < flt.chain_order
+                                                   else None),)
                     out.append((e.id,) + tuple(prim))
         return out
 
@@ -433,8 +438,13 @@ class Predictor(MeanResponses, Linearization, Spectra):
             if kind == "white":
                 parts[eid] = np.broadcast_to(prm[0], (n, self.model.p)).copy()
             elif kind == "walk":
-                q, var0 = prm
-                parts[eid] = var0 + k_idx[:, None] * q       # R_b,k = R_b,0 + k Q_b
+                q, var0, flt = prm
+                if flt is None:
+                    parts[eid] = var0 + k_idx[:, None] * q       # R_b,k = R_b,0 + k Q_b
+                else:
+                    # through the filter from rest: var0 s_k^2 + q sum_(m<k) s_m^2 (:mod:`.effects.sensor_filter`)
+                    s2 = flt.step_response(n) ** 2
+                    parts[eid] = var0 * s2 + q * np.concatenate([np.zeros((1, self.model.p)), np.cumsum(s2, axis=0)[:-1]])
             elif kind == "tone":
                 parts[eid] = np.broadcast_to(prm[0] ** 2 / 2.0, (n, self.model.p)).copy()
             elif kind == "jitter":

@@ -5,7 +5,8 @@ autocorrelation against the closed forms (moving average: (N - d) / N, first ord
 five standard errors of the estimators (Bartlett's formula for the autocorrelation, the Gaussian
 variance of a sample variance); the predicted variance, ACF and PSD against |H(e^{iw})|^2 s^2 2 Ts
 with H from scipy's own design; the step path equal to the batch path; the filter's identity
-(one tap) changes nothing.
+(one tap) changes nothing; a bias walk through each filter kind: its variance from rest and its
+variogram against a Monte Carlo, its PSD and the diagnosis' part against |H|^2 times the walk's.
 """
 
 from __future__ import annotations
@@ -201,3 +202,61 @@ def test_the_cli_predicts_and_analyses_a_filtered_sensor(tmp_path, capsys):
     assert rc == 0, err[-3000:]
     bad = json.loads(out)["error"]
     assert good < 3.0 and bad > 30 * good, (good, bad)
+
+
+WALK = f"""name = "gyro"
+[sampling]
+Ts = {TS}
+[outputs]
+names = ["gyro_x"]
+units = ["rad/s"]
+[sensor.bias_walk]
+std = 0.4
+"""
+
+
+def _walk_model(kind: str, init: str = ""):
+    return parse_model(WALK + init + "[sensor.filter]\n" + KINDS[kind])
+
+
+@pytest.mark.parametrize("kind", list(KINDS))
+def test_a_bias_walk_through_the_filter_matches_a_monte_carlo(kind):
+    """Var w_k from rest (with an initial bias) and the variogram of the filtered walk against
+    4000 independent simulated records (fixed seed), each within five standard errors of its
+    estimator: a Gaussian's sample variance over T records has Var = 2 sigma^4 / T, and so has
+    the mean of (w_(k+d) - w_k)^2 / 2 (a chi-square of one degree scaled by gamma: Var = 2 gamma^2 / T)."""
+    T, n, k0 = 4000, 120, 60
+    m = _walk_model(kind, "initial_std = 0.3\n")
+    y = simulate(m, n, seed=952, trials=T).y[..., 0]             # (T, n)
+    pr = m.predictor()
+    var = pr.covariance(n).parts["sensor.bias_walk"][:, 0]
+    for k in (0, 1, 3, 10, n - 1):
+        got = np.mean(y[:, k] ** 2)
+        assert abs(got - var[k]) < 5 * var[k] * np.sqrt(2.0 / T), (k, got, var[k])
+    gam = pr.variogram(40)["sensor.bias_walk"][:, 0]
+    for d in (1, 2, 3, 5, 39):
+        got = np.mean((y[:, k0 + d] - y[:, k0]) ** 2) / 2
+        assert abs(got - gam[d]) < 5 * gam[d] * np.sqrt(2.0 / T), (d, got, gam[d])
+    # unfiltered, the variogram would be d q / 2: the filter's shows (and the test can tell them apart)
+    q = 0.4**2 * TS
+    assert abs(gam[1] - q / 2) > 10 * gam[1] * np.sqrt(2.0 / T)
+
+
+@pytest.mark.parametrize("kind", list(KINDS))
+def test_a_filtered_walks_psd_and_diagnosis_part_are_the_walks_times_the_filters_gain(kind):
+    pr = _walk_model(kind).predictor()
+    q = 0.4**2 * TS
+    f = np.linspace(0.05, 0.5 / TS - 0.05, 37)
+    h2 = np.abs(_reference_h(kind, f)) ** 2
+    want = h2 * 2 * TS * q / (4 * np.sin(np.pi * f * TS) ** 2)
+    np.testing.assert_allclose(pr.psd(f)[0]["sensor.bias_walk"][:, 0], want, rtol=1e-9)
+    # the diagnosis' differenced record: the walk's increments (white, q) through the filter, so
+    # its expected periodogram is q |H|^2 up to the taper's leakage (small for a record this long)
+    from noiselab.diagnose.whittle.parts import walk_part
+    from noiselab.diagnose.whittle.periodograms import n_freqs
+    M = 4096
+    flt = pr.model.effects["sensor.filter"]
+    E = walk_part(np.array([q]), M, None, flt)[:, 0]
+    fk = np.arange(n_freqs(M)) / (M * TS)
+    np.testing.assert_allclose(E, q * np.abs(_reference_h(kind, fk)) ** 2, rtol=0, atol=2e-3 * q)
+    assert E.shape == walk_part(np.array([q]), M)[:, 0].shape

@@ -46,15 +46,26 @@ Predictions are exact, through the output-filter hook ``output_filter()`` (F_f, 
 state-space realization of H(z) per output (w = H_f s_f + J_f x, s_f' = F_f s_f + G_f x): the
 predictor cascades it with every sensor source before it (a white noise becomes a state source of
 the filter's states; a Gauss-Markov bias's states drive the filter's), and a tone's amplitude is
-scaled by |H| at its frequency. A bias walk's prediction is left unfiltered: the filter's unit DC
-gain leaves its low-frequency spectrum (where it matters) unchanged, to |H(f)|^2 - 1 ~ (f / f_c)^2.
+scaled by |H| at its frequency. A bias walk b before the filter (no stationary state: not in the
+augmented system) is predicted from the filter's impulse response h directly. Its increments are
+white of variance q per sample, so those of w = h * b are white noise through the filter, of
+autocovariance q R_h(j), R_h(j) = sum_i h_i h_(i+j) (:meth:`SensorFilter.impulse_acf`); hence
+
+    PSD  S_w(f) = |H(f)|^2 S_b(f)                                    (:meth:`SensorFilter.power_gain`)
+    2 gamma_w(d) = Var(w_(k+d) - w_k) = q sum_(|j|<d) (d - |j|) R_h(j)
+    Var w_k = Var(b_0) s_k^2 + q sum_(m<k) s_m^2,  s_m = sum_(i<=m) h_i   (:meth:`SensorFilter.step_response`)
+
+the last from the walk's start (b_k = b_0 + sqrt(q) sum_(l<k) eta_l, the filter at rest). The
+growth rate of Var w (q per sample) is the walk's: the filter's DC gain is 1.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from scipy.linalg import solve_discrete_lyapunov
 from scipy.signal import lfilter, tf2ss
 
+from ..lyapunov import _powers_apply
 from ..schema import positive
 from .base import Effect, _g
 
@@ -159,6 +170,55 @@ class SensorFilter(Effect):
             zinv = np.exp(-2j * np.pi * f[j] * self.dims.Ts)
             out[j] = abs(np.polyval(b[::-1], zinv) / np.polyval(a[::-1], zinv))
         return out
+
+    def power_gain(self, f_hz: np.ndarray) -> np.ndarray:
+        """|H(e^{i 2 pi f Ts})|^2 at frequencies ``f_hz`` (nf,) per output: (nf, p)."""
+        zinv = np.exp(-2j * np.pi * np.asarray(f_hz, float) * self.dims.Ts)
+        return np.stack([np.abs(np.polyval(b[::-1], zinv) / np.polyval(a[::-1], zinv)) ** 2
+                         for b, a in self.coeffs], axis=-1)
+
+    def step_response(self, n: int) -> np.ndarray:
+        """s_m = sum_(i<=m) h_i, m = 0..n-1 (n, p): the filter's response to a unit step from rest."""
+        return np.stack([lfilter(b, a, np.ones(n)) for b, a in self.coeffs], axis=-1)
+
+    def impulse_acf(self, L: int) -> np.ndarray:
+        """R_h(j) = sum_i h_i h_(i+j), j = 0..L-1 (L, p): the autocovariance of unit white noise
+        through the filter. ``average`` of N taps: (N - j) / N^2 for j < N. A recursive filter from
+        its realization (F, G, H, J): P = F P F^T + G G^T, R_h(0) = H P H^T + J^2, R_h(j) =
+        H F^(j-1) (F P H^T + G J) for j >= 1, zero beyond where F^j has decayed below 1e-16."""
+        out = np.zeros((L, self.dims.p))
+        j = np.arange(L)
+        for col, (b, a) in enumerate(self.coeffs):
+            if len(a) == 1:
+                out[:, col] = np.array([b[:b.size - k] @ b[k:] for k in range(min(L, b.size))]
+                                       + [0.0] * max(0, L - b.size))
+                continue
+            F, G, H, J = _realize(b, a)
+            if F.shape[0] == 1:                    # first order: R_h(j) = R_h(1) f^(j-1)
+                f = F[0, 0]
+                P = G[0, 0] ** 2 / (1.0 - f * f)
+                out[0, col] = H[0, 0] ** 2 * P + J[0, 0] ** 2
+                out[1:, col] = H[0, 0] * (f * P * H[0, 0] + G[0, 0] * J[0, 0]) * f ** (j[1:] - 1.0)
+                continue
+            P = solve_discrete_lyapunov(F, G @ G.T)
+            X = F @ P @ H.T + G @ J
+            rho = float(np.max(np.abs(np.linalg.eigvals(F))))
+            K = min(L - 1, int(np.ceil(np.log(1e-16) / np.log(rho))) + 2 + F.shape[0])
+            out[0, col] = (H @ P @ H.T + J @ J.T)[0, 0]
+            if K > 0:
+                out[1:K + 1, col] = np.einsum("i,kil->k", H[0], _powers_apply(F, X, K))
+        return out
+
+    def walk_variogram(self, q: np.ndarray, L: int) -> np.ndarray:
+        """gamma(d), d = 0..L-1 (L, p), of a walk of increment variance q (p,) per sample through
+        the filter: q/2 [d R_h(0) + 2 sum_(j=1)^(d-1) (d - j) R_h(j)] (module docstring)."""
+        R = self.impulse_acf(L)
+        d = np.arange(L, dtype=float)[:, None]
+        S0 = np.concatenate([np.zeros((1, R.shape[1])), np.cumsum(R[1:], axis=0)])     # sum_(1<=j<=n) R(j)
+        S1 = np.concatenate([np.zeros((1, R.shape[1])), np.cumsum(d[1:] * R[1:], axis=0)])
+        inner = np.zeros_like(R)
+        inner[1:] = d[1:] * S0[:-1] - S1[:-1]              # sum_(j=1)^(d-1) (d - j) R(j)
+        return 0.5 * np.asarray(q, float) * (d * R[0] + 2.0 * inner)
 
 
 def _realize(b: np.ndarray, a: np.ndarray):
