@@ -40,6 +40,7 @@ import numpy as np
 from scipy.linalg import block_diag, solve_discrete_lyapunov
 
 from ..memo import Memo
+from .filter_cascade import output_filter_of, primitives, sensor_blocks
 
 # _COLORS: the colored fits' memo, cleared (by the tests) with this module's memos below
 from .linearize import _COLORS, Linearization, gain_switches  # noqa: F401
@@ -163,8 +164,8 @@ class Predictor(MeanResponses, Linearization, Spectra):
         self._act_src = [e for e in m.effects.values() if hasattr(e, "drive_linear")]
         self._nonlin = [e for e in m.effects.values() if hasattr(e, "knots")]
         self._sen_lin = [e for e in m.effects.values() if hasattr(e, "sensor_linear")]
-        self._filter = next((e for e in m.effects.values() if hasattr(e, "output_filter")), None)
-        self._sen_blocks = self._sensor_blocks()
+        self._filter = output_filter_of(m)
+        self._sen_blocks = sensor_blocks(m, self._sen_lin, self._filter)
         blocks = [e.drive_linear() for e in self._act_src]
         self._act_blocks = blocks            # per source: (F, G, C, D)
         mm = m.m
@@ -293,36 +294,6 @@ class Predictor(MeanResponses, Linearization, Spectra):
         Gam, J, Jd = cols.stacked()
         return LinearSystem(F, Gam, H, J, Hd, Jd, cols.owners, nx, slice(0, mdl.plant.n), na)
 
-    def _sensor_blocks(self) -> list:
-        """[(effect id, (F, G, H, J))]: the sensor sources with states (``sensor_linear``, y += H s
-        + J e) and, in a model with the sensor's own filter (``output_filter``), every sensor source
-        before it cascaded with the filter (:func:`_cascade`): a white primitive becomes a source
-        of the filter's states (J = diag(std), no states of its own)."""
-        p = self.model.p
-        out = []
-        for e in self._sen_lin:
-            F, G, H = e.sensor_linear()
-            out.append((e.id, (F, G, H, np.zeros((p, G.shape[1])))))
-        flt = self._filter
-        if flt is None:
-            return out
-        filt = flt.output_filter()
-        out = [(eid, _cascade(blk, filt) if self.model.effects[eid].chain_order < flt.chain_order else blk)
-               for eid, blk in out]
-        for e in self._filtered_whites():
-            var = sum(np.broadcast_to(np.asarray(prm[1], float), (p,)) for prm in e.spectral() if prm[0] == "white")
-            white = (np.zeros((0, 0)), np.zeros((0, p)), np.zeros((p, 0)), np.diag(np.sqrt(var)))
-            out.append((e.id, _cascade(white, filt)))
-        return out
-
-    def _filtered_whites(self) -> list:
-        """The sensor effects with a white primitive before the sensor's own filter (none without one)."""
-        flt = self._filter
-        if flt is None:
-            return []
-        return [e for e in self.model.effects.values() if e.stage == "sensor" and hasattr(e, "spectral")
-                and e.chain_order < flt.chain_order and any(prm[0] == "white" for prm in e.spectral())]
-
     def _actuator_blocks(self, g, shadow: dict, dcolor) -> tuple[list, list]:
         """Per actuator source (and the distortion's colored part): its blocks (F, G, C, D, gain
         matrix), its own states then its shadow's; and the owner of each."""
@@ -381,25 +352,9 @@ class Predictor(MeanResponses, Linearization, Spectra):
 
     # -- primitives (non-state effects) ----------------------------------------------------------------
     def _primitives(self, mean: MeanResponse | None = None, jitter_ydot2: np.ndarray | None = None):
-        """[(effect id, kind, params)] for white / walk / tone / jitter contributions; a walk's
-        params (q, var0, filter): the sensor's own filter it passes through (``output_filter``), or None."""
-        out = []
-        flt = self._filter
-        as_states = {e.id for e in self._filtered_whites()}      # in the augmented system instead
-        for e in self.model.effects.values():
-            if hasattr(e, "spectral"):
-                for prim in e.spectral():
-                    if prim[0] == "white" and e.id in as_states:
-                        continue
-                    if prim[0] == "tone" and flt is not None and e.chain_order < flt.chain_order:
-                        # a sinusoid through H(z): amplitude times |H| at its frequency
-                        prim = ("tone", np.asarray(prim[1], float) * flt.gain(prim[2]), prim[2])
-                    if prim[0] == "walk":
-                        # ("walk", q, var0, the filter it passes through or None)
-                        prim = tuple(prim[:3]) + ((flt if flt is not None and e.chain_order < flt.chain_order
-                                                   else None),)
-                    out.append((e.id,) + tuple(prim))
-        return out
+        """[(effect id, kind, params)] for white / walk / tone / jitter contributions, through the
+        sensor's own filter where they pass it (:func:`.filter_cascade.primitives`)."""
+        return primitives(self.model, self._filter)
 
     # -- covariance recursion (seed section 4) -----------------------------------------------------------
     def covariance(self, n: int, command: np.ndarray | None = None) -> Covariance:
@@ -724,17 +679,3 @@ class Predictor(MeanResponses, Linearization, Spectra):
         """Ids of the effects that are walks (nonstationary: a growing variance, no ACF)."""
         return {eid for eid, kind, *_ in self._primitives() if kind == "walk"}
 
-
-def _cascade(src: tuple, filt: tuple) -> tuple:
-    """A source (F_s, G_s, H_s, J_s) (x = H_s s + J_s e) feeding a filter (F_f, G_f, H_f, J_f)
-    (w = H_f s_f + J_f x): states [s, s_f],
-
-        F = [[F_s, 0], [G_f H_s, F_f]],  G = [[G_s], [G_f J_s]],  H = [J_f H_s, H_f],  J = J_f J_s."""
-    Fs, Gs, Hs, Js = src
-    Ff, Gf, Hf, Jf = filt
-    ns, nf = Fs.shape[0], Ff.shape[0]
-    F = np.zeros((ns + nf, ns + nf))
-    F[:ns, :ns] = Fs
-    F[ns:, :ns] = Gf @ Hs
-    F[ns:, ns:] = Ff
-    return F, np.vstack([Gs, Gf @ Js]), np.hstack([Jf @ Hs, Hf]), Jf @ Js
