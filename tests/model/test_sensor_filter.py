@@ -260,3 +260,23 @@ def test_a_filtered_walks_psd_and_diagnosis_part_are_the_walks_times_the_filters
     fk = np.arange(n_freqs(M)) / (M * TS)
     np.testing.assert_allclose(E, q * np.abs(_reference_h(kind, fk)) ** 2, rtol=0, atol=2e-3 * q)
     assert E.shape == walk_part(np.array([q]), M)[:, 0].shape
+
+
+@pytest.mark.parametrize("kind", list(KINDS))
+def test_the_impulse_response_autocorrelation_is_the_filters(kind):
+    """R_h(j) = sum_i h_i h_(i+j) against scipy's impulse response (5000 samples: decayed below
+    1e-300 for these cutoffs) correlated directly."""
+    flt = _model(kind).effects["sensor.filter"]
+    if kind == "average":
+        b, a = np.full(4, 0.25), [1.0]
+    elif kind == "lowpass1":
+        r = np.exp(-2 * np.pi * 5.0 * TS)
+        b, a = [1 - r], [1.0, -r]
+    else:
+        b, a = butter(2, 10.0, fs=1 / TS)
+    imp = np.zeros(5000)
+    imp[0] = 1.0
+    h = lfilter(b, a, imp)
+    want = np.array([h[:h.size - j] @ h[j:] for j in range(60)])
+    np.testing.assert_allclose(flt.impulse_acf(60)[:, 0], want, rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(flt.step_response(60)[:, 0], np.cumsum(h[:60]), rtol=1e-12)

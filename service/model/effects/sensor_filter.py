@@ -190,8 +190,8 @@ class SensorFilter(Effect):
         j = np.arange(L)
         for col, (b, a) in enumerate(self.coeffs):
             if len(a) == 1:
-                out[:, col] = np.array([b[:b.size - k] @ b[k:] for k in range(min(L, b.size))]
-                                       + [0.0] * max(0, L - b.size))
+                K = min(L, b.size)
+                out[:K, col] = [b[:b.size - k] @ b[k:] for k in range(K)]
                 continue
             F, G, H, J = _realize(b, a)
             if F.shape[0] == 1:                    # first order: R_h(j) = R_h(1) f^(j-1)
