@@ -6,7 +6,8 @@ five standard errors of the estimators (Bartlett's formula for the autocorrelati
 variance of a sample variance); the predicted variance, ACF and PSD against |H(e^{iw})|^2 s^2 2 Ts
 with H from scipy's own design; the step path equal to the batch path; the filter's identity
 (one tap) changes nothing; a bias walk through each filter kind: its variance from rest and its
-variogram against a Monte Carlo, its PSD and the diagnosis' part against |H|^2 times the walk's.
+variogram against a Monte Carlo, its PSD and the diagnosis' part against |H|^2 times the walk's, the variance of its mean (the
+diagnosis' level term) against the Monte Carlo.
 """
 
 from __future__ import annotations
@@ -237,6 +238,15 @@ def test_a_bias_walk_through_the_filter_matches_a_monte_carlo(kind):
     for d in (1, 2, 3, 5, 39):
         got = np.mean((y[:, k0 + d] - y[:, k0]) ** 2) / 2
         assert abs(got - gam[d]) < 5 * gam[d] * np.sqrt(2.0 / T), (d, got, gam[d])
+    # the record's mean (the diagnosis' level term) over the first N samples from rest
+    from noiselab.diagnose.whittle import level_density
+    N = 10                                       # short: the filter from rest shows
+    C, qq, b0 = level_density(m, N)
+    v_mean = C[0, 0] + b0[0] + qq[0] * (N - 1) * (2 * N - 1) / (6.0 * N)
+    got = np.var(y[:, :N].mean(axis=1), ddof=0) + np.mean(y[:, :N].mean(axis=1)) ** 2
+    assert abs(got - v_mean) < 5 * v_mean * np.sqrt(2.0 / T), (got, v_mean)
+    unfiltered = b0[0] + qq[0] * (N - 1) * (2 * N - 1) / (6.0 * N)
+    assert abs(got - unfiltered) > 5 * v_mean * np.sqrt(2.0 / T), (got, unfiltered)
     # unfiltered, the variogram would be d q / 2: the filter's shows (and the test can tell them apart)
     q = 0.4**2 * TS
     assert abs(gam[1] - q / 2) > 10 * gam[1] * np.sqrt(2.0 / T)
