@@ -40,6 +40,7 @@ import numpy as np
 from scipy.linalg import block_diag, solve_discrete_lyapunov
 
 from ..memo import Memo
+from .filter_cascade import output_filter_of, primitives, sensor_blocks
 
 # _COLORS: the colored fits' memo, cleared (by the tests) with this module's memos below
 from .linearize import _COLORS, Linearization, gain_switches  # noqa: F401
@@ -163,6 +164,8 @@ class Predictor(MeanResponses, Linearization, Spectra):
         self._act_src = [e for e in m.effects.values() if hasattr(e, "drive_linear")]
         self._nonlin = [e for e in m.effects.values() if hasattr(e, "knots")]
         self._sen_lin = [e for e in m.effects.values() if hasattr(e, "sensor_linear")]
+        self._filter = output_filter_of(m)
+        self._sen_blocks = sensor_blocks(m, self._sen_lin, self._filter)
         blocks = [e.drive_linear() for e in self._act_src]
         self._act_blocks = blocks            # per source: (F, G, C, D)
         mm = m.m
@@ -256,7 +259,7 @@ class Predictor(MeanResponses, Linearization, Spectra):
         mdl = self.model
         act, act_ids = self._actuator_blocks(g, shadow or {}, dcolor)
         blocks = [b for bl in act for b in bl]
-        sen = [e.sensor_linear() for e in self._sen_lin]
+        sen = [blk for _, blk in self._sen_blocks]
         F, na = self._transition(blocks, sen)
         n_s, nx = F.shape[0], mdl.n_x
         cols = _Columns(n_s, mdl.p)
@@ -282,11 +285,11 @@ class Predictor(MeanResponses, Linearization, Spectra):
                 col[:nx] = mdl.S_proc[:, sl]
                 cols.add(eid, col)
         s0 = 0
-        for e, (Fi, Gi, Hi) in zip(self._sen_lin, sen):
+        for eid, (Fi, Gi, Hi, Ji) in self._sen_blocks:
             col = np.zeros((n_s, Gi.shape[1]))
             col[nx + na + s0:nx + na + s0 + Gi.shape[0]] = Gi
             s0 += Gi.shape[0]
-            cols.add(e.id, col)
+            cols.add(eid, col, Ji)
         H, Hd = self._output_rows(blocks, sen, n_s, na)
         Gam, J, Jd = cols.stacked()
         return LinearSystem(F, Gam, H, J, Hd, Jd, cols.owners, nx, slice(0, mdl.plant.n), na)
@@ -349,13 +352,9 @@ class Predictor(MeanResponses, Linearization, Spectra):
 
     # -- primitives (non-state effects) ----------------------------------------------------------------
     def _primitives(self, mean: MeanResponse | None = None, jitter_ydot2: np.ndarray | None = None):
-        """[(effect id, kind, params)] for white / walk / tone / jitter contributions."""
-        out = []
-        for e in self.model.effects.values():
-            if hasattr(e, "spectral"):
-                for prim in e.spectral():
-                    out.append((e.id,) + tuple(prim))
-        return out
+        """[(effect id, kind, params)] for white / walk / tone / jitter contributions, through the
+        sensor's own filter where they pass it (:func:`.filter_cascade.primitives`)."""
+        return primitives(self.model, self._filter)
 
     # -- covariance recursion (seed section 4) -----------------------------------------------------------
     def covariance(self, n: int, command: np.ndarray | None = None) -> Covariance:
@@ -372,11 +371,12 @@ class Predictor(MeanResponses, Linearization, Spectra):
         n_s = ls.F.shape[0]
         Pj = {eid: np.zeros((n_s, n_s)) for eid in ls.owners}
         s0 = ls.n_x + ls.n_act                  # a sensor source that starts stationary (``initial_cov``)
-        for e in self._sen_lin:
-            k = e.sensor_linear()[0].shape[0]
+        for eid, (Fi, *_) in self._sen_blocks:  # its own states lead its block; a filter's after them start at rest
+            e = self.model.effects[eid]
             if hasattr(e, "initial_cov"):
-                Pj[e.id][s0:s0 + k, s0:s0 + k] = e.initial_cov()
-            s0 += k
+                k = e.sensor_linear()[0].shape[0]
+                Pj[eid][s0:s0 + k, s0:s0 + k] = e.initial_cov()
+            s0 += Fi.shape[0]
         P_hist = np.zeros((n, n_s, n_s))
         Sy = {eid: np.zeros((n, self.model.p)) for eid in ls.owners}
         ydot_var = np.zeros((n, self.model.p))
@@ -401,8 +401,13 @@ class Predictor(MeanResponses, Linearization, Spectra):
             if kind == "white":
                 parts[eid] = np.broadcast_to(prm[0], (n, self.model.p)).copy()
             elif kind == "walk":
-                q, var0 = prm
-                parts[eid] = var0 + k_idx[:, None] * q       # R_b,k = R_b,0 + k Q_b
+                q, var0, flt = prm
+                if flt is None:
+                    parts[eid] = var0 + k_idx[:, None] * q       # R_b,k = R_b,0 + k Q_b
+                else:
+                    # through the filter from rest: var0 s_k^2 + q sum_(m<k) s_m^2 (:mod:`.effects.sensor_filter`)
+                    s2 = flt.step_response(n) ** 2
+                    parts[eid] = var0 * s2 + q * np.concatenate([np.zeros((1, self.model.p)), np.cumsum(s2, axis=0)[:-1]])
             elif kind == "tone":
                 parts[eid] = np.broadcast_to(prm[0] ** 2 / 2.0, (n, self.model.p)).copy()
             elif kind == "jitter":
@@ -681,3 +686,4 @@ class Predictor(MeanResponses, Linearization, Spectra):
     def walk_ids(self) -> set:
         """Ids of the effects that are walks (nonstationary: a growing variance, no ACF)."""
         return {eid for eid, kind, *_ in self._primitives() if kind == "walk"}
+

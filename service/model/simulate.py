@@ -197,6 +197,7 @@ class _Chain:
         # (``acts_after_sum``), and the normals of the state-noise sources (columns of S_proc)
         self.timing = [e for e in eff if hasattr(e, "time_errors")]
         self.out_maps = [e for e in eff if e.acts_after_sum]
+        self.out_filter = next((e for e in eff if hasattr(e, "filter_terms")), None)
         procs = [self.slots[e.id] for e in model.proc_sources if e.id in self.slots]
         self.proc = None if not procs else procs[0] if len(procs) == 1 else \
             np.concatenate([np.arange(sl.start, sl.stop) for sl in procs])
@@ -213,6 +214,9 @@ class _Chain:
             else:
                 sen.append(e.sensor_terms(None, self.states[e.id], n))
         dt = sum(e.time_errors(eps[..., self.slots[e.id]]) for e in self.timing) if self.timing else None
+        if self.out_filter is not None and sen:
+            # the sensor's own filter acts on the sources before it (all of them: chain orders 7-10)
+            sen = [self.out_filter.filter_terms(sum(sen[1:], sen[0]), self.states[self.out_filter.id])]
         return act, sen, dt
 
 

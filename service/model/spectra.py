@@ -60,6 +60,8 @@ class Spectra:
                 # b_{k+1} = b_k + sqrt(q) eta: S(f) = 2 Ts q / |1 - e^{-i w Ts}|^2
                 with np.errstate(divide="ignore"):
                     out[eid] = 2.0 * mdl.Ts * prm[0] / (4.0 * np.sin(np.pi * f * mdl.Ts) ** 2)[:, None]
+                if prm[2] is not None:                  # through the sensor's filter: times |H(f)|^2
+                    out[eid] = out[eid] * prm[2].power_gain(f)
             elif kind == "tone":
                 out[eid] = np.zeros((f.size, mdl.p))
                 for j in range(mdl.p):
@@ -125,9 +127,11 @@ class Spectra:
         return out
 
     def _walk_variograms(self, L: int) -> dict:
-        """{effect id: d Q_b / 2, d = 0..L-1 (L, p)} of the bias walks."""
+        """{effect id: d Q_b / 2, d = 0..L-1 (L, p)} of the bias walks; through the sensor's filter
+        q/2 sum_(|j|<d) (d - |j|) R_h(j) (:meth:`.effects.sensor_filter.SensorFilter.walk_variogram`)."""
         d = np.arange(L)[:, None]
-        return {eid: d * prm[0] / 2.0 * np.ones(self.model.p)
+        return {eid: d * prm[0] / 2.0 * np.ones(self.model.p) if prm[2] is None
+                else prm[2].walk_variogram(np.broadcast_to(prm[0], (self.model.p,)), L)
                 for eid, kind, *prm in self._primitives() if kind == "walk"}
 
 

@@ -158,6 +158,10 @@ std = 0.01
 amplitude = 0.004
 frequency_hz = 12.5
 
+[sensor.filter]
+kind = "lowpass2"
+cutoff_hz = 40.0
+
 [sensor.jitter]
 std_s = 0.0005
 

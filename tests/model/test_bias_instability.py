@@ -199,3 +199,24 @@ def test_cli_predicts_simulates_and_analyses_it(tmp_path, capsys):
     assert rc == 0, err
     rows = [ln.split() for ln in out.splitlines() if ln.strip()[:1].isdigit() and "flicker" in ln]
     assert any(0.1 <= float(r[0]) <= 10 for r in rows), out
+
+
+def test_through_the_sensors_filter_it_starts_stationary_and_the_filter_from_rest():
+    """A flicker bias after a Gauss-Markov bias, both before a 4-tap moving average
+    (``sensor.filter``): the simulation draws the flicker's states stationary, starts the
+    Gauss-Markov and the filter from rest, so y_0 = b_0 / 4 (a sixteenth of the flicker's variance);
+    the covariance recursion must put the stationary start on the flicker's states, which follow
+    the Gauss-Markov's cascade (its state and the filter's) in the augmented system."""
+    m = parse_model(gyro("B = 0.002\nf_lo_hz = 0.01") + '[sensor.filter]\nkind = "average"\ntaps = 4\n'
+                    "[sensor.bias_markov]\nstd = 0.003\ntau_s = 0.5\n")
+    pr = m.predictor()
+    Sy = pr.covariance(12).Sy[:, 0]
+    var_b = float(np.sum(np.diag(m.effects[ID].initial_cov())))
+    assert Sy[0] == pytest.approx(var_b / 16, rel=1e-9)
+    trials = 4000
+    y = m.simulate(12, seed=11, trials=trials).y[:, [0, 1, 5], 0]
+    emp = y.var(axis=0, ddof=1)
+    ratio = emp / Sy[[0, 1, 5]]
+    a = 1e-3 / ratio.size
+    lo, hi = (stats.chi2.ppf(q, trials - 1) / (trials - 1) for q in (a / 2, 1 - a / 2))
+    assert np.all((ratio > lo) & (ratio < hi)), ratio

@@ -90,6 +90,10 @@ std = [0.01, 0.02]
 amplitude = [0.005, 0.002]
 frequency_hz = [20.0, 12.5]
 
+[sensor.filter]
+kind = "lowpass2"
+cutoff_hz = [30.0, 15.0]
+
 [sensor.jitter]
 std_s = 0.0005
 
@@ -384,7 +388,8 @@ KEYS = sorted({
     "name", "description", "sampling", "plant", "command", "process", "actuator", "sensor", "Ts",
     "discretization", "m", "c", "k", "A", "B", "C", "D", "L", "kind", "amplitude", "frequency_hz",
     "offset", "phase_rad", "time_s", "f0_hz", "f1_hz", "duration_s", "bit_s", "order", "std", "psd",
-    "rho", "tau_s", "limit", "width", "initial_std", "step", "error", "std_s", "foo", "stdd",
+    "rho", "tau_s", "limit", "width", "initial_std", "step", "error", "std_s", "cutoff_hz", "taps", "foo",
+    "stdd",
     *(eid.split(".")[1] for eid in CATALOGUE),
 })
 # literals for raw-text injection, including what the structured writer refuses to write
@@ -672,6 +677,8 @@ EFFECT_PARAMS = [
     ("sensor.bias_instability", {"B": 0.002, "f_lo_hz": 0.01, "f_hi_hz": 2.0}),
     ("sensor.white", {"std": [0.01, 0.02]}),
     ("sensor.tone", {"amplitude": [0.005, 0.002], "frequency_hz": [20.0, 12.5]}),
+    ("sensor.filter", {"kind": "lowpass1", "cutoff_hz": [30.0, 15.0]}),
+    ("sensor.filter", {"kind": "average", "taps": 4}),
     ("sensor.jitter", {"std_s": 0.0005}),
     ("sensor.quantization", {"step": [0.001, 0.002]}),
 ]

@@ -19,7 +19,9 @@ def level_density(model, N: int, slope_sq: np.ndarray | None = None, at_rest: bo
     Cov(s_k, s_l) = [stationary] - F^k P F^T^l, so the mean's covariance loses (1/N^2) v P v^T,
     v = H (I - F^N) (I - F)^-1. The white parts (sensor noise, the quantizer's Delta^2/12, the
     jitter's std_s^2 times ``slope_sq``, the mean squared slope of the mean response) add their
-    variance / N. q: the bias walk's variance per sample, b0: Var(b_0). For a stable plant only.
+    variance / N. q: the bias walk's variance per sample, b0: Var(b_0); a walk through the sensor's
+    own filter adds its difference from the unfiltered walk's mean to C (:func:`_filtered_walk_mean_excess`).
+    For a stable plant only.
     Two approximations: the actuator nonlinearities are taken at unit gain (a drive clipped by a
     saturation or held in a dead zone passes less of its noise, not more: the spread is, if
     anything, too wide), and the jitter's noise-driven slope is left out of its power (too narrow
@@ -55,7 +57,21 @@ def level_density(model, N: int, slope_sq: np.ndarray | None = None, at_rest: bo
         elif kind == "walk":
             q = q + np.broadcast_to(prm[0], (p,))
             b0 = b0 + np.broadcast_to(prm[1], (p,))
+            if len(prm) > 2 and prm[2] is not None:
+                C = C + np.diag(_filtered_walk_mean_excess(prm[2], np.broadcast_to(prm[0], (p,)),
+                                                           np.broadcast_to(prm[1], (p,)), N))
     return 0.5 * (C + C.T), q, b0
+
+
+def _filtered_walk_mean_excess(flt, q: np.ndarray, var0: np.ndarray, N: int) -> np.ndarray:
+    """(p,) Var of the mean over N samples from rest of a walk through the sensor's own filter
+    ``flt``, less the unfiltered walk's var0 + q (N - 1)(2N - 1) / 6N (which the caller adds).
+    With s_m the filter's step response and S_m = sum_(i<=m) s_i, w_k = b_0 s_k + sqrt(q)
+    sum_(l<k) eta_l s_(k-l-1), so Var(mean w) = var0 (S_(N-1) / N)^2 + (q / N^2) sum_(m<=N-2) S_m^2
+    (s = 1: S_m = m + 1, the unfiltered value)."""
+    S = np.cumsum(flt.step_response(N), axis=0)
+    exact = var0 * (S[-1] / N) ** 2 + q * np.sum(S[:-1] ** 2, axis=0) / N**2
+    return exact - (var0 + q * (N - 1) * (2 * N - 1) / (6.0 * N))
 
 
 def level_loglik(mean: np.ndarray, C: np.ndarray, q: np.ndarray, b0: np.ndarray, N: int) -> float:

@@ -53,10 +53,16 @@ def acf_part(R: np.ndarray, M: int, groups: Groups | None = None, cross: bool = 
     return E
 
 
-def walk_part(q: np.ndarray, M: int, groups: Groups | None = None) -> np.ndarray:
+def walk_part(q: np.ndarray, M: int, groups: Groups | None = None, through=None) -> np.ndarray:
     """A random walk with increment variance q (p,) per sample: white after differencing
-    (c_w(0) / M = 1)."""
+    (c_w(0) / M = 1). ``through``: the sensor's own filter it passes (``impulse_acf``), after which
+    the differenced walk is that white noise through the filter, autocovariance q R_h(j) (not
+    differenced again: the record's differences are the walk's increments filtered)."""
     q = np.atleast_1d(np.asarray(q, float))
+    if through is not None:
+        Rd = q * through.impulse_acf(M)
+        a = Rd * (taper(M)[1][:M, None] / M)
+        return np.maximum(groups.spectrum(a) if groups is not None else _spectrum(a, M), 0.0)
     return np.broadcast_to(q, (n_freqs(M) if groups is None else groups.starts.size, q.size)).copy()
 
 
@@ -234,7 +240,7 @@ def expected_parts(model, M: int, k0: int, at_rest: bool, ydot_sq: np.ndarray | 
         if kind == "white":
             add = unit_times(np.broadcast_to(prm[0], (p,)).astype(float))
         elif kind == "walk":
-            q = walk_part(np.broadcast_to(prm[0], (p,)), M, groups)
+            q = walk_part(np.broadcast_to(prm[0], (p,)), M, groups, prm[2])
             add = q if not cross else q[:, :, None] * np.eye(p)[None].astype(complex)
         elif kind == "jitter":
             cov = ydot_sq + ydot_cov if cross else ydot_sq + np.diag(ydot_cov)

@@ -13,7 +13,13 @@ Signal chain at sample k (discrete time, sample period Ts):
     drive_k  = N(u_c,k + n_a,k)        actuator noises n_a (white, AR(1)) then static nonlinearities N
     x_{k+1}  = A_d x_k + B_d drive_k + process noise     (plant, with actuator lag states if any;
                                                            drive held over [k Ts, (k+1) Ts))
-    y_k      = Q( (1 + s_f) (C x_k + D drive_k) + b_k + beta_k + v_k + tone_k + ydot_k dt_k )
+    y_k      = Q( (1 + s_f) (C x_k + D drive_k) + h * (b_k + beta_k + v_k + tone_k) + ydot_k dt_k )
+
+h * (.) is the sensor's own digital filter (``sensor.filter``, identity when the model has none):
+the transducer's noises, drifts and pick-up (the sources of chain orders 7-10) pass through it as
+they pass through a MEMS IMU's DLPF / decimation filter between its ADC and its output register;
+the quantizer Q acts on its output (the register word). The plant output and the jitter's term pass
+unfiltered (exact for a static sensor; see :mod:`.sensor_filter`).
 
 The AR(1) actuator noise is updated before it is used (seed section 10: u_act,k = u_k + n_{a,k+1})
 and the bias walk is stepped after the measurement it enters, so y_k holds k bias increments.
@@ -35,6 +41,10 @@ Prediction hooks (implemented by the effects they concern; defaults contribute n
 * ``sensor_linear()``: a sensor source with states (Gauss-Markov bias): (F, G, H), y += H s;
   ``initial_cov()``: the covariance of those states at k = 0 where the source starts stationary
   (a flicker bias), for the covariance recursion (without it they start at zero).
+* ``output_filter()``: the sensor's own linear filter as (F_f, G_f, H_f, J_f) (s_f' = F_f s_f +
+  G_f x, w = H_f s_f + J_f x), with ``gain(f)`` = |H| per output; the predictor cascades it with
+  every sensor source of a lower ``chain_order`` (white primitives become sources of its states,
+  tones are scaled by |H|); the simulation applies ``filter_terms(x, state)`` to those sources' sum.
 * ``spectral()``: non-state contributions as primitives: ``("white", var)``, ``("walk", q, var0)``
   (increment variance q per sample, initial variance var0 = Var(b_0)), ``("tone", amplitude,
   frequency_hz)``, ``("jitter", s2)`` (white noise whose variance follows the signal's slope,
