@@ -2,9 +2,10 @@
 
 Drawn from the command's report (:func:`noiselab.commands.allan.allan_report`, the ``--json``
 document), so the figure shows exactly the numbers printed: the overlapping Allan deviation at
-octave taus with its 68.3 % chi-squared band, the IEEE 952 lines read off it (N / sqrt(tau) through
-N at tau = 1 s, K sqrt(tau / 3) through K at tau = 3 s, the flicker floor 0.664 B), each drawn bold
-over the taus it was read on and thin beyond, and the model's predicted curve when there is one.
+octave taus with its 68.3 % chi-squared band, the IEEE 952 lines read off it (sqrt(3) Q / tau
+through Q at tau = sqrt(3) s, N / sqrt(tau) through N at tau = 1 s, K sqrt(tau / 3) through K at
+tau = 3 s, the flicker floor 0.664 B), each drawn bold over the taus it was read on and thin beyond,
+and the model's predicted curve when there is one.
 Matplotlib's Agg canvas on a Figure (no pyplot, no display), as :mod:`noiselab.viewers.summary_png`.
 """
 
@@ -21,10 +22,12 @@ WIDTH_PX = 1100
 PANEL_PX = 520
 
 _DATA, _BAND, _MODEL = "#1f4e9c", "#9db8e3", "#c2410c"
-_LINES = {"N": ("#15803d", "N / sqrt(tau)"), "K": ("#7e22ce", "K sqrt(tau/3)"), "B": ("#a16207", "0.664 B")}
+_LINES = {"Q": ("#0e7490", "sqrt(3) Q / tau"), "N": ("#15803d", "N / sqrt(tau)"), "K": ("#7e22ce", "K sqrt(tau/3)"), "B": ("#a16207", "0.664 B")}
 
 
 def _line(key: str, value: float, tau: np.ndarray) -> np.ndarray:
+    if key == "Q":
+        return np.sqrt(3.0) * value / tau
     if key == "N":
         return value / np.sqrt(tau)
     if key == "K":

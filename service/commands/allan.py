@@ -8,9 +8,9 @@ TOPIC:FIELD[,FIELD...]`` of a foreign one):
   interval at 68.3 % (Greenhall & Riley 2003 equivalent degrees of freedom, SP 1065 eq. (45)); the
   noise type identified at each tau (lag-1 autocorrelation, Riley & Greenhall 2004, with at least
   30 averages; Stable32's B1 / R(n) rule below that), named as SP 1065 names the power laws;
-* the slope readings (:func:`noiselab.stats.ieee952.ieee952_readings`): N at tau = 1 s on the -1/2
-  line, K at tau = 3 s on the +1/2 line, B = the floor / 0.664, each with the tau range it was
-  read on, or null with the reason;
+* the slope readings (:func:`noiselab.stats.ieee952.ieee952_readings`): Q at tau = sqrt(3) s on the
+  -1 line (white PM), N at tau = 1 s on the -1/2 line, K at tau = 3 s on the +1/2 line, B = the
+  floor / 0.664, each with the tau range it was read on, or null with the reason;
 * with ``--model``: the model's predicted Allan deviation at the same taus (the exact discrete
   Allan variance of the sampled process, :meth:`noiselab.model.predict.Predictor.allan`, summed
   over its effects) and its IEEE 952 coefficients (:mod:`noiselab.model.coefficients`).
@@ -27,7 +27,7 @@ Output: the table on stdout; ``--json`` the same as one JSON document (keys belo
 
 JSON: {"recording", "Ts", "samples", "conf", "estimator", "model", "notes", "outputs": {name:
 {"unit", "tau", "m", "n_terms", "adev", "interval": [[lo, hi], ...], "edf", "alpha",
-"noise_type", "readings": {"N"|"K"|"B": {"value", "unit", "tau_range", "interval", "points",
+"noise_type", "readings": {"Q"|"N"|"K"|"B": {"value", "unit", "tau_range", "interval", "points",
 "reason"}}, "model_adev": [...] or null, "model_coefficients": {name: {"value", "unit",
 "interval"}} or null}}}.
 """
@@ -44,15 +44,16 @@ from ..errors import BadInput
 from ..outfiles import check_out, write_replacing
 
 CONF = 0.683  # Stable32's "Confidence Factor": one-sigma intervals
-READING_UNITS = {"N": "{u}/sqrt(Hz)", "K": "{u}/sqrt(s)", "B": "{u}"}
-READING_TAUS = {"N": "tau = 1 s on the -1/2 line", "K": "tau = 3 s on the +1/2 line", "B": "floor / 0.664"}
+READING_UNITS = {"Q": "({u})*s", "N": "{u}/sqrt(Hz)", "K": "{u}/sqrt(s)", "B": "{u}"}
+READING_TAUS = {"Q": "tau = sqrt(3) s on the -1 line", "N": "tau = 1 s on the -1/2 line",
+                "K": "tau = 3 s on the +1/2 line", "B": "floor / 0.664"}
 CSV_COLUMNS = ("output", "unit", "tau_s", "m", "n_terms", "adev", "adev_lo", "adev_hi", "edf", "alpha",
                "noise_type", "model_adev")
 
 
 def register(sub) -> None:
     p = sub.add_parser("allan", help="the Allan deviation table (tau, ADEV, interval, noise type) and the "
-                                     "IEEE 952 slope readings N, K, B of a recording")
+                                     "IEEE 952 slope readings Q, N, K, B of a recording")
     p.add_argument("recording", help="the .mcap to read")
     p.add_argument("--measurement", metavar="TOPIC:FIELD",
                    help="foreign recordings: topic and field(s) of the rate data, e.g. /imu:angular_velocity.x")

@@ -1,5 +1,5 @@
 """The IEEE Std 952-1997 (annex C) slope readings of an Allan deviation of rate data: the
-coefficients N (random walk), K (rate random walk) and B (bias instability) as
+coefficients Q (quantization noise), N (random walk), K (rate random walk) and B (bias instability) as
 allan_variance_ros and imu_utils report them, and the names of the power laws in SP 1065 and
 IEEE 952 terms.
 
@@ -103,8 +103,9 @@ def _line_fit(r: AllanResult, sl: slice, slope: float, other_var: np.ndarray) ->
 
 
 def _line_readings(r: AllanResult) -> dict[str, SlopeReading]:
-    """N and K: the lines of slope -1/2 and +1/2, read at 1 s and 3 s. See :func:`ieee952_readings`."""
-    lines = {"N": (0, 1.0), "K": (-2, 3.0)}
+    """Q, N and K: the lines of slope -1, -1/2 and +1/2, read at sqrt(3), 1 and 3 s. See
+    :func:`ieee952_readings`."""
+    lines = {"Q": (2, float(np.sqrt(3.0))), "N": (0, 1.0), "K": (-2, 3.0)}
     regions = {name: _line_region(r, alpha) for name, (alpha, _) in lines.items()}
     fits = {name: (0.0, 0.0) for name in lines}
     log_tau = np.log(r.taus)
@@ -116,7 +117,7 @@ def _line_readings(r: AllanResult) -> dict[str, SlopeReading]:
 
     for _ in range(_LINE_PASSES):
         fits = {name: _line_fit(r, regions[name][0], NOISE_SLOPES[lines[name][0]],
-                                line_var("K" if name == "N" else "N")) if regions[name][0] is not None
+                                sum(line_var(o) for o in lines if o != name)) if regions[name][0] is not None
                 else fits[name] for name in lines}
     z = float(_sps.norm.ppf(0.5 * (1.0 + r.conf)))
     out = {}
@@ -162,17 +163,21 @@ def ieee952_readings(r: AllanResult) -> dict[str, SlopeReading]:
     """The IEEE Std 952-1997 (annex C) slope readings of an Allan deviation of rate data: the
     coefficients as allan_variance_ros and imu_utils report them.
 
+    * ``Q`` (quantization noise, units times s): sigma = sqrt(3) Q / tau, so Q is the value at
+      tau = sqrt(3) s of the line of slope -1, read where the noise is white PM (flicker PM, of
+      the same slope, is not IEEE 952's Q);
     * ``N`` (angle / velocity random walk, units/sqrt(Hz)): sigma = N / sqrt(tau), so N is the
       value at tau = 1 s of the line of slope -1/2;
     * ``K`` (rate random walk, units/sqrt(s)): sigma = K sqrt(tau / 3), the value at tau = 3 s of
       the line of slope +1/2;
     * ``B`` (bias instability, units): the flicker floor sigma = 0.664 B, so B = min sigma / 0.664.
 
-    Where the slope is -1/2 (+1/2): at the taus whose identified noise type (``r.alpha``, lag-1
-    autocorrelation or B1, :mod:`.noise_id`) is white FM (random walk FM), the power laws
+    Where the slope is -1 (-1/2, +1/2): at the taus whose identified noise type (``r.alpha``, lag-1
+    autocorrelation or B1, :mod:`.noise_id`) is white PM (white FM, random walk FM), the power laws
     whose deviations have that slope (SP 1065 sec. 5.2): the identification uses all the data at
     each tau, where the difference of two neighbouring points is a noisy slope. The line is
-    fitted on the longest run of such consecutive taus (at least two), its slope held fixed as
+    fitted on the longest run of such consecutive taus (at least two), each line after removing the
+    variance the other lines put there, its slope held fixed as
     allan_variance_ros's ``get_intercept`` does (a least-squares line in log-log with the slope
     pinned; it fits tau < 10 s for N and every tau for K, here the run says where), each point
     weighted by 1 / Var(ln dev^) and its mean offset removed (dev^2 ~ sigma^2 chi2_nu / nu with

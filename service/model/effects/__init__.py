@@ -11,6 +11,7 @@ from .sensor_bias_instability import SensorBiasInstability
 from .sensor_bias_markov import SensorBiasMarkov
 from .sensor_bias_walk import SensorBiasWalk
 from .sensor_filter import SensorFilter
+from .sensor_integral_white import SensorIntegralWhite
 from .sensor_jitter import SensorJitter
 from .sensor_quantization import SensorQuantization
 from .sensor_scale_factor import SensorScaleFactor
@@ -21,7 +22,8 @@ CATALOGUE: dict[str, type[Effect]] = {
     cls.id: cls
     for cls in sorted(
         [ProcessWhite, ActuatorWhite, ActuatorAR1, ActuatorLag, ActuatorSaturation, ActuatorDeadzone,
-         SensorScaleFactor, SensorBiasWalk, SensorBiasMarkov, SensorBiasInstability, SensorWhite, SensorTone,
+         SensorScaleFactor, SensorBiasWalk, SensorBiasMarkov, SensorBiasInstability, SensorWhite,
+         SensorIntegralWhite, SensorTone,
          SensorFilter, SensorJitter, SensorQuantization],
         key=lambda c: c.chain_order)
 }
