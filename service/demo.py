@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from .diagnose.modes import ADD, Mode
+from .diagnose.thresholds import MAX_EFFECTS
 
 LESSON_N = 6000          # the lesson's program: N = 6000 samples (60 s at Ts = 0.01 s) ...
 LESSON_BURN = 1000       # ... statistics after a burn-in of 1000 samples
@@ -89,7 +90,7 @@ def _variance_story(models: list, y: np.ndarray, u: np.ndarray, Ts: float) -> li
 
 
 def run_demo(out_dir: Path, *, duration: float, speed: float, seed: int, force: bool,
-             max_effects: int = 3, log=sys.stderr, progress=None) -> tuple[dict, list[str]]:
+             max_effects: int = MAX_EFFECTS, log=sys.stderr, progress=None) -> tuple[dict, list[str]]:
     """The demo (the module docstring); ``progress``: a :class:`noiselab.progress.Steps` shown
     beside the narrative lines (the live run's time, the reading, each phase of the diagnosis
     with its fits counted, the files), or None."""

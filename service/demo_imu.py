@@ -23,6 +23,8 @@ import json
 import sys
 from pathlib import Path
 
+from .diagnose.thresholds import MAX_EFFECTS
+
 TRUE, NOMINAL = "imu", "imu-nominal"
 DURATION_S = 600.0
 """Default seconds of samples: the walk's Allan line crosses the white noise's at
@@ -39,7 +41,7 @@ def outputs(out_dir: Path) -> dict:
 
 
 def run_imu_demo(out_dir: Path, *, duration: float, speed: float, seed: int, force: bool,
-                 max_effects: int = 3, log=sys.stderr) -> tuple[dict, list[str]]:
+                 max_effects: int = MAX_EFFECTS, log=sys.stderr) -> tuple[dict, list[str]]:
     from .commands.export import kalibr_values, kalibr_yaml
     from .demo import DemoError
     from .diagnose.diagnose import diagnose

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from ..args import count_arg, seconds_arg, speed_arg
+from ..diagnose.thresholds import MAX_EFFECTS
 from ..outfiles import check_out_dir
 from ._common import seed_arg
 
@@ -20,8 +21,9 @@ def register(sub) -> None:
                     help="emulate X times faster than real time (default 20)")
     sm.add_argument("--seed", type=seed_arg, default=1, help="random seed (default 1)")
     sm.add_argument("--out", default="recordings", help="output directory (default recordings/)")
-    sm.add_argument("--max-effects", type=count_arg(), default=3, metavar="K",
-                    help="add at most K effects (default 3)")
+    sm.add_argument("--max-effects", type=count_arg(), default=MAX_EFFECTS, metavar="K",
+                    help=f"add at most K effects the model lacks (refits of its own are not counted; "
+                         f"default {MAX_EFFECTS})")
     sm.add_argument("--force", action="store_true", help="overwrite existing demo files")
     sm.add_argument("--json", action="store_true", help="machine-readable summary")
     sm.add_argument("--progress", action="store_true",

@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 from ..args import count_arg
+from ..diagnose.thresholds import MAX_EFFECTS
 from ..outfiles import check_out, png_path, writing
 from ._common import emit, load_model, segment_arg
 from ._recording import load_series, reading_early
@@ -18,8 +19,9 @@ def register(sub) -> None:
     sd.add_argument("--fit-out", metavar="FITTED.toml", help="write the extended model file here")
     sd.add_argument("--rrd", help="write the Rerun recording (one revision per added effect) here")
     sd.add_argument("--png", help="write the PNG summary here (default: next to --rrd)")
-    sd.add_argument("--max-effects", type=count_arg(), default=3, metavar="K",
-                    help="add at most K effects (default 3)")
+    sd.add_argument("--max-effects", type=count_arg(), default=MAX_EFFECTS, metavar="K",
+                    help=f"add at most K effects the model lacks (refits of its own are not counted; "
+                         f"default {MAX_EFFECTS})")
     sd.add_argument("--device", help="device name in a noiselab recording with several devices")
     sd.add_argument("--measurement", metavar="TOPIC:FIELD",
                     help="foreign recordings (JSON MCAP or ROS bag): topic and field(s), e.g. /imu:angular_velocity.x")

@@ -6,7 +6,8 @@
    present with a wrong value, AR(1) in place of white actuator noise) and scored by Delta BIC
    (:mod:`.search`).
 3. Add the best candidate when its Delta BIC exceeds :data:`.thresholds.THRESHOLD`, refit everything
-   freed so far jointly, and repeat while something significant remains (``max_effects``). When
+   freed so far jointly, and repeat while something significant remains (``max_effects`` effects
+   the model lacks; refitting one it has is not counted, :func:`_spent`). When
    nothing passes that threshold but the model error still exceeds :data:`ERROR_OK` (the views
    see the model fail), the best candidate is added if its likelihood-ratio test passes at 1 %
    family-wise over the candidates and it brings the model error down by a third (:func:`_by_error`).
@@ -32,12 +33,27 @@ from .intervals import interval_tasks, merge_intervals
 from .modes import ADD, REFIT, replacing
 from .results import fmt_score
 from .search import Search
-from .thresholds import THRESHOLD
+from .thresholds import MAX_EFFECTS, THRESHOLD
 
-MAX_EFFECTS = 3
 ERROR_OK = 1.5            # a model error the views call explained
 ERROR_FALL = 2.0 / 3.0    # ... and the fall an effect added on their word must bring
 BY_ERROR_ALPHA = 0.01     # ... and the family-wise level of its likelihood-ratio test (see _by_error)
+
+
+def _spent(accepted) -> int:
+    """What the accepted steps took of ``max_effects``: the effects the model lacked (added, or put
+    in the place of one it has). Refitting an effect the model already has (a value the user
+    wrote wrong, or the first guess of a white noise once a quantizer takes its share) finds no
+    new physics, so it is not counted: a budget spent on refits would stop a real sensor's
+    diagnosis short of the effects it lacks."""
+    return sum(1 for c in accepted if c.mode.kind != "refit")
+
+
+def _step_cap(model, max_effects: int) -> int:
+    """The most steps one diagnosis takes: ``max_effects`` additions and one refit of each effect
+    of the user's model on top (a refit frees every value of the effect, so a second refit of the
+    same effect is the joint refit's business, not a step's)."""
+    return max_effects + len(model.effects)
 
 
 def _band(fit, eid: str, data: Data):
@@ -331,7 +347,8 @@ def _by_error(S, cur, accepted, steps, comps, step_models, max_effects, t, y, u,
     single out, so its test is at 1 %."""
     from scipy import stats as sps
 
-    while len(accepted) < max_effects and comps[-1].error > ERROR_OK:
+    while _spent(accepted) < max_effects and len(accepted) < _step_cap(S.nominal, max_effects) \
+            and comps[-1].error > ERROR_OK:
         cands = S.candidates(cur, bar=-math.inf)       # every candidate ranked by the choice score
         if not cands:
             break
@@ -525,8 +542,10 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0,
     steps, accepted, first, comps, step_models = [], [], None, [None], [model]
     start, step_cands = cur, []
     pending = []                       # (step index, future comparison) not yet collected
-    for i in range(max_effects):
-        phase(f"step {i + 1}/{max_effects}: candidates")
+    i = 0
+    while _spent(accepted) < max_effects and i < _step_cap(model, max_effects):
+        budget = max_effects + i - _spent(accepted)         # the last step if no further refit comes
+        phase(f"step {i + 1}/{budget}: candidates")
         cands = S.candidates(cur)
         if first is None:
             first = cands
@@ -536,7 +555,7 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0,
         best = cands[0]
         step_cands.append(cands)
         # a leader's fit is already the joint thorough refit: not repeated
-        phase(f"step {i + 1}/{max_effects}: refitting with {best.effect}")
+        phase(f"step {i + 1}/{budget}: refitting with {best.effect}")
         new = best.fit if best.full else S.refit_all(best.fit, thorough=True)
         pending.append((len(steps), _later(bg, lambda m=new.model, rev=len(comps):
                                             _compare(S, m, t, y, u, burn, revision=rev))))
@@ -546,6 +565,7 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0,
         step_models.append(new.model)
         say(f"step {len(steps)}: {best.mode} {best.effect} (Delta BIC {best.score:.1f})")
         cur = new
+        i += 1
     phase("comparing the models with the data")
     before = before_f.result()
     comps[0] = before

@@ -5,6 +5,10 @@ approximation, with what they bound. Where a value is used is named beside it.
 """
 
 # -- adding an effect and ranking candidates (:mod:`.search`) ------------------------------------------------
+MAX_EFFECTS = 5           # effects the model lacks one diagnosis adds at most (``--max-effects``; refits of
+                          # the model's own effects are not counted: diagnose._spent). A real IMU's model
+                          # can lack a quantizer, a line, a flicker bias, a walk and its integral's white
+                          # noise; the search stops earlier when nothing passes THRESHOLD
 THRESHOLD = 10.0          # Delta BIC to add an effect: "very strong" evidence (Kass & Raftery 1995;
                           # BIC: Schwarz 1978)
 CHIBAR2_95 = 2.706        # 95 % point of 1/2 chi2_0 + 1/2 chi2_1: a parameter whose null value is on

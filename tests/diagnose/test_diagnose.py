@@ -1497,3 +1497,27 @@ def test_a_fast_plant_cut_mid_stream_starts_from_its_fitted_mean_state():
     assert [m["effect"] for m in rep["missing"]] == ["actuator.lag"]
     lo, hi = rep["missing"][0]["interval"]["tau_s"]
     assert lo <= 0.05 <= hi and rep["error_after"] <= 1.5 < rep["error_before"]
+
+
+def test_refitting_what_the_model_has_does_not_spend_the_budget_of_what_it_lacks():
+    """A gyro read through a quantizer, with a line, whose model has only a white noise written 2x
+    too high (a datasheet's typical value): the quantizer is added, the white noise refitted, and
+    the line added. With a budget of two additions (``max_effects=2``) both missing effects are
+    reported beside the refit: the refit finds no new physics and is not counted."""
+    truth = parse_model('name = "g"\n[sampling]\nTs = 0.01\n[outputs]\nnames = ["gyro_x"]\nunits = ["rad/s"]\n'
+                        "[sensor.white]\nstd = 0.0013\n[sensor.tone]\namplitude = 0.0006\nfrequency_hz = 31.0\n"
+                        "[sensor.quantization]\nstep = 0.002\n")
+    nominal = parse_model(truth.without_effect("sensor.quantization").without_effect("sensor.tone").to_toml()
+                          .replace("std = 0.0013", "std = 0.0026"))
+    rec = truth.simulate(18_000, seed=44)
+    logs = []
+    rep = diagnose(nominal, rec.t, rec.y, rec.u, max_effects=2, log=logs.append)
+    modes = {m["effect"]: m["mode"] for m in rep["missing"]}
+    assert modes == {"sensor.quantization": "add", "sensor.white": "refit", "sensor.tone": "add"}, (modes, logs)
+    got = {m["effect"]: m for m in rep["missing"]}
+    assert got["sensor.white"]["params"]["std"] == pytest.approx(0.0013, rel=0.05)
+    assert got["sensor.tone"]["params"]["frequency_hz"] == pytest.approx(31.0, abs=0.01)
+    assert rep["error_after"] <= 1.5
+    # the same diagnosis with a budget of one addition stops after it (and the refit, if it came first)
+    one = diagnose(nominal, rec.t, rec.y, rec.u, max_effects=1)
+    assert sum(m["mode"] != "refit" for m in one["missing"]) == 1

@@ -64,7 +64,6 @@ TS_NS = 10_000_000
 EPOCH_NS = 1_700_000_000_000_000_000   # header stamp of sample 0 (any fixed instant)
 G = 9.80665                            # m/s^2, standard gravity
 RAD = math.pi / 180.0
-MAX_EFFECTS = 5                        # the default 3 stops gy one effect short (a bias walk)
 
 STORE = get_typestore(Stores.ROS2_JAZZY)
 T = STORE.types
@@ -177,7 +176,7 @@ def noiselab_json(*argv) -> dict:
 def diagnose(bag: Path, ch: Channel, model: Path, fit_out: Path | None = None) -> dict:
     extra = ["--fit-out", fit_out, "--force"] if fit_out else []
     return noiselab_json("diagnose", bag, "--measurement", f"/imu:{ch.field}", "--model", model,
-                         "--max-effects", MAX_EFFECTS, "--json", *extra)
+                         "--json", *extra)
 
 
 def oadev_1s(x: np.ndarray) -> tuple[float, float, float]:
