@@ -356,6 +356,24 @@ class Predictor(MeanResponses, Linearization, Spectra):
         sensor's own filter where they pass it (:func:`.filter_cascade.primitives`)."""
         return primitives(self.model, self._filter)
 
+    def stationary_starts(self, ls=None) -> list:
+        """[(effect id, state indices, covariance)]: the sensor sources that start in their
+        stationary distribution (``initial_cov``: a flicker bias, the integral's white noise), their
+        states in the augmented system of ``ls`` (default: the steady state's) and the covariance at
+        k = 0. A source's own states lead its block; a filter's states after them start at rest."""
+        if ls is None:
+            self.steady_state()
+            ls = self._ls
+        out = []
+        s0 = ls.n_x + ls.n_act
+        for eid, (Fi, *_) in self._sen_blocks:
+            e = self.model.effects[eid]
+            if hasattr(e, "initial_cov"):
+                k = e.sensor_linear()[0].shape[0]
+                out.append((eid, np.arange(s0, s0 + k), e.initial_cov()))
+            s0 += Fi.shape[0]
+        return out
+
     # -- covariance recursion (seed section 4) -----------------------------------------------------------
     def covariance(self, n: int, command: np.ndarray | None = None) -> Covariance:
         """P_k and S_y,k for k = 0..n-1 from P_0 = 0 (the noise states start at zero, as in the
@@ -370,13 +388,8 @@ class Predictor(MeanResponses, Linearization, Spectra):
         ls = self.linear_system(None if const else mean.gain[0], None if const else dstd[0])
         n_s = ls.F.shape[0]
         Pj = {eid: np.zeros((n_s, n_s)) for eid in ls.owners}
-        s0 = ls.n_x + ls.n_act                  # a sensor source that starts stationary (``initial_cov``)
-        for eid, (Fi, *_) in self._sen_blocks:  # its own states lead its block; a filter's after them start at rest
-            e = self.model.effects[eid]
-            if hasattr(e, "initial_cov"):
-                k = e.sensor_linear()[0].shape[0]
-                Pj[eid][s0:s0 + k, s0:s0 + k] = e.initial_cov()
-            s0 += Fi.shape[0]
+        for eid, idx, cov in self.stationary_starts(ls):
+            Pj[eid][np.ix_(idx, idx)] = cov
         P_hist = np.zeros((n, n_s, n_s))
         Sy = {eid: np.zeros((n, self.model.p)) for eid in ls.owners}
         ydot_var = np.zeros((n, self.model.p))

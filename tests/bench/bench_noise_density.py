@@ -22,7 +22,7 @@ A sensor reads a quiet plant: first-order plant A = -1, B = C = L = 1, command k
   (units sqrt(s), the angle/velocity random walk coefficient), Allan variance N^2 / tau;
 - ``sensor.bias_walk`` std K (units / sqrt(s)): b_{k+1} = b_k + K sqrt(Ts) eta_k, Allan variance
   K^2 tau / 3 (+ K^2 Ts^2 / (6 tau) for the sampled walk, negligible here);
-- in the M rows, a ``sensor.bias_markov`` (bias instability) of std s and correlation time T, Allan
+- in the M rows, a ``sensor.bias_markov`` (Gauss-Markov bias) of std s and correlation time T, Allan
   variance (2 s^2 T / tau) [1 - T / (2 tau) (3 - 4 e^{-tau/T} + e^{-2 tau/T})], bump near 1.9 T.
 
 The two Allan terms cross at tau_c = sqrt(3) N / K; each case is given by N, tau_c (hence K),

@@ -2,11 +2,13 @@
 simulated, predicted, compared and found by the diagnosis, through the hooks of
 :mod:`noiselab.model.effects.base` alone. And the generic diagnosis modules name no effect.
 
-The effect: white noise seen through a first difference, v_k = std (e_{k-1} - e_{k-2}) (a sensor
-that reports the increment of a noisy reading), a "blue" noise: variance 2 std^2, lag-1
-autocorrelation -1/2, spectrum 4 std^2 sin^2(pi f Ts) Ts (none at DC). It is a linear sensor source
-with states s_k = (e_{k-1}, e_{k-2}) (the ``sensor_linear`` prediction hook), fitted as a ``noise``
-by its std, one per output (the ``channels`` diagnosis hook).
+The effect: white noise seen through a difference over two samples, v_k = std (e_{k-1} - e_{k-3}) (a
+sensor that reports the increment of a noisy reading over two of its periods), a band noise:
+variance 2 std^2, lag-2 autocorrelation -1/2 and none at lag 1, spectrum 4 std^2 sin^2(2 pi f Ts) Ts
+(none at DC and at Nyquist; the catalogue's one-sample difference, ``sensor.integral_white``, has
+its maximum at Nyquist). It is a linear sensor source with states s_k = (e_{k-1}, e_{k-2}, e_{k-3})
+(the ``sensor_linear`` prediction hook), fitted as a ``noise`` by its std, one per output (the
+``channels`` diagnosis hook).
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ EID = "sensor.differenced"
 
 
 class SensorDifferenced(Effect):
-    """``sensor.differenced``: v_k = std (e_{k-1} - e_{k-2}), e white N(0, 1), one per output."""
+    """``sensor.differenced``: v_k = std (e_{k-1} - e_{k-3}), e white N(0, 1), one per output."""
 
     id = EID
     stage = "sensor"
@@ -48,20 +50,21 @@ class SensorDifferenced(Effect):
         return self.dims.p
 
     def init_state(self, static_rng, trials):
-        return {"e": np.zeros((trials, 2, self.dims.p))}          # e_{k-2}, e_{k-1}
+        return {"e": np.zeros((trials, 3, self.dims.p))}          # e_{k-3}, e_{k-2}, e_{k-1}
 
     def sensor_terms(self, e, state):
-        ext = np.concatenate([state["e"], e], axis=1)              # e_{-2}, e_{-1}, e_0, ...
+        ext = np.concatenate([state["e"], e], axis=1)              # e_{-3}, e_{-2}, e_{-1}, e_0, ...
         n = e.shape[1]
-        state["e"] = ext[:, n:n + 2].copy()
-        return self.params["std"] * (ext[:, 1:n + 1] - ext[:, :n])
+        state["e"] = ext[:, n:n + 3].copy()
+        return self.params["std"] * (ext[:, 2:n + 2] - ext[:, :n])
 
     def sensor_linear(self):
         p, std = self.dims.p, np.broadcast_to(self.params["std"], (self.dims.p,))
-        F = np.zeros((2 * p, 2 * p))
-        F[p:, :p] = np.eye(p)                                      # s2_{k+1} = s1_k
-        G = np.vstack([np.diag(std), np.zeros((p, p))])            # s1_{k+1} = std e_k
-        H = np.hstack([np.eye(p), -np.eye(p)])
+        F = np.zeros((3 * p, 3 * p))
+        F[p:2 * p, :p] = np.eye(p)                                 # s2_{k+1} = s1_k
+        F[2 * p:, p:2 * p] = np.eye(p)                             # s3_{k+1} = s2_k
+        G = np.vstack([np.diag(std), np.zeros((2 * p, p))])        # s1_{k+1} = std e_k
+        H = np.hstack([np.eye(p), np.zeros((p, p)), -np.eye(p)])
         return F, G, H
 
 
@@ -108,8 +111,9 @@ def test_parsed_simulated_and_predicted(registered):
     y = y - np.mean(y)
     var = float(np.mean(y * y))
     rho1 = float(np.mean(y[1:] * y[:-1])) / var
+    rho2 = float(np.mean(y[2:] * y[:-2])) / var
     assert abs(var / (2 * 0.25) - 1) < 0.02, var                  # 2 std^2
-    assert abs(rho1 + 0.5) < 0.01, rho1                           # -1/2
+    assert abs(rho1) < 0.01 and abs(rho2 + 0.5) < 0.01, (rho1, rho2)   # 0, -1/2
     # predicted: its part of the measurement's variance, 2 std^2
     st = alone.predictor().steady_state()
     assert np.isclose(float(np.ravel(st.contributions[EID])[0]), 2 * 0.25, rtol=1e-9)

@@ -220,3 +220,18 @@ def test_through_the_sensors_filter_it_starts_stationary_and_the_filter_from_res
     a = 1e-3 / ratio.size
     lo, hi = (stats.chi2.ppf(q, trials - 1) / (trials - 1) for q in (a / 2, 1 - a / 2))
     assert np.all((ratio > lo) & (ratio < hi)), ratio
+
+
+def test_a_stationary_start_has_no_transient_to_skip():
+    """The diagnosis skips a record's first transient_samples() when it does not start at rest (the
+    model's covariance from rest is not yet stationary there). The flicker's states start
+    stationary, so they add no transient, however long their correlation times (here up to
+    1.6e4 s, 1.6e6 samples): a Gauss-Markov bias beside them keeps its own, ln(0.01) / (2 ln phi)
+    samples."""
+    from noiselab.diagnose.compare import transient_samples
+
+    m = parse_model(gyro("B = 0.002") + "[sensor.white]\nstd = 0.01\n")
+    assert max(m.effects[ID].taus) > 1e4 and transient_samples(m) == 0
+    gm = parse_model(gyro("B = 0.002") + "[sensor.bias_markov]\nstd = 0.003\ntau_s = 2.0\n")
+    phi = np.exp(-0.01 / 2.0)
+    assert transient_samples(gm) == int(np.ceil(np.log(0.01) / (2 * np.log(phi))))

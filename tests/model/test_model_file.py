@@ -86,6 +86,9 @@ f_lo_hz = 0.001
 [sensor.white]
 std = [0.01, 0.02]
 
+[sensor.integral_white]
+Q = [2e-5, 1e-5]
+
 [sensor.tone]
 amplitude = [0.005, 0.002]
 frequency_hz = [20.0, 12.5]
@@ -676,6 +679,7 @@ EFFECT_PARAMS = [
     ("sensor.bias_instability", {"B": [0.002, 0.001]}),
     ("sensor.bias_instability", {"B": 0.002, "f_lo_hz": 0.01, "f_hi_hz": 2.0}),
     ("sensor.white", {"std": [0.01, 0.02]}),
+    ("sensor.integral_white", {"Q": [2e-5, 1e-5]}),
     ("sensor.tone", {"amplitude": [0.005, 0.002], "frequency_hz": [20.0, 12.5]}),
     ("sensor.filter", {"kind": "lowpass1", "cutoff_hz": [30.0, 15.0]}),
     ("sensor.filter", {"kind": "average", "taps": 4}),

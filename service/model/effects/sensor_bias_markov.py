@@ -1,4 +1,4 @@
-"""``sensor.bias_markov``: first-order Gauss-Markov bias (bias instability).
+"""``sensor.bias_markov``: first-order Gauss-Markov bias (an exponentially correlated drift).
 
 Continuous beta' = -beta / tau + white, stationary std ``std``; exact discretization
 beta_{k+1} = phi beta_k + std sqrt(1 - phi^2) xi_k with phi = exp(-Ts / tau_s). Starts at 0.
@@ -37,7 +37,7 @@ class SensorBiasMarkov(Effect):
     stage = "sensor"
     chain_order = 8
     draw_order = 4
-    summary = "first-order Gauss-Markov sensor bias (bias instability)"
+    summary = "first-order Gauss-Markov sensor bias (exponentially correlated)"
     fit = FitSpec("noise", scale="std", shape=(("tau_s", 2.0, 1.0, "Ts|T", "log"),))
     # -- diagnosis hooks (base module docstring)
     channels = "output"
@@ -50,7 +50,8 @@ class SensorBiasMarkov(Effect):
         # the Allan deviation of a first-order Gauss-Markov process peaks at 1.89 tau
         return (f"a flat excess below about {_g(one(1.0 / (2 * np.pi * tau)))} Hz that the plant does not "
                 f"shape, and an Allan deviation bump near tau = {_g(one(1.89 * tau))} s: a Gauss-Markov bias "
-                f"(bias instability) of std {_g(params['std'])} with correlation time {_g(one(tau))} s")
+                f"of std {_g(params['std'])} with correlation time {_g(one(tau))} s (exponentially correlated; IEEE 952's "
+                f"bias instability B is the flicker floor, sensor.bias_instability)")
 
     @classmethod
     def equivalents(cls, params, Ts):
