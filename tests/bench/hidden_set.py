@@ -377,6 +377,66 @@ def _hidden_params(rng, eid, Ts, T, plant, command, nominal, var0, sd0, fn):
     return None
 
 
+SENSOR_HIDEABLE = ("sensor.white", "sensor.bias_walk", "sensor.bias_markov", "sensor.bias_instability",
+                   "sensor.integral_white", "sensor.tone", "sensor.quantization")
+DRIFTS = ("sensor.bias_walk", "sensor.bias_markov", "sensor.bias_instability")
+
+
+def _sensor_doc(name, Ts, effects) -> str:
+    """A sensor-only model (one rate output at rest, no [plant]) with ``effects``."""
+    d = {"name": name, "sampling": {"Ts": Ts}, "outputs": {"names": ["rate"], "units": ["rad/s"]},
+         "command": {"kind": "none"}}
+    for eid, params in effects.items():
+        g, s = eid.split(".")
+        d.setdefault(g, {})[s] = params
+    return dumps_toml(d)
+
+
+def make_sensor_case(seed: int, n_hidden: int | None = None, null: bool | None = None) -> Case:
+    """Case ``seed`` of the sensor-only family: a rate sensor at rest (a gyro axis: no plant, no
+    command), sample periods of 2 to 20 ms, records of 1 to 10 minutes, its nominal model a white
+    noise, and one or two of :data:`SENSOR_HIDEABLE` hidden (at most one slow drift: a walk, a
+    Gauss-Markov bias and a flicker bias over the same band are the Allan practice's own ambiguity).
+
+    Magnitudes relative to the white noise (per-sample std s, one-sided density 2 s^2 Ts), as for
+    the generator's cases, by where the hidden effect meets it: a flicker bias's Allan floor
+    0.664 B crosses the white descent s sqrt(Ts / tau) at tau_c log-uniform in [30 Ts, T / 30] (a
+    decade of floor or more in the record); the integral's white noise is f times the white density
+    at Nyquist (8 Q^2 / Ts = f 2 s^2 Ts, f in [0.3, 3]); the other effects as :func:`make_case`
+    draws them against the same variance. Its own random stream (``[seed, 29]``): the generator's
+    cases are unchanged."""
+    rng = np.random.default_rng([seed, 29])
+    Ts = float(rng.choice(PERIODS))
+    T = float(np.round(rng.uniform(60, 600) / 10) * 10)
+    null = bool(rng.random() < 0.2) if null is None else null
+    n_hidden = (1 if rng.random() < 0.6 else 2) if n_hidden is None else n_hidden
+    sd = float(f"{10 ** rng.uniform(-4, -2):.4g}")          # rad/s per sample
+    nominal = {"sensor.white": {"std": sd}}
+    truth = {k: dict(v) for k, v in nominal.items()}
+    hidden: dict = {}
+    for eid in ([] if null else [str(e) for e in rng.permutation(SENSOR_HIDEABLE)]):
+        if len(hidden) >= n_hidden:
+            break
+        if eid in DRIFTS and any(h in DRIFTS for h in hidden):
+            continue
+        f = float(np.exp(rng.uniform(np.log(0.3), np.log(3.0))))
+        var0 = sd**2
+        if eid == "sensor.bias_instability":
+            tau_c = float(np.exp(rng.uniform(np.log(30 * Ts), np.log(T / 30))))
+            params = {"B": float(f"{sd * math.sqrt(Ts / tau_c) / 0.6643:.4g}")}
+        elif eid == "sensor.integral_white":
+            params = {"Q": float(f"{sd * Ts * math.sqrt(f) / 2:.4g}")}
+        else:
+            params = _hidden_params(rng, eid, Ts, T, None, {}, nominal, var0, sd, None)
+        if params is None:
+            continue
+        params.pop("_absent", None)          # the white noise stays in the nominal model, at a wrong value
+        hidden[eid] = params
+        truth[eid] = params
+    return Case(f"case{seed}-sensor", _sensor_doc("case", Ts, truth), _sensor_doc("case", Ts, nominal),
+                {k: dict(v) for k, v in hidden.items()}, T, seed + 2000)
+
+
 def within_30_chance(iv) -> float:
     """P(0.7 <= estimate / truth <= 1.3) for an unbiased estimator, normal in log, whose 95 %
     interval is ``iv`` (its log-width / (2 x 1.96) the standard deviation): what the data allow."""
