@@ -194,7 +194,7 @@ class Evaluator:
         return W.level_loglik(m, *W.level_density(model, d.N - d.k0, slope_sq), d.N - d.k0)
 
     def residual(self, model, free_tone: bool):
-        """r (N, p) with the tones removed, and the tone parameters fitted (amplitude per output).
+        """r (N, p) with the tones removed, and the fitted line's amplitude (per output).
         A quantizer whose error depends on the mean (noise under about 0.84 step) adds its
         conditional mean E[Q(x)] - mu to the mean response (:meth:`quant_moments`)."""
         d = self.data
@@ -204,20 +204,27 @@ class Evaluator:
         tone = _line(model)
         fitted = None
         if tone is not None:
-            amp = np.broadcast_to(tone.params[type(tone).fit.scale], (d.p,)).astype(float)
-            freq = np.broadcast_to(tone.params["frequency_hz"], (d.p,)).astype(float)
+            # every line of the effect: the fitted one (its amplitude free with ``free_tone``), then
+            # the others it holds (``repeatable``: found before it), each at its held amplitude
+            lines = tone.all_lines() if type(tone).repeatable else \
+                [(tone.params[type(tone).fit.scale], tone.params["frequency_hz"])]
             r = r.copy()
-            fitted = amp.copy()
-            for j in range(d.p):
-                a, b = tone_ls(r[:, j], freq[j], d.Ts, d.k0)
-                A = math.hypot(a, b)
-                if free_tone:
-                    fitted[j] = A
-                    scale = 1.0
-                else:
-                    scale = amp[j] / A if A > 0 else 0.0
-                w = 2 * np.pi * freq[j] * d.Ts * np.arange(d.N)
-                r[:, j] -= scale * (a * np.sin(w) + b * np.cos(w))
+            for i, (amp_i, freq_i) in enumerate(lines):
+                amp = np.broadcast_to(amp_i, (d.p,)).astype(float)
+                freq = np.broadcast_to(freq_i, (d.p,)).astype(float)
+                free = free_tone and i == 0
+                if i == 0:
+                    fitted = amp.copy()
+                for j in range(d.p):
+                    a, b = tone_ls(r[:, j], freq[j], d.Ts, d.k0)
+                    A = math.hypot(a, b)
+                    if free:
+                        fitted[j] = A
+                        scale = 1.0
+                    else:
+                        scale = amp[j] / A if A > 0 else 0.0
+                    w = 2 * np.pi * freq[j] * d.Ts * np.arange(d.N)
+                    r[:, j] -= scale * (a * np.sin(w) + b * np.cos(w))
         return r, yd, fitted
 
 

@@ -87,7 +87,7 @@ def per_output(model, eid: str) -> bool:
     return CATALOGUE[eid].stage == "sensor" and model.p > 1
 
 
-def interval_tasks(H: Hypotheses, fit: Fit, eid: str) -> list:
+def interval_tasks(H: Hypotheses, fit: Fit, eid: str, line_hz: float | None = None) -> list:
     """95 % profile-likelihood intervals of ``eid``'s free parameters at the joint fit (every other
     free variance re-optimized, and the effect's own searched parameters too for its variance: a
     Gauss-Markov std and its tau trade off against each other), as independent (key, thunk) pairs
@@ -100,14 +100,17 @@ def interval_tasks(H: Hypotheses, fit: Fit, eid: str) -> list:
     scale factor's value per output) gets each output's own interval: the profile over that
     output's value alone, every other free value (the other outputs' too) re-optimized at each
     point, as for the one parameter of a single output. Its one interval (the ``name`` key) is the
-    output's whose value is the largest, as for a parameter fitted per input."""
+    output's whose value is the largest, as for a parameter fitted per input.
+
+    ``line_hz``: for an effect of several lines (``repeatable``), the line's frequency whose
+    intervals are asked (default: the fitted line's)."""
     eff = fit.model.effects.get(eid)
     if eff is None:
         return []
     spec = CATALOGUE[eid].fit
     p = fit.model.p
     if spec.kind == "line":
-        return [(None, lambda: _tone_intervals(H, fit, eid))]
+        return [(None, lambda: _tone_intervals(H, fit, eid, line_hz))]
     if spec.kind == "grid":
         # found exactly on the data's grid: each output's step is its own interval; the one interval
         # is the range of the outputs' steps
@@ -170,19 +173,37 @@ def _profile_scale(H: Hypotheses, fit: Fit, eid: str, name: str, power: int, val
     return [ref * lo ** (1 / power), ref * hi ** (1 / power)]
 
 
-def _tone_intervals(H: Hypotheses, fit: Fit, eid: str) -> tuple[dict, dict]:
+WANDER_Z = 3.29          # the halves' frequencies differ by this many sd: the line wanders (two-sided 0.1 %)
+
+
+def _tone_intervals(H: Hypotheses, fit: Fit, eid: str, line_hz: float | None = None) -> tuple[dict, dict]:
     """Least-squares amplitude (Var = 2 S / N) and the Cramer-Rao bound of the frequency
     (Var(w) = 12 / (eta N^3) with eta = A^2 / (2 S), i.e. 24 S / (A^2 N^3): Kay 1993 eq. 3.41), S
     the residual's per-sample spectral density next to the line (the 40 bins on each side, the
     line's own +-3 bins left out). ({name: interval}, {name: per output}) as
     :func:`merge_intervals` takes them: the amplitude is each output's own (several outputs), the
-    one frequency's interval and the amplitude's one interval are the largest amplitude's."""
+    one frequency's interval and the amplitude's one interval are the largest amplitude's.
+
+    The bound holds for a line of fixed frequency. A line whose frequency wanders over the record
+    (a motor's, a vibration's) is checked across the record's halves: the frequency fitted on each
+    half (:func:`.tones.refine_frequency` on the residual with that line left in) differs by more
+    than the two halves' own bounds allow (|f1 - f2| > :data:`WANDER_Z` sqrt(s1^2 + s2^2), a
+    two-sided 0.1 % test: a steady line is widened once in a thousand records), then the interval
+    is widened to cover both halves' estimates with their 95 % bounds: as wide as the data support,
+    not the bound of a steady line that is not there.
+
+    ``line_hz``: the line of an effect of several (``repeatable``) nearest this frequency (default:
+    the fitted one, ``all_lines()[0]``)."""
     d = H.data
     tone = fit.model.effects[eid]
     aname = CATALOGUE[eid].fit.scale
-    amp = np.broadcast_to(tone.params[aname], (d.p,)).astype(float)
-    freq = np.broadcast_to(tone.params["frequency_hz"], (d.p,)).astype(float)
+    lines = tone.all_lines() if type(tone).repeatable else \
+        [(np.asarray(tone.params[aname], float), np.asarray(tone.params["frequency_hz"], float))]
+    k_line = 0 if line_hz is None else int(np.argmin([abs(float(np.max(f)) - line_hz) for _, f in lines]))
+    amp = np.broadcast_to(lines[k_line][0], (d.p,)).astype(float)
+    freq = np.broadcast_to(lines[k_line][1], (d.p,)).astype(float)
     r, _, _ = H.ev.residual(fit.model, True)
+    with_line = H.ev.residual(_line_zeroed(fit.model, eid, k_line), False)[0]   # the line left in
     n = d.N - d.k0
     lo_a, hi_a, lo_f, hi_f = [], [], [], []
     for j in range(d.p):
@@ -195,12 +216,68 @@ def _tone_intervals(H: Hypotheses, fit: Fit, eid: str) -> tuple[dict, dict]:
         sf = math.sqrt(24 * S / (max(amp[j], 1e-300) ** 2 * n**3)) / (2 * np.pi * d.Ts) if amp[j] > 0 else 0.0
         lo_a.append(max(amp[j] - 1.96 * sa, 0.0))
         hi_a.append(amp[j] + 1.96 * sa)
-        lo_f.append(freq[j] - 1.96 * sf)
-        hi_f.append(freq[j] + 1.96 * sf)
+        f_lo, f_hi = freq[j] - 1.96 * sf, freq[j] + 1.96 * sf
+        halves = _half_frequencies(with_line[d.k0:, j], amp[j], freq[j], S, d.Ts) if amp[j] > 0 else None
+        if halves is not None:
+            (f1, s1), (f2, s2) = halves
+            if abs(f1 - f2) > WANDER_Z * math.hypot(s1, s2):
+                f_lo = min(f_lo, f1 - 1.96 * s1, f2 - 1.96 * s2)
+                f_hi = max(f_hi, f1 + 1.96 * s1, f2 + 1.96 * s2)
+        lo_f.append(f_lo)
+        hi_f.append(f_hi)
     k = int(np.argmax(amp))
     per = {aname: [[a, b] for a, b in zip(lo_a, hi_a)]} if d.p > 1 else {}
     return {aname: [lo_a[k], hi_a[k]], "frequency_hz": [lo_f[k], hi_f[k]]}, per
 
+
+def line_halves(H: Hypotheses, model, eid: str, k_line: int) -> list:
+    """Per output: [(frequency, sd) of each half] of line ``k_line`` of effect ``eid``
+    (:func:`_half_frequencies`), or None where a half is too short to resolve it."""
+    d = H.data
+    eff = model.effects[eid]
+    amp, freq = (np.broadcast_to(v, (d.p,)).astype(float) for v in eff.all_lines()[k_line])
+    r = H.ev.residual(model, False)[0]
+    full = H.ev.residual(_line_zeroed(model, eid, k_line), False)[0]
+    out = []
+    for j in range(d.p):
+        x = r[d.k0:, j] - r[d.k0:, j].mean()
+        n = x.size
+        X = np.abs(np.fft.rfft(x)) ** 2 / n
+        b = int(round(freq[j] * n * d.Ts))
+        idx = np.r_[max(1, b - 43):max(1, b - 3), b + 4:min(X.size, b + 44)]
+        S = float(np.mean(X[idx])) if idx.size else float(np.var(x))
+        out.append(_half_frequencies(full[d.k0:, j], amp[j], freq[j], S, d.Ts) if amp[j] > 0 else None)
+    return out
+
+
+def _line_zeroed(model, eid: str, k_line: int):
+    """``model`` with line ``k_line`` of effect ``eid`` at amplitude 0: its residual keeps that line
+    (the others removed)."""
+    eff = model.effects[eid]
+    aname = CATALOGUE[eid].fit.scale
+    params = eff.param_dict()
+    if k_line == 0:
+        params[aname] = 0.0
+    else:
+        params["lines"] = [dict(ln, **{aname: 0.0}) if i == k_line - 1 else ln for i, ln in enumerate(params["lines"])]
+    return model.with_params(eid, params)
+
+
+def _half_frequencies(full: np.ndarray, amp: float, freq: float, S: float, Ts: float):
+    """[(frequency, its Cramer-Rao sd)] of the line (amplitude ``amp`` at ``freq`` Hz) fitted on
+    each half of ``full`` (the residual with the line in it), S the per-sample density next to it;
+    None when a half is too short to resolve the line (fewer than 8 of its cycles)."""
+    from .tones import refine_frequency
+    n = full.size
+    h = n // 2
+    if h * Ts * freq < 8:
+        return None
+    out = []
+    for seg in (full[:h], full[h:2 * h]):
+        f = refine_frequency(seg, freq, Ts, 0, 3.0 / (h * Ts))      # within +-3 of the half's bins
+        s = math.sqrt(24 * S / (max(amp, 1e-300) ** 2 * h**3)) / (2 * np.pi * Ts)
+        out.append((f, s))
+    return out
 
 def _profile_scale_shaped(H: Hypotheses, fit: Fit, eid: str, name: str, val: float, direction: int,
                           j: int | None = None) -> float:

@@ -3,7 +3,9 @@
 * ``add``: the effect is not in the model; it is added with its fitted values;
 * ``refit``: the effect is in the model but a value is wrong; its parameters are freed and refitted;
 * ``replace``: the effect takes the place of one the model has (``FitSpec.replaces``: colored
-  actuator noise for the white actuator noise the user wrote).
+  actuator noise for the white actuator noise the user wrote);
+* ``add`` of a line (``line``): one more line of an effect that holds several (``repeatable``: a
+  tone's), beside those the model has; undone by removing that line alone.
 
 The JSON report spells a mode as ``"add"``, ``"refit"`` or ``"replace:<effect id>"`` (``str(mode)``;
 :meth:`Mode.parse` reads it back).
@@ -27,10 +29,12 @@ contradicts the user's value, so it is kept."""
 class Mode:
     kind: str                       # "add" | "refit" | "replace"
     replaces: str | None = None     # the effect id replaced (kind "replace")
+    line: bool = False              # an added line of a repeatable effect (kind "add")
 
     def __post_init__(self):
-        if self.kind not in MODE_RANK or (self.kind == "replace") != (self.replaces is not None):
-            raise ValueError(f"not a candidate mode: {self.kind!r} {self.replaces!r}")
+        if self.kind not in MODE_RANK or (self.kind == "replace") != (self.replaces is not None) \
+                or (self.line and self.kind != "add"):
+            raise ValueError(f"not a candidate mode: {self.kind!r} {self.replaces!r} {self.line!r}")
 
     @classmethod
     def parse(cls, text: str) -> Mode:
@@ -49,7 +53,9 @@ class Mode:
         return EXACT_RANK[self.kind]
 
     def phrase(self) -> str:
-        """The mode in a sentence: ``add``, ``refit``, ``in place of <effect id>``."""
+        """The mode in a sentence: ``add``, ``add a line``, ``refit``, ``in place of <effect id>``."""
+        if self.line:
+            return "add a line"
         return self.kind if self.replaces is None else f"in place of {self.replaces}"
 
     def __str__(self) -> str:
@@ -57,6 +63,7 @@ class Mode:
 
 
 ADD = Mode("add")
+ADD_LINE = Mode("add", line=True)
 REFIT = Mode("refit")
 
 

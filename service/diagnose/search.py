@@ -38,7 +38,7 @@ from .edits import (
     shape_channels,
 )
 from .hypotheses import Fit, Hypotheses
-from .modes import ADD, REFIT, Mode, replacing
+from .modes import ADD, ADD_LINE, REFIT, Mode, replacing
 from .sandwich import lr_spread
 from .thresholds import (
     CHIBAR2_95,
@@ -57,7 +57,7 @@ SCREEN_N = 1 << 18        # records of at least 2 SCREEN_N samples are screened 
 
 
 # -- candidates ---------------------------------------------------------------------------------------------
-@dataclass
+@dataclass(eq=False)       # a candidate is itself (two lines of one effect share effect and mode)
 class Candidate:
     effect: str
     mode: Mode                      # add | refit | replace:<effect id> (:mod:`.modes`)
@@ -343,6 +343,12 @@ class Search:
         model = cur.model
         for eid, cls in CATALOGUE.items():
             spec = cls.fit
+            if spec.kind == "line" and cls.repeatable and eid in model.effects:
+                # one more line beside those the model holds (found before, or the user's)
+                try:
+                    out += self._tones(cur, eid, ADD_LINE)
+                except (ModelError, ValueError, np.linalg.LinAlgError) as exc:
+                    self.log(f"candidate {eid} (another line): skipped ({exc})")
             if spec.kind == "none" or eid in cur.free:
                 continue
             if not model.can_have(eid):         # e.g. an actuator in a sensor-only model: none is there
@@ -448,13 +454,19 @@ class Search:
 
     def _tones(self, cur: Fit, eid: str, mode: Mode) -> list[Start]:
         """A ``line`` effect (a tone): started at each peak of the residual's periodogram that no
-        noise explains (:func:`.tones.tone_peaks`)."""
+        noise explains (:func:`.tones.tone_peaks`). ``ADD_LINE``: a line more of an effect of
+        several (``repeatable``) that the model has, the residual being that of every line it holds,
+        their frequencies left out of the peaks as the command's are; the lines it holds are kept
+        at their values (``push_line``) and the new one is fitted."""
         d = self.data
         aname = CATALOGUE[eid].fit.scale
         free = dict(cur.free)
         free[eid] = [aname, "frequency_hz"]
         if mode == REFIT:
             return [Start(eid, mode, cur.model, free, 2 * d.p)]
+        held, held_half = np.zeros(0), np.zeros(0)
+        if mode.line:
+            held, held_half = self._held_zones(cur.model, eid)
         r, _, _ = self.H.ev.residual(cur.model, False)
         I = W.periodogram(r, d.k0)
         E = sum(W.expected_parts(cur.model, d.M, d.k0, d.at_rest, cache=self.H.ev._parts,
@@ -470,15 +482,42 @@ class Search:
         half = np.broadcast_to(2.5 + 0.5 * order, (lines.size, order.size)).ravel()
         keep = harm < 0.5 / d.Ts
         harm, half = harm[keep], half[keep]
-        if harm.size:
+        if harm.size and not mode.line:
             self.log(f"tone candidates: none at the command's lines and their harmonics "
                      f"({', '.join(f'{x:.4g}' for x in harm[:4])}{', ...' if harm.size > 4 else ''} Hz)")
+        # a line the model holds: its main lobe, the frequency's uncertainty and its wander over the
+        # record (:meth:`_held_zones`); what is left there is that line's, not another's
+        harm, half = np.concatenate([harm, held]), np.concatenate([half, held_half])
         for j, f in tone_peaks(I, E, d.M, d.Ts, exclude=(harm, half)):
             amp = np.zeros(d.p)
             amp[j] = 1.0
-            m = _set(cur.model, eid, {aname: _vec(amp), "frequency_hz": _vec(np.full(d.p, f))})
-            out.append(Start(eid, ADD, m, free, 3))
+            new = {aname: _vec(amp), "frequency_hz": _vec(np.full(d.p, f))}
+            if mode.line:
+                m = cur.model.with_params(eid, dict(cur.model.effects[eid].push_line(), **new))
+            else:
+                m = _set(cur.model, eid, new)
+            out.append(Start(eid, mode, m, free, 3))
         return out
+
+    def _held_zones(self, model, eid: str) -> tuple[np.ndarray, np.ndarray]:
+        """(frequencies Hz, half-widths in bins) of the lines effect ``eid`` holds, per output: each
+        line's main lobe and frequency uncertainty (+-3 bins, as a command line's) plus its wander,
+        twice the difference of its frequency fitted on the record's halves
+        (:func:`.intervals.line_halves`: a drift's halves sit at a quarter and three quarters of
+        its span). A line that wanders leaves power beside its fitted frequency; taken for
+        another line, it split one wandering line into two steady ones."""
+        from .intervals import line_halves
+        d = self.data
+        eff = model.effects[eid]
+        freqs, halves = [], []
+        for k, (_, f) in enumerate(eff.all_lines()):
+            f = np.broadcast_to(f, (d.p,))
+            h = line_halves(self.H, model, eid, k)
+            for j in range(d.p):
+                wander = 0.0 if h[j] is None else 2.0 * abs(h[j][0][0] - h[j][1][0]) * d.M * d.Ts
+                freqs.append(float(f[j]))
+                halves.append(3.0 + wander)
+        return np.array(freqs), np.array(halves)
 
     def refit_all(self, cur: Fit, thorough: bool = False) -> Fit:
         """Refit every free parameter jointly. Searched parameters move locally from their current

@@ -425,7 +425,14 @@ def _fmt(v) -> str:
         return "[" + ", ".join(_fmt(x.item() if isinstance(x, np.generic) else x) for x in v) + "]"
     if isinstance(v, np.generic):
         return _fmt(v.item())
+    if isinstance(v, dict):            # an inline table (an element of a list of tables: a tone's lines)
+        return "{" + ", ".join(f"{_key(k)} = {_fmt(x)}" for k, x in v.items()) + "}"
     raise ModelError(f"cannot write {type(v).__name__} to a model file")
+
+
+def _key(k: str) -> str:
+    """A TOML key: bare when it is one (letters, digits, _ and -), else quoted."""
+    return k if k and all(ch.isalnum() or ch in "_-" for ch in k) and k.isascii() else _fmt(str(k))
 
 
 def dumps_toml(d: dict) -> str:

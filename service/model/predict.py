@@ -421,8 +421,8 @@ class Predictor(MeanResponses, Linearization, Spectra):
                     # through the filter from rest: var0 s_k^2 + q sum_(m<k) s_m^2 (:mod:`.effects.sensor_filter`)
                     s2 = flt.step_response(n) ** 2
                     parts[eid] = var0 * s2 + q * np.concatenate([np.zeros((1, self.model.p)), np.cumsum(s2, axis=0)[:-1]])
-            elif kind == "tone":
-                parts[eid] = np.broadcast_to(prm[0] ** 2 / 2.0, (n, self.model.p)).copy()
+            elif kind == "tone":            # an effect of several lines: their variances add
+                parts[eid] = parts.get(eid, 0.0) + np.broadcast_to(prm[0] ** 2 / 2.0, (n, self.model.p))
             elif kind == "jitter":
                 parts[eid] = prm[0] * (mean.ydot**2 + ydot_var)
         total = sum(parts.values(), np.zeros((n, self.model.p)))
@@ -594,8 +594,8 @@ class Predictor(MeanResponses, Linearization, Spectra):
                 contributions[eid] = np.broadcast_to(prm[0], (mdl.p,)).copy()
             elif kind == "walk":
                 rate = rate + prm[0] / mdl.Ts
-            elif kind == "tone":
-                contributions[eid] = prm[0] ** 2 / 2.0
+            elif kind == "tone":            # an effect of several lines: their variances add
+                contributions[eid] = contributions.get(eid, 0.0) + prm[0] ** 2 / 2.0
             elif kind == "jitter":
                 contributions[eid] = prm[0] * (ydot2 + ydot_var) if slope_ok or not ydot_var.any() else None
         return rate

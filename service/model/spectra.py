@@ -117,8 +117,8 @@ class Spectra:
                 R = np.zeros((L, mdl.p))
                 R[0] = v
                 out[eid] = R
-            elif kind == "tone":
-                out[eid] = prm[0] ** 2 / 2.0 * np.cos(2 * np.pi * d[:, None] * prm[1] * mdl.Ts)
+            elif kind == "tone":            # an effect of several lines: their autocovariances add
+                out[eid] = out.get(eid, 0.0) + prm[0] ** 2 / 2.0 * np.cos(2 * np.pi * d[:, None] * prm[1] * mdl.Ts)
         q = self.after_sum()
         if quantization and q is not None and all(v is not None for v in out.values()):
             gam = {eid: R[0] - R for eid, R in out.items()}

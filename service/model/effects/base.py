@@ -105,6 +105,11 @@ The diagnosis never names an effect: it asks these, and each default contributes
   it from a linear effect, the linear one is reported.
 * ``output_white_std()``: the std of a white noise the effect adds to each output before the
   quantizer (a lower bound of the noise there), or None.
+* ``repeatable``: a ``line`` effect that holds several lines (a tone's harmonics, vibration
+  lines), found one after another: ``all_lines()`` lists them as (amplitude, frequency_hz) per
+  output, the fitted one (``fit.scale`` and ``frequency_hz``) first; ``push_line()`` gives the
+  parameters with that one moved among the held lines (a new one is then set in its place),
+  ``pop_line()`` undoes it.
 * ``explain(params, Ts)``: one sentence of evidence in physical terms; ``equivalents(params, Ts)``:
   the same fit in the file's other spellings, e.g. ``rho`` for ``tau_s``, for users' scripts.
 
@@ -261,6 +266,7 @@ class Effect:
     gain_start: ClassVar[bool] = False
     drift: ClassVar[str | None] = None       # "sensor" | "actuator" | None
     clips: ClassVar[bool] = False
+    repeatable: ClassVar[bool] = False
 
     def output_white_std(self) -> np.ndarray | float | None:
         """The std of a white noise this effect adds to each output before the quantizer; None."""
