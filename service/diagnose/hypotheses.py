@@ -489,6 +489,8 @@ class Hypotheses:
         d = self.data
         if unit == "Ts|T":
             return lo * d.Ts, hi * d.T, spacing
+        if unit == "fs":                # a frequency, as a fraction of the sample rate
+            return lo / d.Ts, hi / d.Ts, spacing
         if unit == "umax":
             um = d.umax if ch is None or ch >= d.umax_in.size or d.umax_in[ch] <= 0 else float(d.umax_in[ch])
             return lo * um, hi * um, spacing

@@ -173,7 +173,8 @@ class Search:
         best: dict = {}
         for c in out:
             best.setdefault((c.effect, c.mode), c)
-        two = {(c.effect, c.mode) for c in out if per_input(c.effect) or PER_CHANNEL in c.start.free.get(c.effect, ())}
+        two = {(c.effect, c.mode) for c in out if per_input(c.effect) or PER_CHANNEL in c.start.free.get(c.effect, ())
+               or CATALOGUE[c.effect].fit.kind == "filter"}       # a filter's kinds and taps: its best start
         out = [c for c in out if (c.effect, c.mode) not in two or best[(c.effect, c.mode)] is c]
         leaders = [c for c in out[:self.n_full] if c.score >= bar - 30]
 
@@ -366,6 +367,8 @@ class Search:
                     out += self._grid(cur, eid, mode)
                 elif spec.kind == "line":
                     out += self._tones(cur, eid, mode)
+                elif spec.kind == "filter" and mode == ADD:
+                    out += self._filters(cur, eid)
             except (ModelError, ValueError, np.linalg.LinAlgError) as exc:
                 self.log(f"candidate {eid}: skipped ({exc})")
         return out
@@ -497,6 +500,17 @@ class Search:
             else:
                 m = _set(cur.model, eid, new)
             out.append(Start(eid, mode, m, free, 3))
+        return out
+
+    def _filters(self, cur: Fit, eid: str) -> list[Start]:
+        """A ``filter`` effect (the sensor's own): a start per kind it offers (``fit_starts``), the
+        noises before it refitted in their variances; one parameter each (a cutoff, or the taps
+        chosen among the starts)."""
+        out = []
+        for params, names in CATALOGUE[eid].fit_starts(self.data.Ts):
+            free = dict(cur.free)
+            free[eid] = list(names)
+            out.append(Start(eid, ADD, cur.model.with_effect(eid, params), free, 1))
         return out
 
     def _held_zones(self, model, eid: str) -> tuple[np.ndarray, np.ndarray]:

@@ -378,7 +378,7 @@ def _hidden_params(rng, eid, Ts, T, plant, command, nominal, var0, sd0, fn):
 
 
 SENSOR_HIDEABLE = ("sensor.white", "sensor.bias_walk", "sensor.bias_markov", "sensor.bias_instability",
-                   "sensor.integral_white", "sensor.tone", "sensor.quantization")
+                   "sensor.integral_white", "sensor.tone", "sensor.quantization", "sensor.filter")
 DRIFTS = ("sensor.bias_walk", "sensor.bias_markov", "sensor.bias_instability")
 
 
@@ -399,7 +399,9 @@ def make_sensor_case(seed: int, n_hidden: int | None = None, null: bool | None =
     Gauss-Markov bias and a flicker bias over the same band are the Allan practice's own ambiguity).
 
     Magnitudes relative to the white noise (per-sample std s, one-sided density 2 s^2 Ts), as for
-    the generator's cases, by where the hidden effect meets it: a flicker bias's Allan floor
+    the generator's cases, by where the hidden effect meets it (the sensor's own filter: a kind
+    drawn, a moving average of 2 to 8 taps or a cutoff at 5 % to 30 % of the sample rate, shaping
+    the white noise): a flicker bias's Allan floor
     0.664 B crosses the white descent s sqrt(Ts / tau) at tau_c log-uniform in [30 Ts, T / 30] (a
     decade of floor or more in the record); the integral's white noise is f times the white density
     at Nyquist (8 Q^2 / Ts = f 2 s^2 Ts, f in [0.3, 3]); the other effects as :func:`make_case`
@@ -426,6 +428,10 @@ def make_sensor_case(seed: int, n_hidden: int | None = None, null: bool | None =
             params = {"B": float(f"{sd * math.sqrt(Ts / tau_c) / 0.6643:.4g}")}
         elif eid == "sensor.integral_white":
             params = {"Q": float(f"{sd * Ts * math.sqrt(f) / 2:.4g}")}
+        elif eid == "sensor.filter":
+            kind = str(rng.choice(["lowpass1", "lowpass2", "average"]))
+            params = {"kind": kind, "taps": int(rng.integers(2, 9))} if kind == "average" else \
+                {"kind": kind, "cutoff_hz": float(f"{rng.uniform(0.05, 0.3) / Ts:.4g}")}
         else:
             params = _hidden_params(rng, eid, Ts, T, None, {}, nominal, var0, sd, None)
         if params is None:
@@ -463,7 +469,12 @@ def score_case(case: Case, rep: dict) -> dict:
         if m["effect"] not in planted:
             continue
         for k, v in case.hidden[m["effect"]].items():
-            if k == "mode" or not isinstance(v, (int, float, list)):
+            if k == "mode":
+                continue
+            if isinstance(v, str) or (isinstance(v, int) and not isinstance(v, bool)):
+                within.append(m["params"].get(k) == v)      # a choice (a filter's kind, its taps): exactly
+                continue
+            if not isinstance(v, (float, list)):
                 continue
             got = m["params"].get(k)
             if got is None:

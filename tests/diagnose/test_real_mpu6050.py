@@ -273,8 +273,9 @@ def report(out: Path) -> None:
     printed as the markdown RESULTS.md holds."""
     out.mkdir(parents=True, exist_ok=True)
     print("| file | output | error before -> after | effects added (fitted value [95 % interval]) "
-          "| N | sigma_A(1 s) [99.7 %] | N / source 6 h | step found / 1 LSB | flagged after |")
-    print("|---|---|---|---|---|---|---|---|---|")
+          "| N | sigma_A(1 s) [99.7 %] | N / source 6 h | step found / 1 LSB | Allan readings (`noiselab allan`) "
+          "| flagged after |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for file in SHA256:
         bag = out / file
         if not bag.exists():
@@ -288,12 +289,16 @@ def report(out: Path) -> None:
             dev, lo, hi = oadev_1s(values(file, ch))
             src = f"{n['value'] / SOURCE_SIGMA_1S[ch.name]:.3f}" if ch.name in SOURCE_SIGMA_1S else "-"
             step = found_step(d) / ch.per_count
+            al = noiselab_json("allan", bag, "--measurement", f"/imu:{ch.field}", "--json")
+            rd = next(iter(al["outputs"].values()))["readings"]
+            readings = ", ".join(f"{k} {v['value']:.3g} [{v['interval'][0]:.3g}, {v['interval'][1]:.3g}]"
+                                 for k, v in rd.items() if v["value"] is not None) or "none"
             flagged = "; ".join(f"{r['view']} {r['from']:.3g}-{r['to']:.3g} ({r['direction']}, |z| {r['max_abs_z']:.1f})"
                                 for r in sorted(a["regions"], key=lambda r: -r["max_abs_z"])) or "none"
             print(f"| {file} | {ch.name} [{ch.unit}] | {d['error_before']:.1f} -> {d['error_after']:.2f} "
                   f"(analyze {a['error']:.2f}) | {'; '.join(_fmt_effect(m) for m in d['missing'])} "
                   f"| {n['value']:.4g} [{n['interval'][0]:.4g}, {n['interval'][1]:.4g}] "
-                  f"| {dev:.4g} [{lo:.4g}, {hi:.4g}] | {src} | {step:.6f} LSB | {flagged} |")
+                  f"| {dev:.4g} [{lo:.4g}, {hi:.4g}] | {src} | {step:.6f} LSB | {readings} | {flagged} |")
             print(f"<!-- {file} {ch.name}: per view after {json.dumps(a['error_per_view'])}; "
                   f"diagnose {d['seconds']} s -->")
 

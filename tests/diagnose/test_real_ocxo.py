@@ -86,3 +86,59 @@ def test_the_phase_noise_the_allan_deviation_shows_at_1_s_is_found_as_q(diagnosi
     slow = ref["tau"] >= 32.0
     assert np.all(np.abs(z[slow]) < WIDTHS), dict(zip(ref["tau"][slow], np.round(z[slow], 2)))
     assert rep["error_before"] > 20.0 and rep["error_after"] < 3.0, (rep["error_before"], rep["error_after"])
+
+
+# -- the figures of RESULTS.md ("Real data: OCXO"): this file run as a script ---------------------------------
+def report(out) -> None:
+    """Diagnose from the white-FM start, then print the effects, the fitted model's Allan deviation
+    beside Stable32's at every octave tau, and the Allan command's readings, as markdown."""
+    import sys
+    from pathlib import Path
+
+    from noiselab.cli import main
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    rec, model, fit = out / "ocxo.mcap", out / "start.toml", out / "fitted.toml"
+    raw_json_mcap(rec, "/ocxo", [(k * 1_000_000_000, json.dumps({"y": float(v)}).encode())
+                                 for k, v in enumerate(ocxo_y())])
+    model.write_text(START)
+
+    def run(*argv):
+        import contextlib
+        import io
+        buf = io.StringIO()
+        with contextlib.redirect_stdout(buf):
+            rc = main([str(a) for a in argv])
+        assert rc == 0, argv
+        return json.loads(buf.getvalue())
+
+    rep = run("diagnose", rec, "--measurement", "/ocxo:y", "--model", model, "--json", "--fit-out", fit, "--force")
+    print(f"model error {rep['error_before']:.3g} -> {rep['error_after']:.3g}", file=sys.stdout)
+    print("| effect | mode | fitted [95 % interval] | Delta BIC |\n|---|---|---|---|")
+    for m in rep["missing"]:
+        ps = ", ".join(f"{k} {v:.4g}" + (f" [{m['interval'][k][0]:.4g}, {m['interval'][k][1]:.4g}]"
+                                        if k in m["interval"] else "")
+                       for k, v in m["params"].items() if k not in ("rho", "density"))
+        print(f"| `{m['effect']}` | {m['mode']} | {ps} | {m['score']:.1f} |")
+    ref = read_stable32("oadev_octave.txt")
+    fitted = parse_model(fit.read_text())
+    mm = ref["m"].astype(int)
+    avar = fitted.predictor().allan(mm)
+    tot = np.sqrt(sum(v[:, 0] for v in avar.values() if v is not None))
+    half = (ref["hi"] - ref["lo"]) / 2
+    print("\n| tau [s] | Stable32 alpha | Stable32 OADEV [68.3 %] | fitted model | z (half-widths) |\n|---|---|---|---|---|")
+    for i, tau in enumerate(ref["tau"]):
+        print(f"| {tau:g} | {int(ref['alpha'][i])} | {ref['dev'][i]:.4e} [{ref['lo'][i]:.4e}, {ref['hi'][i]:.4e}] "
+              f"| {tot[i]:.4e} | {(tot[i] - ref['dev'][i]) / half[i]:+.1f} |")
+    al = run("allan", rec, "--measurement", "/ocxo:y", "--json")
+    rd = next(iter(al["outputs"].values()))["readings"]
+    print("\nAllan readings: " + "; ".join(
+        f"{k} = {v['value']:.4g} [{v['interval'][0]:.4g}, {v['interval'][1]:.4g}] on tau "
+        f"{v['tau_range'][0]:g}-{v['tau_range'][1]:g} s" if v["value"] is not None else f"{k}: none ({v['reason']})"
+        for k, v in rd.items()))
+
+
+if __name__ == "__main__":
+    import sys
+    report(sys.argv[1] if len(sys.argv) > 1 else "recordings/ocxo")

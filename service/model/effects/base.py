@@ -80,6 +80,9 @@ The diagnosis never names an effect: it asks these, and each default contributes
 
   - ``noise``: a part of the expected periodogram linear in its variance (the inner fit);
   - ``mean``: the residual is recomputed per value of its searched parameters;
+  - ``filter``: the sensor's own filter, a shape of the noises before it with no variance of its
+    own: each of its ``fit_starts(Ts)`` (parameters, searched names) is a start (the kinds of
+    filter, each moving average's taps), the best of them the candidate;
   - ``grid``: values on a grid of step ``fit.scale`` (quantization): the search starts at the
     record's own grid steps (:attr:`.data.Data.grid`), the likelihood adds l_grid, and the
     quantizer's conditional moments and correlated error (:class:`Predictor`'s quantizer terms)
@@ -146,10 +149,12 @@ class FitSpec:
     likelihood), ``mean`` (changes the mean response to the command), ``grid`` (quantization: values
     on a grid of step ``scale``), ``line`` (a tone: a deterministic sinusoid in a record, amplitude
     ``scale``, frequency ``frequency_hz``), ``modulated`` (a noise source whose variance follows the
-    signal's slope: jitter); the kind chooses the diagnosis' machinery (module docstring).
+    signal's slope: jitter), ``filter`` (the sensor's own filter: a shape of the noises before
+    it, started at each of the effect's ``fit_starts``); the kind chooses the diagnosis'
+    machinery (module docstring).
     shape: searched parameters ``(name, lo, hi, unit, spacing)``: bounds in ``unit`` ("Ts": sample
-    periods, "T": record lengths, "umax": the largest |command|, "1": absolute), ``spacing`` "log"
-    or "lin".
+    periods, "T": record lengths, "umax": the largest |command|, "fs": the sample rate, "1":
+    absolute), ``spacing`` "log" or "lin".
     unit_scale: the reference value of ``scale`` ("Ts/10" for a value relative to Ts).
     replaces: effect ids this one may replace (white actuator noise that is really colored).
     needs_command: only identifiable when the record holds a varying command.

@@ -67,7 +67,7 @@ from scipy.signal import lfilter, tf2ss
 
 from ..lyapunov import _powers_apply
 from ..schema import positive
-from .base import Effect, _g
+from .base import Effect, FitSpec, _g
 
 TAPS_MAX = 256
 """The longest moving average: its realization has N - 1 states per output in the predictions'
@@ -76,12 +76,28 @@ augmented system (a Lyapunov solve cubic in the states)."""
 KINDS = ("lowpass1", "lowpass2", "average")
 
 
+TAPS_FOUND = range(2, 17)
+"""The moving averages the diagnosis tries (a MEMS IMU's decimation averages a few to 16 samples of
+its internal rate; the likelihood is not unimodal in the taps, so each is a start of its own)."""
+
+
 class SensorFilter(Effect):
     id = "sensor.filter"
     stage = "sensor"
     role = "modifier"
     chain_order = 10.5          # after the sensor sources (7-10), before the jitter and the quantizer
     summary = "the sensor's own digital low-pass / decimation filter"
+    # the diagnosis: a shape of the noises before it, no variance of its own; its starts (fit_starts)
+    # are each kind, a low-pass's cutoff searched from 0.5 % to 45 % of the sample rate
+    fit = FitSpec("filter", shape=(("cutoff_hz", 0.005, 0.45, "fs", "log"),))
+
+    @classmethod
+    def fit_starts(cls, Ts: float) -> list[tuple[dict, list]]:
+        """(parameters, searched names) of each start the diagnosis tries: a first- and a
+        second-order low-pass (the cutoff searched), and each moving average of :data:`TAPS_FOUND`."""
+        mid = float(np.sqrt(0.005 * 0.45)) / Ts
+        return ([({"kind": k, "cutoff_hz": mid}, ["cutoff_hz"]) for k in ("lowpass1", "lowpass2")]
+                + [({"kind": "average", "taps": n}, []) for n in TAPS_FOUND])
 
     def parse(self, t):
         self.kind = t.string("kind", choices=KINDS)
