@@ -1,9 +1,9 @@
 """Generated sensor-only cases (``hidden_set.make_sensor_case``): a rate sensor at rest whose model
 is a white noise, with one or two of the sensor effects hidden (white noise at a wrong value, walk,
 Gauss-Markov bias, flicker bias B, the integral's white noise Q, tone, quantization, the sensor's
-own filter), scored by the
-generator's criteria (``hidden_set.score_case``: planted effects on top, parameters within 30 %,
-model error after at most 1.5 and below before; nothing reported on a null case).
+own filter), scored by the generator's criteria (``hidden_set.score_case``: planted effects on top,
+parameters within 30 % (a choice, such as a filter's kind and taps, exactly), model error after at
+most 1.5 and below before; nothing reported on a null case).
 
 Run: ``.venv/bin/python tests/bench/bench_sensor_cases.py [--cases N] [--write]``; ``--write``
 replaces its block in RESULTS.md.
