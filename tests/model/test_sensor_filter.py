@@ -205,15 +205,7 @@ def test_the_cli_predicts_and_analyses_a_filtered_sensor(tmp_path, capsys):
     assert good < 3.0 and bad > 30 * good, (good, bad)
 
 
-WALK = f"""name = "gyro"
-[sampling]
-Ts = {TS}
-[outputs]
-names = ["gyro_x"]
-units = ["rad/s"]
-[sensor.bias_walk]
-std = 0.4
-"""
+WALK = GYRO.replace("[sensor.white]\nstd = 0.5\n", "[sensor.bias_walk]\nstd = 0.4\n")   # the same gyro, a walk alone
 
 
 def _walk_model(kind: str, init: str = ""):
