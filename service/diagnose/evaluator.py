@@ -27,6 +27,7 @@ import numpy as np
 
 from ..memo import Memo
 from ..model.effects import of_kind
+from ..model.filter_cascade import line_gain, output_filter_of
 from ..model.predict import free_response_fit
 from ..model.predict import mean_key as _mean_key
 from . import whittle as W
@@ -212,6 +213,9 @@ class Evaluator:
             for i, (amp_i, freq_i) in enumerate(lines):
                 amp = np.broadcast_to(amp_i, (d.p,)).astype(float)
                 freq = np.broadcast_to(freq_i, (d.p,)).astype(float)
+                # a line before the sensor's own filter leaves it scaled by |H(f)|: the measurement's
+                # amplitude is the model's times that (its parameter the one before the filter)
+                gain = line_gain(model, tone.id, freq)
                 free = free_tone and i == 0
                 if i == 0:
                     fitted = amp.copy()
@@ -219,10 +223,10 @@ class Evaluator:
                     a, b = tone_ls(r[:, j], freq[j], d.Ts, d.k0)
                     A = math.hypot(a, b)
                     if free:
-                        fitted[j] = A
+                        fitted[j] = A / gain[j] if gain[j] > 0 else 0.0
                         scale = 1.0
                     else:
-                        scale = amp[j] / A if A > 0 else 0.0
+                        scale = amp[j] * gain[j] / A if A > 0 else 0.0
                     w = 2 * np.pi * freq[j] * d.Ts * np.arange(d.N)
                     r[:, j] -= scale * (a * np.sin(w) + b * np.cos(w))
         return r, yd, fitted
@@ -248,6 +252,12 @@ def _line(model):
 
 
 def _residual_key(model, free_tone: bool) -> tuple:
-    """What the residual depends on: the mean response and the tone (fitted freely or held)."""
+    """What the residual depends on: the mean response and the tone (fitted freely or held), and
+    the sensor's own filter a tone passes (its amplitude in the measurement is |H(f)| times the
+    model's)."""
     tone = _line(model)
-    return _mean_key(model), repr(tone.param_dict()) if tone is not None else None, free_tone
+    if tone is None:
+        return _mean_key(model), None, free_tone
+    flt = output_filter_of(model)
+    return (_mean_key(model), repr(tone.param_dict()), free_tone,
+            None if flt is None else repr(flt.param_dict()))

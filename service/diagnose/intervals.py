@@ -17,6 +17,7 @@ import numpy as np
 
 from ..model import ModelError
 from ..model.effects import CATALOGUE
+from ..model.filter_cascade import line_gain
 from .edits import (
     PER_CHANNEL,
     _scale_name,
@@ -202,6 +203,9 @@ def _tone_intervals(H: Hypotheses, fit: Fit, eid: str, line_hz: float | None = N
     k_line = 0 if line_hz is None else int(np.argmin([abs(float(np.max(f)) - line_hz) for _, f in lines]))
     amp = np.broadcast_to(lines[k_line][0], (d.p,)).astype(float)
     freq = np.broadcast_to(lines[k_line][1], (d.p,)).astype(float)
+    # the measurement's amplitude (through the sensor's own filter, |H(f)|) sets the bounds; the
+    # amplitude's interval is the parameter's (before the filter)
+    gain = line_gain(fit.model, eid, freq)
     r, _, _ = H.ev.residual(fit.model, True)
     with_line = H.ev.residual(_line_zeroed(fit.model, eid, k_line), False)[0]   # the line left in
     n = d.N - d.k0
@@ -212,12 +216,13 @@ def _tone_intervals(H: Hypotheses, fit: Fit, eid: str, line_hz: float | None = N
         b = int(round(freq[j] * n * d.Ts))
         idx = np.r_[max(1, b - 43):max(1, b - 3), b + 4:min(X.size, b + 44)]
         S = float(np.mean(X[idx])) if idx.size else float(np.var(x))
-        sa = math.sqrt(2 * S / n)
-        sf = math.sqrt(24 * S / (max(amp[j], 1e-300) ** 2 * n**3)) / (2 * np.pi * d.Ts) if amp[j] > 0 else 0.0
+        a_out = amp[j] * gain[j]
+        sa = math.sqrt(2 * S / n) / max(gain[j], 1e-300)
+        sf = math.sqrt(24 * S / (max(a_out, 1e-300) ** 2 * n**3)) / (2 * np.pi * d.Ts) if a_out > 0 else 0.0
         lo_a.append(max(amp[j] - 1.96 * sa, 0.0))
         hi_a.append(amp[j] + 1.96 * sa)
         f_lo, f_hi = freq[j] - 1.96 * sf, freq[j] + 1.96 * sf
-        halves = _half_frequencies(with_line[d.k0:, j], amp[j], freq[j], S, d.Ts) if amp[j] > 0 else None
+        halves = _half_frequencies(with_line[d.k0:, j], a_out, freq[j], S, d.Ts) if a_out > 0 else None
         if halves is not None:
             (f1, s1), (f2, s2) = halves
             if abs(f1 - f2) > WANDER_Z * math.hypot(s1, s2):
@@ -236,6 +241,7 @@ def line_halves(H: Hypotheses, model, eid: str, k_line: int) -> list:
     d = H.data
     eff = model.effects[eid]
     amp, freq = (np.broadcast_to(v, (d.p,)).astype(float) for v in eff.all_lines()[k_line])
+    amp = amp * line_gain(model, eid, freq)           # in the measurement (through the sensor's filter)
     r = H.ev.residual(model, False)[0]
     full = H.ev.residual(_line_zeroed(model, eid, k_line), False)[0]
     out = []

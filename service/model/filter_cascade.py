@@ -94,3 +94,14 @@ def cascade(src: tuple, filt: tuple) -> tuple:
     F[ns:, :ns] = Gf @ Hs
     F[ns:, ns:] = Ff
     return F, np.vstack([Gs, Gf @ Js]), np.hstack([Jf @ Hs, Hf]), Jf @ Js
+
+
+def line_gain(model, eid: str, f_hz) -> np.ndarray:
+    """|H(f)| per output of the sensor's own filter for a line of effect ``eid`` at ``f_hz`` (one
+    value or one per output): the factor from the line's amplitude in the model file to its
+    amplitude in the measurement; 1 without a filter or for an effect after it."""
+    flt = output_filter_of(model)
+    if not _before(model.effects[eid], flt):
+        return np.ones(model.p)
+    return flt.gain(f_hz)
+

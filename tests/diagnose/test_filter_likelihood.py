@@ -56,3 +56,26 @@ def test_the_diagnosis_finds_a_low_pass_and_its_cutoff():
     assert "low-pass" in f["evidence"] or "lowpass2" in f["evidence"]
     assert sum(c["effect"] == "sensor.filter" for c in rep["candidates"]) == 1
     assert rep["error_before"] > 20 and rep["error_after"] <= 1.5
+
+
+def test_a_tone_before_the_filter_is_fitted_at_its_amplitude_before_it():
+    """A line enters before the sensor's own filter (chain order), so the measurement holds it at
+    |H(f)| times the model's amplitude: a 3-tap average passes 17.21 Hz at 100 Hz with gain
+    sin(3 pi f Ts) / (3 sin(pi f Ts)) = 0.647. The diagnosis finds both and reports the amplitude
+    before the filter (the model file's), its interval holding the planted one; a residual cached
+    for the same tone without the filter would have kept the measured 0.647 A (model error 71)."""
+    from noiselab.diagnose.diagnose import diagnose
+    from noiselab.model import parse_model
+
+    base = 'name = "g"\n[sampling]\nTs = 0.01\n[outputs]\nnames = ["gx"]\nunits = ["rad/s"]\n[sensor.white]\nstd = 0.01\n'
+    truth = parse_model(base + '[sensor.tone]\namplitude = 0.0073\nfrequency_hz = 17.21\n'
+                        '[sensor.filter]\nkind = "average"\ntaps = 3\n')
+    rec = truth.simulate(18_000, seed=6)
+    rep = diagnose(parse_model(base), rec.t, rec.y, rec.u)
+    got = {m["effect"]: m for m in rep["missing"]}
+    assert set(got) == {"sensor.tone", "sensor.filter"}, list(got)
+    assert got["sensor.filter"]["params"] == {"kind": "average", "taps": 3}
+    a = got["sensor.tone"]["params"]["amplitude"]
+    lo, hi = got["sensor.tone"]["interval"]["amplitude"]
+    assert lo <= 0.0073 <= hi and abs(a / 0.0073 - 1) < 0.05, (a, lo, hi)
+    assert rep["error_after"] <= 1.5
