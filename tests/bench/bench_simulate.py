@@ -151,12 +151,19 @@ initial_std = 0.001
 std = 0.003
 tau_s = 5.0
 
+[sensor.bias_instability]
+B = 0.002
+
 [sensor.white]
 std = 0.01
+
+[sensor.integral_white]
+Q = 2e-5
 
 [sensor.tone]
 amplitude = 0.004
 frequency_hz = 12.5
+lines = [{amplitude = 0.002, frequency_hz = 31.0}]
 
 [sensor.filter]
 kind = "lowpass2"
