@@ -299,7 +299,12 @@ def _plain_value(v):
 
 
 def _g(v) -> str:
-    """A parameter for a sentence: 3 significant digits, lists element-wise."""
+    """A parameter for a sentence: 3 significant digits, lists element-wise, a choice (a filter's
+    kind) as it is, a table (a tone's line) as its keys' values."""
+    if isinstance(v, str):
+        return v
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{k} = {_g(x)}" for k, x in v.items()) + "}"
     if isinstance(v, (list, tuple, np.ndarray)):
         return "[" + ", ".join(_g(x) for x in v) + "]"
     return f"{float(v):.3g}"
