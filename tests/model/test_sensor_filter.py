@@ -282,3 +282,14 @@ def test_the_impulse_response_autocorrelation_is_the_filters(kind):
     want = np.array([h[:h.size - j] @ h[j:] for j in range(60)])
     np.testing.assert_allclose(flt.impulse_acf(60)[:, 0], want, rtol=1e-9, atol=1e-15)
     np.testing.assert_allclose(flt.step_response(60)[:, 0], np.cumsum(h[:60]), rtol=1e-12)
+
+
+def test_a_sentence_names_the_filters_kind_as_it_is():
+    """The evidence sentences format parameters with ``_g``: a filter's kind (a string) and a
+    tone's lines (tables) are written as they are, not converted to numbers (a white noise's refit
+    with a filter as its alternative stopped a report so)."""
+    from noiselab.model.effects.base import _g
+
+    assert _g("lowpass1") == "lowpass1"
+    assert _g({"amplitude": 0.00123456, "frequency_hz": 12.5}) == "{amplitude = 0.00123, frequency_hz = 12.5}"
+    assert _g([1.23456, 2.0]) == "[1.23, 2]"
