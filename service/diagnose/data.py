@@ -33,6 +33,8 @@ class Data:
     k0: int = 0
     notes: list = field(default_factory=list)
     ramps: object = None          # the taper ramps' term (:class:`.whittle.Ramps`), set by the first Hypotheses
+    feedback: object = None       # the command against the residual's past (:class:`.closed_loop.Feedback`)
+    fed_back: np.ndarray = field(default_factory=lambda: np.zeros(0))   # command lines copied from y
     stable: bool = False          # the plant is stable (a stationary level: ``Evaluator.level_term``), set there too
 
     def __post_init__(self):
@@ -97,6 +99,15 @@ class Data:
                     lines = idx / (x.shape[0] * self.Ts)
             self._lines = lines
         return self._lines
+
+    def reference_lines(self) -> np.ndarray:
+        """The command's lines that are the reference's: :meth:`command_lines` but those a controller
+        copied from the measurement into the command (``fed_back``, :mod:`.closed_loop`): those are
+        the measurement's lines, not the mean response's."""
+        lines = self.command_lines()
+        if not self.fed_back.size:
+            return lines
+        return np.array([f for f in lines if not np.any(np.isclose(f, self.fed_back, rtol=0, atol=1e-9))])
 
     def group(self, A: np.ndarray) -> np.ndarray:
         """Means over the frequency groups (nb, ...)."""

@@ -548,6 +548,28 @@ class _Counted:
         return out
 
 
+def _closed_loop(S, model, data: Data, say) -> None:
+    """Whether the record is under feedback (the command follows the residual's past,
+    :func:`.closed_loop.feedback`, on the nominal model's residual) and which command lines the
+    controller copied from the measurement (:func:`.closed_loop.fed_back_lines`): set on ``data``,
+    said in its notes."""
+    from .closed_loop import feedback, fed_back_lines
+    if not data.has_command:
+        return
+    k0 = data.k0
+    u = data.u[k0:]
+    v = S.H.ev.residual(model, False)[0][k0:]
+    lines = data.command_lines()
+    fb = feedback(u, v, data.Ts, lines)
+    if fb is None or not fb.closed:
+        return
+    data.feedback = fb
+    data.fed_back = fed_back_lines(fb, u, v, lines)
+    data.notes.append(fb.sentence() + (f" (lines copied: {', '.join(f'{f:.4g}' for f in data.fed_back)} Hz)"
+                                       if data.fed_back.size else ""))
+    say(data.notes[-1])
+
+
 def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MAX_EFFECTS, log=None,
              compare_burn="auto", progress=None) -> dict:
     """Diagnose samples y (N, p) at t (N,) with the recorded command u (N, m) against ``model``.
@@ -567,6 +589,7 @@ def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MA
     burn = auto_burn(at_rest, u) if compare_burn == "auto" else compare_burn
     data = Data(y, u, model.Ts, at_rest, k0)
     S = Search(model, data, log=say)
+    _closed_loop(S, model, data, say)
     count = _Counted(S, progress) if progress is not None else None
     # the comparisons (before, after each step, after all) run beside the fits on long records
     # (:meth:`.search.Search.beside`): as one more item of the next candidate map where the maps
@@ -688,6 +711,8 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0,
         "after": after,
         "comparisons": comps,
         "notes": data.notes,
+        "feedback": data.feedback,         # a closed-loop record's test (:mod:`.closed_loop`), or None
+        "fed_back": data.fed_back,
     }
     return out
 

@@ -55,6 +55,9 @@ def diagnosis_json(rep: dict, series=None, extra: dict | None = None) -> dict:
         out["recording"] = series.source
         out["command"] = series.command        # recorded, or the model's own assumed (load.command_used)
     out["coefficients"] = fitted_coefficients(rep)
+    fb = rep.get("feedback")
+    out["closed_loop"] = None if fb is None else {"F": fb.F, "p_value": fb.p_value, "r2": fb.r2,
+                                                  "fed_back_hz": [float(f) for f in rep.get("fed_back", [])]}
     out.update(extra or {})
     return _clean(out)
 

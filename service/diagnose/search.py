@@ -477,7 +477,7 @@ class Search:
         out = []
         # a line at a frequency (or harmonic) of the command's own lines is the mean response's error
         # (a lag, a gain, a saturation's odd harmonics), not an interference tone
-        lines = d.command_lines()
+        lines = d.reference_lines()
         order = np.arange(1, HARMONICS + 1)
         harm = np.outer(lines, order).ravel()
         # zone: the main lobe of an off-bin line (+-2.5 bins) and the line's frequency known to half a

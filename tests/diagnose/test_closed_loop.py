@@ -1,0 +1,90 @@
+"""A record under feedback (service/diagnose/closed_loop.py): the diagnosis tells a closed-loop
+record from an open-loop one (the command follows past measurements: Granger's test of the
+residual's past on the command), says so, and takes a line the controller copied from the
+measurement into the command for what it is, a sensor effect, where the open-loop rule (a residual
+line at a command line is the mean response's error) refused it.
+
+Records: the seed plant under a discrete PID on its measurement, offline
+(tests/helpers/closed_loop.py: the command computed from the samples before it, as over the wire)."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+from helpers.closed_loop import closed_loop
+
+from noiselab.diagnose.closed_loop import ALPHA, feedback
+from noiselab.diagnose.diagnose import diagnose
+from noiselab.model import load_model, parse_model
+
+
+def external(name: str):
+    """Scenario ``name`` with its command external (a controller's)."""
+    text = re.sub(r"\[command\][^\[]*", '[command]\nkind = "external"\n\n', load_model(name).to_toml())
+    return parse_model(text, f"{name} (closed loop)")
+
+
+NOMINAL = external("seed-nominal")
+TONE = "\n[sensor.tone]\namplitude = 0.01\nfrequency_hz = 3.1\n"
+
+
+def test_an_open_loop_command_does_not_follow_the_measurement():
+    """The seed lesson's sine (open loop) and a PRBS: no feedback at ALPHA; the PD's command does,
+    its residual's past explaining most of the command's broadband variance."""
+    seed = load_model("seed")
+    rec = seed.simulate(30_000, seed=3)
+    v = rec.y - load_model("seed-nominal").predictor().mean_response(rec.y.shape[0], rec.u).y
+    fb = feedback(rec.u, v, seed.Ts, [0.7])
+    assert fb is None or (not fb.closed and fb.p_value > ALPHA), fb
+    prbs = parse_model(re.sub(r"\[command\][^\[]*", '[command]\nkind = "prbs"\namplitude = 0.8\nbit_s = 0.2\n\n',
+                              seed.to_toml()))
+    rec = prbs.simulate(30_000, seed=3)
+    v = rec.y - prbs.predictor().mean_response(rec.y.shape[0], rec.u).y
+    fb = feedback(rec.u, v, prbs.Ts)
+    assert fb is not None and not fb.closed and fb.r2 < 0.01, fb
+    # a wrong mean response (the truth has an actuator lag the model lacks) puts a function of past
+    # commands into the residual: the command's own past carries it, no feedback is read
+    lagged = parse_model(prbs.to_toml() + "\n[actuator.lag]\ntau_s = 0.15\n")
+    rec = lagged.simulate(30_000, seed=5)
+    v = rec.y - prbs.predictor().mean_response(rec.y.shape[0], rec.u).y
+    fb = feedback(rec.u, v, prbs.Ts)
+    assert fb is not None and not fb.closed, fb
+    cl = closed_loop(parse_model(NOMINAL.to_toml() + TONE), 30_000, kp=20.0, ki=0.0, kd=2.0, seed=4)
+    v = cl.y - NOMINAL.predictor().mean_response(cl.y.shape[0], cl.u).y
+    fb = feedback(cl.u, v, NOMINAL.Ts, [3.1])
+    assert fb.closed and fb.p_value < 1e-12 and fb.r2 > 0.5, fb
+
+
+@pytest.mark.parametrize("ki,ref", [(0.0, "sine"), (5.0, "step")])
+def test_a_sensor_tone_the_controller_feeds_back_is_found_as_a_sensor_tone(ki, ref):
+    """A PD (and a PI-D) on the seed plant whose sensor carries a 3.1 Hz tone: the controller copies
+    the tone into the command, where the open-loop rule took the residual's line for the mean
+    response's error and offered no tone (the diagnosis then refitted white noise and added colored
+    noises, model error 45). Now the record is said to be closed-loop, the command's line at 3.1 Hz
+    is the measurement's, and the tone is found: amplitude within 10 %, its frequency's interval
+    holding 3.1 Hz, the model error about one."""
+    truth = parse_model(NOMINAL.to_toml() + TONE)
+    rec = closed_loop(truth, 30_000, kp=20.0, ki=ki, kd=2.0, seed=4, ref=ref, amplitude=0.1, frequency_hz=0.3)
+    rep = diagnose(NOMINAL, rec.t, rec.y, rec.u, at_rest=True)
+    assert any(n.startswith("the record looks closed-loop") for n in rep["notes"]), rep["notes"]
+    assert rep["feedback"].closed and np.any(np.isclose(rep["fed_back"], 3.1, atol=0.01)), rep["fed_back"]
+    (tone,) = [m for m in rep["missing"] if m["effect"] == "sensor.tone"]
+    assert tone["params"]["amplitude"] == pytest.approx(0.01, rel=0.1)
+    lo, hi = tone["interval"]["frequency_hz"]
+    assert lo <= 3.1 <= hi, (lo, hi)
+    assert [m["effect"] for m in rep["missing"]] == ["sensor.tone"], [(m["effect"], m["params"]) for m in rep["missing"]]
+    assert rep["error_after"] <= 1.5 < rep["error_before"]
+
+
+def test_a_closed_loop_null_record_reports_nothing_and_the_json_says_closed_loop(tmp_path):
+    """The nominal model under the PD, diagnosed against itself: nothing reported, the record said
+    to be closed-loop in the JSON (``closed_loop``)."""
+    from noiselab.diagnose.report import diagnosis_json
+
+    rec = closed_loop(NOMINAL, 30_000, kp=20.0, ki=0.0, kd=2.0, seed=9, ref="sine", amplitude=0.1, frequency_hz=0.3)
+    rep = diagnose(NOMINAL, rec.t, rec.y, rec.u, at_rest=True)
+    assert rep["missing"] == [], [(m["effect"], m["score"]) for m in rep["missing"]]
+    js = diagnosis_json(rep)
+    assert js["closed_loop"] is not None and js["closed_loop"]["p_value"] < ALPHA and js["closed_loop"]["r2"] > 0.5
