@@ -443,6 +443,118 @@ def make_sensor_case(seed: int, n_hidden: int | None = None, null: bool | None =
                 {k: dict(v) for k, v in hidden.items()}, T, seed + 2000)
 
 
+@dataclass
+class ClosedCase(Case):
+    """A case recorded under a discrete PID on the measurement (tests/helpers/closed_loop.py):
+    gains ``kp``, ``ki``, ``kd`` and the reference ``ref`` (none, step or sine of ``amplitude`` at
+    ``frequency_hz``)."""
+    kp: float = 0.0
+    ki: float = 0.0
+    kd: float = 0.0
+    ref: str = "none"
+    amplitude: float = 0.0
+    frequency_hz: float = 0.0
+
+    def record(self):
+        """The truth's closed-loop record (t, y, u, r) of the case's duration and seed."""
+        from helpers.closed_loop import closed_loop
+        truth = parse_model(self.truth, "truth")
+        return closed_loop(truth, int(round(self.duration / truth.Ts)), self.kp, self.ki, self.kd, self.seed,
+                           self.ref, self.amplitude, self.frequency_hz)
+
+
+CLOSED_HIDEABLE = HIDEABLE + ("sensor.bias_instability", "sensor.integral_white", "sensor.filter")
+
+
+def _stable_loop(plant: dict, Ts: float, kp: float, ki: float, kd: float) -> bool:
+    """Whether the noise-free loop settles: a unit reference step for 40 natural periods (or 4000
+    samples) ends within 1e-3 of its value 200 samples before, and never exceeds 100."""
+    from helpers.closed_loop import closed_loop
+    m = parse_model(_doc("c", Ts, plant, {"kind": "external"}, {}))
+    n = 4000
+    rec = closed_loop(m, n, kp, ki, kd, seed=0, ref="step", amplitude=1.0)
+    y = rec.y[:, 0]
+    return bool(np.all(np.abs(y) < 100) and abs(y[-1] - y[-200]) < 1e-3 * max(1.0, abs(y[-1])))
+
+
+def make_closed_case(seed: int, n_hidden: int | None = None, null: bool | None = None) -> ClosedCase:
+    """Case ``seed`` of the closed-loop family: a mass-spring-damper (the generator's ranges) whose
+    command external is a PD or a PI-D on its measurement (kp = a k, a in [0.5, 5]; kd adding a
+    damping ratio of 0.2 to 0.8; half of them with ki = kp w_cl / b, b in [3, 10]; gains redrawn
+    until the loop settles), a reference none, step or sine; its nominal model process and sensor
+    white noise, one or two of :data:`CLOSED_HIDEABLE` hidden (every effect of the catalogue), drawn
+    as :func:`make_case` draws them against the open-loop variance, a saturation's or dead zone's
+    size against the closed loop's own command (its 95th percentile of |u| on the nominal). Its own
+    random stream (``[seed, 31]``)."""
+    rng = np.random.default_rng([seed, 31])
+    Ts = float(rng.choice(PERIODS))
+    T = float(np.round(rng.uniform(60, 600) / 10) * 10)
+    fn = float(np.exp(rng.uniform(np.log(0.2), np.log(min(3.0, 0.08 / Ts)))))
+    zeta = float(rng.uniform(0.05, 0.6))
+    mass = float(np.exp(rng.uniform(np.log(0.3), np.log(5.0))))
+    k = mass * (2 * np.pi * fn) ** 2
+    c = 2 * zeta * math.sqrt(k * mass)
+    plant = {"m": round(mass, 4), "c": round(c, 4), "k": round(k, 4)}
+    for _ in range(20):
+        kp = float(k * rng.uniform(0.5, 5.0))
+        wcl = math.sqrt((k + kp) / mass)
+        kd = max(0.0, float(2 * rng.uniform(0.2, 0.8) * math.sqrt(mass * (k + kp)) - c * 0.0))
+        ki = float(kp * wcl / rng.uniform(3.0, 10.0)) if rng.random() < 0.5 else 0.0
+        if _stable_loop(plant, Ts, kp, ki, kd):
+            break
+    else:
+        kp, ki, kd = float(k), 0.0, 0.0
+    ref = str(rng.choice(["none", "step", "sine"]))
+    amp = float(rng.uniform(0.2, 1.0)) / (1.0 + kp / k) if ref != "none" else 0.0
+    f_ref = round(float(fn * rng.uniform(0.1, 0.5)), 4) if ref == "sine" else 0.0
+    null = bool(rng.random() < 0.2) if null is None else null
+    n_hidden = (1 if rng.random() < 0.6 else 2) if n_hidden is None else n_hidden
+    base = {"process.white": {"std": 1.0}, "sensor.white": {"std": 1.0}}
+    proxy = {"kind": "sine", "amplitude": 1.0, "frequency_hz": round(fn * 0.5, 4)}
+    text = _doc("case", Ts, plant, proxy, base)
+    target = 1e-4 * float(np.exp(rng.uniform(0, np.log(100))))
+    base["process.white"]["std"] = float(f"{math.sqrt(target / _contribution(text, 'process.white')):.4g}")
+    base["sensor.white"]["std"] = float(f"{math.sqrt(target * rng.uniform(0.05, 0.5)):.4g}")
+    nominal = {kk: dict(v) for kk, v in base.items()}
+    case = ClosedCase(f"case{seed}-closed", _doc("case", Ts, plant, {"kind": "external"}, nominal),
+                      _doc("case", Ts, plant, {"kind": "external"}, nominal), {}, T, seed + 3000,
+                      kp, ki, kd, ref, amp, f_ref)
+    umax = float(np.percentile(np.abs(case.record().u[: int(round(min(T, 30.0) / Ts))]), 95)) \
+        if not null else 0.0
+    var0 = _scale(_doc("case", Ts, plant, proxy, nominal))
+    sd0 = math.sqrt(var0)
+    truth = {kk: dict(v) for kk, v in nominal.items()}
+    hidden: dict = {}
+    command = {"kind": "sine", "amplitude": umax, "frequency_hz": round(fn * 0.5, 4)}
+    for eid in ([] if null else [str(e) for e in rng.permutation(CLOSED_HIDEABLE)]):
+        if len(hidden) >= n_hidden:
+            break
+        if eid in DRIFTS and any(h in DRIFTS for h in hidden):
+            continue
+        if eid in ("actuator.saturation", "actuator.deadzone") and any(
+                h in hidden for h in ("actuator.saturation", "actuator.deadzone")):
+            continue
+        f = float(np.exp(rng.uniform(np.log(0.3), np.log(3.0))))
+        if eid == "sensor.bias_instability":
+            tau_c = float(np.exp(rng.uniform(np.log(30 * Ts), np.log(T / 30))))
+            sv = nominal["sensor.white"]["std"]
+            params = {"B": float(f"{sv * math.sqrt(Ts / tau_c) / 0.6643:.4g}")}
+        elif eid == "sensor.integral_white":
+            params = {"Q": float(f"{nominal['sensor.white']['std'] * Ts * math.sqrt(f) / 2:.4g}")}
+        elif eid == "sensor.filter":
+            params = {"kind": "average", "taps": int(rng.integers(2, 6))}
+        else:
+            params = _hidden_params(rng, eid, Ts, T, plant, command, nominal, var0, sd0, fn)
+        if params is None:
+            continue
+        params.pop("_absent", None)
+        hidden[eid] = params
+        truth[eid] = params
+    case.truth = _doc("case", Ts, plant, {"kind": "external"}, truth)
+    case.hidden = hidden
+    return case
+
+
 def within_30_chance(iv) -> float:
     """P(0.7 <= estimate / truth <= 1.3) for an unbiased estimator, normal in log, whose 95 %
     interval is ``iv`` (its log-width / (2 x 1.96) the standard deviation): what the data allow."""
