@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 
@@ -14,23 +13,24 @@ from ._common import emit, load_model
 REFERENCES = ("none", "step", "sine")
 
 
-def gains_arg(text: str) -> tuple[float, float, float]:
-    """``KP,KI,KD``: three finite numbers of magnitude at most 1e50 (argparse names the flag)."""
+def parse_gains(text: str, flag: str = "--pid") -> tuple[float, float, float]:
+    """``KP,KI,KD``: three finite numbers of magnitude at most 1e50 (else one line naming ``flag``).
+    Parsed by the command, not by argparse: the flags argparse converts are single numbers."""
     try:
         gains = tuple(float(p) for p in text.split(","))
     except ValueError:
         gains = ()
     if len(gains) != 3 or not all(math.isfinite(g) and abs(g) <= MAGNITUDE_MAX for g in gains):
-        raise argparse.ArgumentTypeError(f"expected KP,KI,KD (three finite numbers), got {text!r}")
+        raise BadInput(f"argument {flag}: expected KP,KI,KD (three finite numbers), got {text!r}")
     return gains
 
 
-def controller_arg(text: str) -> tuple[float, float, float]:
+def parse_controller(text: str) -> tuple[float, float, float]:
     """``run --controller pid:KP,KI,KD`` (the one kind of controller there is)."""
     kind, sep, gains = text.partition(":")
     if kind != "pid" or not sep:
-        raise argparse.ArgumentTypeError(f"expected pid:KP,KI,KD, got {text!r}")
-    return gains_arg(gains)
+        raise BadInput(f"argument --controller: expected pid:KP,KI,KD, got {text!r}")
+    return parse_gains(gains, "--controller")
 
 
 def add_controller_args(parser) -> None:
@@ -38,9 +38,9 @@ def add_controller_args(parser) -> None:
     parser.add_argument("--reference", choices=REFERENCES, default=None,
                         help="the reference r(t): none (0), step (amplitude from t = 0), sine (default: the "
                              "model's [controller] table, else none)")
-    parser.add_argument("--amplitude", type=bounded(-1e50, 1e50), default=None, metavar="A",
-                        help="reference amplitude, output units (step, sine)")
-    parser.add_argument("--frequency-hz", type=bounded(0, 1e50), default=None, metavar="F",
+    parser.add_argument("--amplitude", type=bounded(0, MAGNITUDE_MAX, lo_open=True), default=None, metavar="A",
+                        help="reference amplitude > 0, output units (step, sine)")
+    parser.add_argument("--frequency-hz", type=bounded(0, MAGNITUDE_MAX, lo_open=True), default=None, metavar="F",
                         help="reference frequency, Hz (sine)")
 
 
@@ -78,7 +78,7 @@ def controller_spec(model, gains, args):
 def register(sub) -> None:
     sc = sub.add_parser("control", help="reference controller: answer measurements with a PID's command (closed loop)")
     sc.add_argument("model", help="model file (TOML) or built-in scenario name, with [command] kind = \"external\"")
-    sc.add_argument("--pid", type=gains_arg, default=None, metavar="KP,KI,KD",
+    sc.add_argument("--pid", default=None, metavar="KP,KI,KD",
                     help="PID gains (default: the model's [controller] table)")
     add_controller_args(sc)
     sc.add_argument("--duration", type=seconds_arg(), help="seconds of wall time at most (default: until the "
@@ -94,7 +94,7 @@ def cmd_control(args) -> int:
     from ..signals import stop_on_signals
 
     model = load_model(args.model)
-    spec = controller_spec(model, args.pid, args)
+    spec = controller_spec(model, None if args.pid is None else parse_gains(args.pid), args)
     stop = stop_on_signals()
     with transport.open_session(args, "sink") as session:
         ends = transport.endpoints_of(args, "sink")

@@ -9,9 +9,9 @@ The model file::
     kp = 8.0                # N/m            (input units per output unit)
     ki = 4.0                # N/(m s)
     kd = 2.0                # N s/m
-    reference = "sine"      # none (r = 0) | step (r = amplitude from t = 0) | sine
-    amplitude = 0.2         # m (step, sine)
-    frequency_hz = 0.2      # Hz (sine)
+    reference = "sine"      # none (r = 0) | step (r = amplitude from t = 0) | sine (amplitude sin(2 pi f t))
+    amplitude = 0.2         # m, > 0 (step, sine)
+    frequency_hz = 0.2      # Hz, > 0 (sine)
 
 The law, at the model's Ts, for the measurement y_k of sample k (time t_k = k Ts) and the
 reference r_k = r(t_k)::
@@ -85,8 +85,9 @@ def parse_controller(t: Table | None, command_kind: str, m: int, p: int) -> Cont
     t.string("kind", choices=KINDS)
     gains = [t.number(name) for name in ("kp", "ki", "kd")]
     reference = t.string("reference", "none", choices=REFERENCES)
-    amplitude = t.number("amplitude") if reference in ("step", "sine") else 0.0
-    freq = t.number("frequency_hz", check=lambda v: v >= 0, expect="a frequency in Hz >= 0") \
+    amplitude = t.number("amplitude", check=lambda v: v > 0, expect="an amplitude > 0") \
+        if reference in ("step", "sine") else 0.0
+    freq = t.number("frequency_hz", check=lambda v: v > 0, expect="a frequency in Hz > 0") \
         if reference == "sine" else 0.0
     t.done()
     return ControllerSpec(*gains, reference=reference, amplitude=amplitude, frequency_hz=freq)

@@ -9,7 +9,9 @@ the first answer the emulator applies zero. Measurements are taken in arrival or
 time, by the node's own thread (the Zenoh callback only queues them).
 
 Loop health (wire kind ``controller_health``, :data:`wire.CONTROLLER_HEALTH_FIELDS`), published
-about once a second of wall time and once at the end, and the summary printed at exit:
+after the first answer, about once a second of wall time, and at the end (so a recorder, which
+takes a stream's first message once its successor confirms it, records even a short run's), and
+the summary printed at exit:
 
 * ``late_replies``: answers put after a newer measurement had already arrived. The emulator
   stepped that newer sample before the answer could reach it, so the answer came too late for
@@ -231,7 +233,7 @@ def run_controller(model, spec: ControllerSpec, session, *, duration: float | No
                 s.late_replies += newer
                 loop.lat.append(done - rx)
                 loop.lat_all.append(done - rx)
-            if time.monotonic_ns() >= next_health:
+            if time.monotonic_ns() >= next_health or (answer is not None and s.answered == 1):
                 put_health()
                 next_health = time.monotonic_ns() + HEALTH_EVERY_NS
         s.missing_measurements += inbox.dropped
