@@ -27,7 +27,8 @@ the summary printed at exit:
 * latency: from a measurement's arrival to its answer's put, us (p50, p99, max).
 
 End: when the emulator's end of stream (``noiselab/<name>/end``) arrives, every measurement before
-it has arrived too (same link, in order) and has been answered: the node publishes its last
+it has arrived too (same link, in order) and has been answered (one it counts that has not is
+waited for, at most :data:`END_LINGER_NS`, then booked missing): the node publishes its last
 health report, asks the recorders to acknowledge what it sent (:func:`transport.ask_recorders`:
 its answers to the last measurements are then on file, not lost when its session closes), and
 returns. An end that counts fewer measurements than were answered is not its source's: rejected.
@@ -53,6 +54,9 @@ READY_MARK = "noiselab control: subscribed"
 INBOX_MAX = 1 << 16      # measurements queued at most; beyond, arrivals are dropped (and show as missing)
 HEALTH_EVERY_NS = 1_000_000_000
 FLUSH_TIMEOUT_S = 10.0
+END_LINGER_NS = 500_000_000
+"""After the end of stream, the longest wait for measurements it counts that have not arrived
+(measurements and the end come on one link, in order: a bound, not a synchronisation)."""
 
 
 @dataclass
@@ -215,12 +219,16 @@ def run_controller(model, spec: ControllerSpec, session, *, duration: float | No
         hpub.put(wire.encode_controller_health(health_seq[0], loop.t_last, loop.health()))
         health_seq[0] += 1
 
+    end = None                             # the stream's end of stream, once taken
     try:
         while (item := inbox.get(stop, until)) is not None:
             kind, payload, rx, index = item
             if kind == wire.END:
-                if _end(loop, payload, keys[wire.END]):
-                    break
+                if end is None and (end := _end(loop, payload, keys[wire.END])) is not None:
+                    if _answered_all(s, end):
+                        break
+                    linger = time.monotonic_ns() + END_LINGER_NS
+                    until = linger if until is None else min(until, linger)
                 continue
             answer = loop.measurement(payload, keys["measurement"])
             if answer is not None:
@@ -236,6 +244,10 @@ def run_controller(model, spec: ControllerSpec, session, *, duration: float | No
             if time.monotonic_ns() >= next_health or (answer is not None and s.answered == 1):
                 put_health()
                 next_health = time.monotonic_ns() + HEALTH_EVERY_NS
+            if end is not None and _answered_all(s, end):
+                break
+        if end is not None:
+            _ended(loop, end)
         s.missing_measurements += inbox.dropped
         put_health()
         if s.answered:
@@ -251,9 +263,9 @@ def run_controller(model, spec: ControllerSpec, session, *, duration: float | No
     return s
 
 
-def _end(loop: _Loop, payload: bytes, topic: str) -> bool:
-    """An end of stream: True when it is the stream's (the tail it counts that never came is
-    booked missing), False when it cannot be (rejected and counted)."""
+def _end(loop: _Loop, payload: bytes, topic: str) -> dict | None:
+    """An end of stream: the decoded end when it can be the stream's, else None (rejected and
+    counted: it counts fewer measurements than were answered)."""
     s = loop.s
     try:
         end = wire.decode_end(payload, topic=topic)
@@ -262,12 +274,22 @@ def _end(loop: _Loop, payload: bytes, topic: str) -> bool:
             raise wire.WireError(f"{topic}: an end counting {count} measurements, but seq {s.last_seq} was answered")
     except wire.WireError as exc:
         loop.reject(str(exc))
-        return False
-    s.missing_measurements += count - (s.last_seq + 1 if s.last_seq is not None else 0)
+        return None
+    return end
+
+
+def _answered_all(s: ControllerSummary, end: dict) -> bool:
+    return (s.last_seq if s.last_seq is not None else -1) + 1 >= end["counts"].get("measurement", 0)
+
+
+def _ended(loop: _Loop, end: dict) -> None:
+    """The stream has ended: the measurements it counts that were not answered are missing."""
+    s = loop.s
+    count = end["counts"].get("measurement", 0)
+    s.missing_measurements += max(0, count - (s.last_seq + 1 if s.last_seq is not None else 0))
     s.ended = end["reason"]
     print(f"noiselab control: {wire.PREFIX}/{s.name} ended ({end['reason']}) after {end['samples']} samples: "
           f"answered {s.answered}", file=loop.log, flush=True)
-    return True
 
 
 def summary_line(s: ControllerSummary) -> str:
