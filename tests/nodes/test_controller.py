@@ -213,8 +213,8 @@ def test_a_controller_counts_and_skips_hostile_measurements(spawn):
             b'{"seq":2,"t":0.02,"y":["x"]}', b"[" * 100000, good(2, -0.5), good(5, 0.125)]
     with zenoh.open(session_config(connect=[ep(port)])) as session:
         sub = session.declare_subscriber(control_key, answers)
-        pub = session.declare_publisher(meas_key)
-        end_pub = session.declare_publisher(wire.key("seed-closed", wire.END))
+        pub = session.declare_publisher(meas_key, **transport.DATA_QOS)          # BLOCK: none dropped on the way
+        end_pub = session.declare_publisher(wire.key("seed-closed", wire.END), **transport.DATA_QOS)
         assert transport.wait_matching([pub], T_EVENT)
         for payload in sent:
             pub.put(payload)
