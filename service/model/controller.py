@@ -147,3 +147,26 @@ def closed_loop_matrix(model, spec: ControllerSpec, delay: int = 1) -> np.ndarra
 def closed_loop_poles(model, spec: ControllerSpec, delay: int = 1) -> np.ndarray:
     """Eigenvalues of :func:`closed_loop_matrix` (stable: all inside the unit circle)."""
     return np.linalg.eigvals(closed_loop_matrix(model, spec, delay))
+
+
+def simulate_closed_loop(model, n: int, *, seed=None, spec: ControllerSpec | None = None, delay: int = 1) -> dict:
+    """The loop offline: ``model`` stepped as the emulator steps it (its step API, the same seed
+    gives the same noises), under ``spec`` (default the model's ``[controller]``), every answer
+    applied ``delay`` samples after its measurement (1: on time, as a live run whose controller
+    is never late). Returns {"t", "x", "u" (applied), "y", "control" (the answers)}: arrays of
+    ``n`` rows; ``model.simulate(n, seed=seed, command=u)`` gives the same ``y``."""
+    spec = spec or model.controller
+    if spec is None or model.m != 1 or model.p != 1 or delay < 1:
+        raise ModelError(f"{model.source}: simulate_closed_loop needs a controller, one input and one output, "
+                         "and delay >= 1")
+    stepper, pid = model.stepper(seed=seed), Pid(spec, model.Ts)
+    queue = [0.0] * delay                          # zero until the first answer is applied
+    rows = []
+    for k in range(n):
+        t, x, u, y = stepper.step([queue.pop(0)])
+        c = pid.step(k, t, float(y[0]))
+        queue.append(c)
+        rows.append((t, x, u, y, c))
+    t, x, u, y, c = zip(*rows) if rows else ((),) * 5
+    return {"t": np.array(t), "x": np.array(x).reshape(n, -1), "u": np.array(u).reshape(n, 1),
+            "y": np.array(y).reshape(n, 1), "control": np.array(c)}

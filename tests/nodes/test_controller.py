@@ -24,7 +24,8 @@ from helpers.live import Collector, ep, session_config
 from helpers.models import LOOP_TOML
 from noiselab import wire
 from noiselab.model import ModelError, load_model, parse_model
-from noiselab.model.controller import ControllerSpec, Pid, closed_loop_matrix, closed_loop_poles
+from noiselab.model.controller import (ControllerSpec, Pid, closed_loop_matrix, closed_loop_poles,
+                                       simulate_closed_loop)
 from noiselab.nodes import transport
 from noiselab.nodes.controller import READY_MARK
 from noiselab.nodes.runner import free_port
@@ -86,6 +87,21 @@ def test_seed_closed_is_stable_with_margin():
         assert np.abs(closed_loop_poles(model, scaled)).max() < 0.999, scale
     for d in range(1, 11):
         assert np.abs(closed_loop_poles(model, spec, d)).max() < 0.999, d
+
+
+def test_the_loop_offline_is_the_step_and_batch_path():
+    """simulate_closed_loop: the answer to y_k is applied at sample k + delay (zero before), it is
+    the PID of y_0..y_k, and the batch simulation with the applied command gives the same y bit
+    for bit (what a live run whose controller is never late records)."""
+    model = load_model("seed-closed")
+    for delay in (1, 4):
+        run = simulate_closed_loop(model, 400, seed=5, delay=delay)
+        u, y, c = run["u"][:, 0], run["y"], run["control"]
+        assert (u[:delay] == 0.0).all() and np.array_equal(u[delay:], c[:-delay])
+        pid = Pid(model.controller, model.Ts)
+        assert np.array_equal(c, [pid.step(k, k * model.Ts, y[k, 0]) for k in range(400)])
+        assert np.array_equal(model.simulate(400, seed=5, command=run["u"]).y, y)
+    assert np.abs(run["y"][200:, 0]).max() < 1.0                        # it follows the 0.2 m sine, it does not diverge
 
 
 # -- the [controller] table --------------------------------------------------------------------------------
