@@ -14,7 +14,7 @@ from __future__ import annotations
 import importlib
 import pkgutil
 
-ORDER = ("predict", "simulate", "emulate", "record", "recover", "replay", "router", "analyze", "diagnose",
+ORDER = ("predict", "simulate", "emulate", "control", "record", "recover", "replay", "router", "analyze", "diagnose",
          "demo", "run")
 """The order ``noiselab --help`` lists the commands in: the tour's order (model, recordings, live
 nodes, analysis); any other command follows, by name."""

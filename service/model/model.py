@@ -32,6 +32,7 @@ import numpy as np
 
 from . import discretize
 from .command import Command, parse_command
+from .controller import ControllerSpec, parse_controller
 from .effects import CATALOGUE, Dims, Effect
 from .errors import ModelError
 from .outputs import Outputs, parse_outputs
@@ -142,6 +143,9 @@ def _from_data(data: dict, source: str, text: str) -> "Model":
         plant = no_plant(len(outputs.names))
     top._absent("command", None)
     command = parse_command(Table(data["command"], "command", source) if "command" in data else None, plant.m, Ts)
+    top._absent("controller", None)
+    controller = parse_controller(Table(data["controller"], "controller", source) if "controller" in data else None,
+                                  command.kind, plant.m, plant.p)
     dims = Dims(m=plant.m, p=plant.p, nw=plant.nw, Ts=Ts, discretization=disc)
     effects: dict[str, Effect] = {}
     for group in GROUPS:
@@ -162,7 +166,8 @@ def _from_data(data: dict, source: str, text: str) -> "Model":
     top.done()
     ordered = {k: effects[k] for k in CATALOGUE if k in effects}
     return Model(name=name, description=description, Ts=Ts, discretization=disc, plant=plant,
-                 command=command, effects=ordered, source=source, text=text, outputs=outputs)
+                 command=command, effects=ordered, source=source, text=text, outputs=outputs,
+                 controller=controller)
 
 
 def why_not_possible(eid: str, plant: Plant) -> str | None:
@@ -194,6 +199,7 @@ class Model:
     text: str = ""
     description: str = ""
     outputs: Outputs | None = None     # names and units of y (the [outputs] table or its defaults)
+    controller: ControllerSpec | None = None   # the [controller] table: the default controller of `noiselab run`
     _asm: dict = field(default_factory=dict, repr=False)
 
     def __post_init__(self):
@@ -305,6 +311,8 @@ class Model:
         if self.outputs.given or not self.has_plant:      # without a plant, [outputs] says what y is
             d["outputs"] = self.outputs.to_dict()
         d["command"] = _command_dict(self.command)
+        if self.controller is not None:
+            d["controller"] = self.controller.to_dict()
         for eid, eff in self.effects.items():
             g, s = eid.split(".")
             d.setdefault(g, {})[s] = eff.param_dict()

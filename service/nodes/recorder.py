@@ -101,6 +101,8 @@ def _decoded(payload: bytes, kind: str, key: str) -> dict:
         return wire.decode_analysis(payload, topic=key)
     if kind == wire.END:
         return wire.decode_end(payload, topic=key)
+    if kind == wire.CONTROLLER_HEALTH:
+        return wire.decode_controller_health(payload, topic=key)
     return wire.decode(payload, kind, topic=key)
 
 

@@ -1,4 +1,4 @@
-"""`noiselab run`: emulator and recorder as separate processes over Zenoh on loopback.
+"""`noiselab run`: emulator and recorder (and a controller) as separate processes over Zenoh on loopback.
 
 The recorder starts first and listens on a free 127.0.0.1 port; once it reports that it is
 subscribed, the emulator connects to it and waits for the match before its first sample, so the
@@ -7,6 +7,12 @@ recording starts at seq 0. When the emulator has published its ``duration`` it e
 recorder is then stopped with SIGINT (it finishes the file) once it has said that the stream
 ended (bounded wait: without that line it still finishes, and reports what is missing as gaps),
 and both summaries are combined.
+
+Closed loop (``controller``: the controller's flags): the controller node starts after the
+recorder, listens on its own port and connects to the recorder (its answers are recorded); the
+emulator connects to it too and waits for every peer before its first sample. The controller
+ends with the emulator's end of stream, once the recorder has acknowledged its last answers; it
+is stopped (SIGINT) if it has not said so within :data:`END_WAIT_S`, and the recorder after it.
 """
 
 from __future__ import annotations
@@ -127,6 +133,13 @@ class _Child:
             self.cond.wait_for(lambda: seen() or (self.err and self.err[-1] is None), timeout)
             return seen()
 
+    def wait_exit(self, timeout: float) -> None:
+        """Wait up to ``timeout`` seconds for the child to exit by itself."""
+        try:
+            self.proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            pass
+
     def stop(self, what: str, timeout: float = 120) -> None:
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGINT)
@@ -138,7 +151,7 @@ class _Child:
         for t in self.threads:
             t.join(5)
         if self.proc.returncode != 0:
-            raise RuntimeError(f"{what} failed: " + "".join(ln for ln in self.err if ln is not None).strip()[-500:])
+            raise RuntimeError(f"{what} failed (exit {self.proc.returncode}): " + "".join(ln for ln in self.err if ln is not None).strip()[-500:])
 
     def kill(self) -> None:
         if self.proc.poll() is None:
@@ -149,11 +162,13 @@ class _Child:
 def run_pipeline(model_spec: str, model_name: str, *, duration: float, seed: int, out_dir: Path,
                  force: bool = False, analyze: bool = True, speed: float = 1.0,
                  analyze_model: str | None = None, window: float | None = None, out_name: str | None = None,
-                 log=sys.stderr) -> dict:
+                 controller: list[str] | None = None, log=sys.stderr) -> dict:
     """Run the pipeline; ``speed`` > 1 runs the emulator faster than real time, ``analyze_model``
     is the model the live analyzer compares with (default the emulated one), ``window`` its
-    rolling window in s of samples (default the whole run), ``out_name`` the recording's stem."""
+    rolling window in s of samples (default the whole run), ``out_name`` the recording's stem,
+    ``controller`` the flags of a `noiselab control` node that closes the loop (None: none)."""
     from .analyzer import READY_MARK as ANALYZER_READY
+    from .controller import READY_MARK as CONTROLLER_READY
 
     out_dir.mkdir(parents=True, exist_ok=True)
     stamp = time.strftime("%Y%m%d-%H%M%S")
@@ -174,7 +189,13 @@ def run_pipeline(model_spec: str, model_name: str, *, duration: float, seed: int
         rec = rec_node.wait_ready("recorder")
         an = None if an_node is None else an_node.wait_ready("analyzer")
         rec_ep = rec_node.endpoint
-        connect = ["--connect", rec_ep] + (["--connect", an_node.endpoint] if an is not None else [])
+        ctl = None
+        if controller is not None:     # after the recorder is subscribed: its answers are recorded from the first
+            ctl_node = _Listening(lambda ep: _cli("control", model_spec, *controller, "--listen", ep, "--connect", rec_ep,
+                                                  "--json"), CONTROLLER_READY, env, children)
+            ctl = ctl_node.wait_ready("controller")
+        connect = ["--connect", rec_ep] + (["--connect", an_node.endpoint] if an is not None else []) \
+            + (["--connect", ctl_node.endpoint] if ctl is not None else [])
         emu = subprocess.run(_cli("emulate", model_spec, "--duration", repr(duration), "--seed", str(seed),
                                   "--speed", repr(speed),
                                   *connect, "--wait-peers", str(len(connect) // 2), "--wait-subscribers", "10",
@@ -184,6 +205,10 @@ def run_pipeline(model_spec: str, model_name: str, *, duration: float, seed: int
             raise RuntimeError("emulator failed: " + emu.stderr.strip()[-500:])
         # the emulator acknowledged its end with the recorder before exiting: this returns at once
         # unless the acknowledgement timed out; the recorder then reports the shortfall as gaps
+        if ctl is not None:            # it ends with the stream, once the recorder has its last answers
+            if ctl.wait_err_line(f"noiselab control: noiselab/{model_name} ended", END_WAIT_S):
+                ctl.wait_exit(END_WAIT_S)     # no SIGINT while it exits: Python's finalization has restored the default
+            ctl.stop("controller")
         rec.wait_err_line(f"noiselab record: noiselab/{model_name} ended", END_WAIT_S)
         rec.stop("recorder")
         if an is not None:
@@ -193,12 +218,14 @@ def run_pipeline(model_spec: str, model_name: str, *, duration: float, seed: int
             c.kill()
     return {"recording": str(out), "emulator": _last_json(emu.stdout.splitlines()),
             "recorder": _last_json(rec.out), "analysis": _last_json(an.out) if an is not None else None,
+            "controller": _last_json(ctl.out) if ctl is not None else None,
             "endpoint": rec_ep, "emulator_log": emu.stderr.strip().splitlines()}
 
 
-def pipeline_lines(emu: dict, rec: dict) -> list[str]:
-    """Per-topic message counts and gaps (the recorder's summary ``rec``), and the loop's timing
-    (the emulator's ``emu``), of a :func:`run_pipeline` report: the lines `run` and `demo` print."""
+def pipeline_lines(emu: dict, rec: dict, ctl: dict | None = None) -> list[str]:
+    """Per-topic message counts and gaps (the recorder's summary ``rec``), the loop's timing (the
+    emulator's ``emu``) and the controller's (``ctl``), of a :func:`run_pipeline` report: the
+    lines `run` and `demo` print."""
     lines = []
     for topic, b in sorted((rec.get("topics") or {}).items()):
         gaps = "no gaps" if not b["gaps"] and not b["missing_at_start"] else \
@@ -210,4 +237,9 @@ def pipeline_lines(emu: dict, rec: dict) -> list[str]:
         lines.append(f"loop: {emu['samples']} samples at Ts = {emu['Ts']:g} s{speed} ({emu['wall_s']:.1f} s wall), "
                      f"lateness p50 {lat['p50']:.0f} us, p99 {lat['p99']:.0f} us, max {lat['max']:.0f} us, "
                      f"{emu['overruns']} overruns")
+    if ctl:
+        lat = ctl["latency_us"]
+        lines.append(f"controller: answered {ctl['answered']} measurements, {ctl['late_replies']} late, "
+                     f"{ctl['missing_measurements']} missing, {ctl['stale_measurements']} stale, "
+                     f"{ctl['rejected_measurements']} rejected; latency p50 {lat['p50']:.0f} us, p99 {lat['p99']:.0f} us")
     return lines

@@ -178,9 +178,22 @@ def end_stream(session, publisher, payload: bytes, timeout: float) -> dict:
     "errors": [one line each], "timed_out": bool, "wait_s": s}``."""
     t0 = time.monotonic()
     publisher.put(payload)
+    got = ask_recorders(session, publisher.key_expr, payload, timeout)
+    return {**got, "wait_s": time.monotonic() - t0}
+
+
+def ask_recorders(session, key_expr, payload: bytes | None, timeout: float) -> dict:
+    """Query ``key_expr`` (a ``noiselab/<name>/end`` key) and wait, at most ``timeout`` seconds,
+    until every recorder whose key expression covers it has answered with what it holds
+    (:func:`end_stream` after its end of stream). Without an end before it, the query only
+    flushes: a recorder answers once it has written everything that reached it before the
+    query on the same link, so a node that publishes a few messages and then closes its session
+    (a controller) loses none of them at the close. Returns ``{"acks", "errors", "timed_out",
+    "wait_s"}`` as :func:`end_stream` does."""
+    t0 = time.monotonic()
     acks, errors = [], []
     if timeout > 0:
-        replies = session.get(publisher.key_expr, payload=payload, target=zenoh.QueryTarget.ALL,
+        replies = session.get(key_expr, payload=payload, target=zenoh.QueryTarget.ALL,
                               consolidation=zenoh.ConsolidationMode.NONE, timeout=timeout,
                               priority=zenoh.Priority.DATA, **DATA_QOS)
         for reply in replies:                 # ends when every queryable has answered, or at timeout

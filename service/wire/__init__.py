@@ -14,7 +14,8 @@ Keys
 
 Payload (UTF-8 JSON object, compact, key order ``seq``, ``t``, vector)
     ``seq``  int >= 0, per topic, from 0, consecutive (a missing number is a lost message).
-    (``health`` payloads carry ``seq``, ``t`` and the loop statistics of :func:`health_schema`.)
+    (``health`` and ``controller_health`` payloads carry ``seq``, ``t`` and the loop statistics
+    of :func:`health_schema` and :func:`controller_health_schema`.)
     ``t``    float, seconds: the nominal sample time ``k * Ts`` since the stream started.
     vector   list of float: ``x`` (truth state) for ``truth``, ``u`` (applied command) for
              ``command``, ``y`` (measurement) for ``measurement``; see :data:`VECTOR_FIELD`.
@@ -68,6 +69,7 @@ from .contract import (
     ALL_KINDS,
     ANALYSIS,
     CONTROL,
+    CONTROLLER_HEALTH,
     END,
     HEALTH,
     KINDS,
@@ -105,13 +107,17 @@ from .schemas import (
     schema_bytes,
 )
 from .status import (
+    CONTROLLER_HEALTH_FIELDS,
     END_REASONS,
     HEALTH_FIELDS,
     analysis_schema,
+    controller_health_schema,
     decode_analysis,
+    decode_controller_health,
     decode_end,
     decode_health,
     encode_analysis,
+    encode_controller_health,
     encode_end,
     encode_health,
     end_schema,
@@ -131,6 +137,8 @@ __all__ = [
     "ALL_KINDS",
     "ANALYSIS",
     "CONTROL",
+    "CONTROLLER_HEALTH",
+    "CONTROLLER_HEALTH_FIELDS",
     "END",
     "END_REASONS",
     "HEALTH",
@@ -149,11 +157,13 @@ __all__ = [
     "ZENOH_JSON",
     "WireError",
     "analysis_schema",
+    "controller_health_schema",
     "anchored_ns",
     "check_kind",
     "check_name",
     "decode",
     "decode_analysis",
+    "decode_controller_health",
     "decode_anchor",
     "decode_batch",
     "decode_end",
@@ -161,6 +171,7 @@ __all__ = [
     "decode_packed",
     "encode",
     "encode_analysis",
+    "encode_controller_health",
     "encode_anchor",
     "encode_batch",
     "encode_end",

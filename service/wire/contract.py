@@ -31,7 +31,11 @@ END = "end"
 last sample, with the number of messages it published per topic (see :func:`encode_end`), then
 asks the recorders (a query on the same key) to acknowledge it before it closes its session."""
 
-ALL_KINDS: tuple[str, ...] = KINDS + (CONTROL, HEALTH, ANALYSIS, END)
+CONTROLLER_HEALTH = "controller_health"
+"""A controller's loop timing on ``noiselab/<name>/controller_health`` (not a vector): what it
+answered, late, skipped and missed (:data:`noiselab.wire.status.CONTROLLER_HEALTH_FIELDS`)."""
+
+ALL_KINDS: tuple[str, ...] = KINDS + (CONTROL, HEALTH, ANALYSIS, END, CONTROLLER_HEALTH)
 
 VECTOR_FIELD: dict[str, str] = {"truth": "x", "command": "u", "measurement": "y", "control": "u"}
 """Payload field holding the vector, per vector kind."""
@@ -44,6 +48,7 @@ SCHEMA_NAMES: dict[str, str] = {
     "health": "noiselab.Health",
     "analysis": "noiselab.Analysis",
     "end": "noiselab.End",
+    "controller_health": "noiselab.ControllerHealth",
 }
 """MCAP schema name per kind."""
 
@@ -100,7 +105,7 @@ def check_kind(kind: str) -> str:
 
 def vector_field(kind: str) -> str:
     """The vector field of a vector kind (``health`` and ``analysis`` are not)."""
-    if check_kind(kind) in (HEALTH, ANALYSIS, END):
+    if check_kind(kind) in (HEALTH, ANALYSIS, END, CONTROLLER_HEALTH):
         raise WireError(f"{kind} payloads are not vectors: use encode_{kind}/decode_{kind}")
     return VECTOR_FIELD[kind]
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import json
 
-from .contract import ANALYSIS, END, HEALTH, SCHEMA_NAMES, VECTOR_FIELD, check_kind
-from .status import analysis_schema, end_schema, health_schema
+from .contract import ANALYSIS, CONTROLLER_HEALTH, END, HEALTH, SCHEMA_NAMES, VECTOR_FIELD, check_kind
+from .status import analysis_schema, controller_health_schema, end_schema, health_schema
 
 _VECTOR_DESCRIPTION = {
     "truth": "true plant state x_k (units of the model's states)",
@@ -24,6 +24,8 @@ def schema(kind: str) -> dict:
         return analysis_schema()
     if kind == END:
         return end_schema()
+    if kind == CONTROLLER_HEALTH:
+        return controller_health_schema()
     field = VECTOR_FIELD[kind]
     return {
         "$schema": "https://json-schema.org/draft/2020-12/schema",

@@ -1,5 +1,5 @@
-"""The stream's messages that are not samples: the emulator's loop health, the live analyzer's
-summary, and the end of stream a source publishes after its last sample; each with its JSON
+"""The stream's messages that are not samples: the emulator's and a controller's loop health, the
+live analyzer's summary, and the end of stream a source publishes after its last sample; each with its JSON
 Schema, its encoder and its validating decoder."""
 
 from __future__ import annotations
@@ -11,6 +11,7 @@ from numbers import Real
 from .contract import (
     ALL_KINDS,
     ANALYSIS,
+    CONTROLLER_HEALTH,
     END,
     HEALTH,
     SCHEMA_NAMES,
@@ -31,48 +32,99 @@ HEALTH_FIELDS: dict[str, str] = {
 }
 
 
-def health_schema() -> dict:
-    """JSON Schema of the emulator's health payload (``seq``, ``t`` and :data:`HEALTH_FIELDS`)."""
+CONTROLLER_HEALTH_FIELDS: dict[str, str] = {
+    "k": "measurements answered so far",
+    "latency_p50_us": "median time from a measurement's arrival to the control's put, us, over the last report period",
+    "latency_p99_us": "99th percentile of that latency, us",
+    "latency_max_us": "largest latency, us",
+    "late_replies": "controls (since start) put after a newer measurement had already arrived: "
+                    "the plant stepped past them on an older command",
+    "missing_measurements": "measurement seqs (since start) skipped by a jump ahead: lost or never sent",
+    "stale_measurements": "measurements (since start) whose seq is not past the last one answered: skipped",
+    "rejected_measurements": "measurements (since start) that break the wire contract or the model's "
+                             "output count: skipped",
+}
+
+_STATS = {HEALTH: (HEALTH_FIELDS, "health", "noiselab emulator loop health; see README 'Live pipeline'",
+                   "nominal time (k-1)*Ts of the last sample stepped, s"),
+          CONTROLLER_HEALTH: (CONTROLLER_HEALTH_FIELDS, "controller health",
+                              "noiselab controller loop health; see README 'Closed loop'",
+                              "time t of the last measurement answered, s")}
+
+
+def _stats_schema(kind: str) -> dict:
+    fields, _, description, t_desc = _STATS[kind]
     props = {"seq": {"type": "integer", "minimum": 0, "description": "per-topic counter"},
-             "t": {"type": "number", "description": "nominal time (k-1)*Ts of the last sample stepped, s"}}
-    for name, desc in HEALTH_FIELDS.items():
+             "t": {"type": "number", "description": t_desc}}
+    for name, desc in fields.items():
         props[name] = {"type": "number", "description": desc}
     return {
         "$schema": "https://json-schema.org/draft/2020-12/schema",
-        "title": SCHEMA_NAMES[HEALTH],
-        "description": "noiselab emulator loop health; see README 'Live pipeline'",
+        "title": SCHEMA_NAMES[kind],
+        "description": description,
         "type": "object",
         "properties": props,
-        "required": ["seq", "t", *HEALTH_FIELDS],
+        "required": ["seq", "t", *fields],
         "additionalProperties": False,
     }
 
 
-def encode_health(seq: int, t: float, stats: dict) -> bytes:
-    """Compact JSON health payload; ``stats`` holds exactly :data:`HEALTH_FIELDS` (finite)."""
-    if set(stats) != set(HEALTH_FIELDS):
-        raise WireError(f"health payload needs exactly {sorted(HEALTH_FIELDS)}, got {sorted(stats)}")
+def _encode_stats(kind: str, seq: int, t: float, stats: dict) -> bytes:
+    fields, what = _STATS[kind][:2]
+    if set(stats) != set(fields):
+        raise WireError(f"{what} payload needs exactly {sorted(fields)}, got {sorted(stats)}")
     obj = {"seq": check_seq(seq), "t": float(t)}
-    for name in HEALTH_FIELDS:
+    for name in fields:
         v = stats[name]
         if isinstance(v, bool) or not isinstance(v, Real) or not math.isfinite(v):
-            raise WireError(f"health field {name}={v!r} is not a finite number")
+            raise WireError(f"{what} field {name}={v!r} is not a finite number")
         obj[name] = v if isinstance(v, int) else float(v)
     return json.dumps(obj, separators=(",", ":")).encode()
 
 
-def decode_health(data: bytes | bytearray | memoryview | str, *, topic: str | None = None) -> dict:
-    """Parse and validate a health payload."""
-    where = topic or "health topic"
+def _decode_stats(kind: str, data, topic: str | None) -> dict:
+    fields, what = _STATS[kind][:2]
+    where = topic or f"{kind} topic"
     obj = loads(data, where)
-    if not isinstance(obj, dict) or set(obj) != {"seq", "t", *HEALTH_FIELDS}:
-        raise WireError(f"{where}: health payload must have keys seq, t, {', '.join(HEALTH_FIELDS)}")
+    if not isinstance(obj, dict) or set(obj) != {"seq", "t", *fields}:
+        raise WireError(f"{where}: {what} payload must have keys seq, t, {', '.join(fields)}")
     check_seq_field(obj, where)
-    for name in ("t", *HEALTH_FIELDS):
+    for name in ("t", *fields):
         v = obj[name]
         if not finite_number(v):
             raise WireError(f"{where}: {name}={short(v)} is not a finite number")
     return obj
+
+
+def health_schema() -> dict:
+    """JSON Schema of the emulator's health payload (``seq``, ``t`` and :data:`HEALTH_FIELDS`)."""
+    return _stats_schema(HEALTH)
+
+
+def encode_health(seq: int, t: float, stats: dict) -> bytes:
+    """Compact JSON health payload; ``stats`` holds exactly :data:`HEALTH_FIELDS` (finite)."""
+    return _encode_stats(HEALTH, seq, t, stats)
+
+
+def decode_health(data: bytes | bytearray | memoryview | str, *, topic: str | None = None) -> dict:
+    """Parse and validate a health payload."""
+    return _decode_stats(HEALTH, data, topic or "health topic")
+
+
+def controller_health_schema() -> dict:
+    """JSON Schema of a controller's health payload (``seq``, ``t`` and
+    :data:`CONTROLLER_HEALTH_FIELDS`): the same shape as the emulator's, its own fields."""
+    return _stats_schema(CONTROLLER_HEALTH)
+
+
+def encode_controller_health(seq: int, t: float, stats: dict) -> bytes:
+    """Compact JSON controller health payload; ``stats`` holds exactly :data:`CONTROLLER_HEALTH_FIELDS`."""
+    return _encode_stats(CONTROLLER_HEALTH, seq, t, stats)
+
+
+def decode_controller_health(data, *, topic: str | None = None) -> dict:
+    """Parse and validate a controller health payload."""
+    return _decode_stats(CONTROLLER_HEALTH, data, topic)
 
 
 def analysis_schema() -> dict:

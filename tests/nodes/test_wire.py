@@ -82,7 +82,8 @@ def test_schema_names_are_the_contract():
                                  "measurement": "noiselab.Measurement",
                                  # extensions for the live pipeline (README "Live pipeline")
                                  "control": "noiselab.Control", "health": "noiselab.Health",
-                                 "analysis": "noiselab.Analysis", "end": "noiselab.End"}
+                                 "analysis": "noiselab.Analysis", "end": "noiselab.End",
+                                 "controller_health": "noiselab.ControllerHealth"}
     assert wire.VECTOR_FIELD == {"truth": "x", "command": "u", "measurement": "y", "control": "u"}
 
 
@@ -259,6 +260,27 @@ def test_health_payload_round_trip_and_validation():
         wire.encode(0, 0.0, [1.0], kind="health")
     with pytest.raises(wire.WireError):
         wire.decode_health(b'{"seq":0,"t":0.0}')
+
+
+def test_controller_health_payload_round_trip_and_validation():
+    """A controller's health: the emulator's health's shape (seq, t, numbers), its own fields; a
+    kind of its own, so neither decoder takes the other's payload."""
+    stats = dict.fromkeys(wire.CONTROLLER_HEALTH_FIELDS, 0)
+    stats.update(k=500, latency_p99_us=12.5, missing_measurements=2)
+    data = wire.encode_controller_health(4, 5.0, stats)
+    assert wire.decode_controller_health(data) == {"seq": 4, "t": 5.0, **stats}
+    s = wire.schema("controller_health")
+    assert s["required"] == ["seq", "t", *wire.CONTROLLER_HEALTH_FIELDS] and s["additionalProperties"] is False
+    assert s["title"] == "noiselab.ControllerHealth" and json.loads(wire.schema_bytes("controller_health")) == s
+    assert wire.key("dev", "controller_health") == "noiselab/dev/controller_health"
+    with pytest.raises(WireError, match="late_replies"):
+        wire.encode_controller_health(0, 0.0, {**stats, "late_replies": float("inf")})
+    with pytest.raises(WireError, match="controller health payload must have keys"):
+        wire.decode_controller_health(wire.encode_health(0, 0.0, dict.fromkeys(wire.HEALTH_FIELDS, 0)))
+    with pytest.raises(WireError, match="health payload must have keys"):
+        wire.decode_health(data)
+    with pytest.raises(WireError, match="not vectors"):
+        wire.encode(0, 0.0, [1.0], kind="controller_health")
 
 
 def test_control_is_a_vector_kind():
@@ -475,7 +497,7 @@ def test_decode_batch_fast_path_takes_nothing_decode_refuses():
 # ------------------------------------------------------------ properties of the decoders
 
 ANY_DECODER = [lambda p: wire.decode(p), lambda p: wire.decode(p, "control"), wire.decode_health,
-               wire.decode_end, wire.decode_analysis]
+               wire.decode_end, wire.decode_analysis, wire.decode_controller_health]
 
 
 def result_or_wire_error(fn, *args):
