@@ -44,15 +44,20 @@ def _model(kind: str, extra: str = ""):
     return parse_model(GYRO + extra + "[sensor.filter]\n" + KINDS[kind])
 
 
-def _reference_h(kind: str, f: np.ndarray) -> np.ndarray:
-    """H(e^{i 2 pi f Ts}) from scipy's design, independent of the effect's own coefficients."""
+def _reference_ba(kind: str):
+    """(b, a) of each kind's filter here from scipy's design, independent of the effect's own
+    coefficients."""
     if kind == "average":
-        b, a = np.full(4, 0.25), [1.0]
-    elif kind == "lowpass1":
+        return np.full(4, 0.25), [1.0]
+    if kind == "lowpass1":
         r = np.exp(-2 * np.pi * 5.0 * TS)
-        b, a = [1 - r], [1.0, -r]
-    else:
-        b, a = butter(2, 10.0, fs=1 / TS)
+        return [1 - r], [1.0, -r]
+    return butter(2, 10.0, fs=1 / TS)
+
+
+def _reference_h(kind: str, f: np.ndarray) -> np.ndarray:
+    """H(e^{i 2 pi f Ts}) of :func:`_reference_ba`."""
+    b, a = _reference_ba(kind)
     return freqz(b, a, worN=f, fs=1 / TS)[1]
 
 
@@ -269,13 +274,7 @@ def test_the_impulse_response_autocorrelation_is_the_filters(kind):
     """R_h(j) = sum_i h_i h_(i+j) against scipy's impulse response (5000 samples: decayed below
     1e-300 for these cutoffs) correlated directly."""
     flt = _model(kind).effects["sensor.filter"]
-    if kind == "average":
-        b, a = np.full(4, 0.25), [1.0]
-    elif kind == "lowpass1":
-        r = np.exp(-2 * np.pi * 5.0 * TS)
-        b, a = [1 - r], [1.0, -r]
-    else:
-        b, a = butter(2, 10.0, fs=1 / TS)
+    b, a = _reference_ba(kind)
     imp = np.zeros(5000)
     imp[0] = 1.0
     h = lfilter(b, a, imp)
