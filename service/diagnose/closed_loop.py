@@ -130,3 +130,24 @@ def fed_back_lines(fb: Feedback, u: np.ndarray, v: np.ndarray, lines) -> np.ndar
         if np.linalg.norm(Uf - pred) < FED_BACK * np.linalg.norm(Uf):
             out.append(float(f))
     return np.array(out)
+
+
+def mark_closed_loop(S, model, data, say) -> None:
+    """Whether the record is under feedback (the command follows the residual's past,
+    :func:`feedback`, on the nominal model's residual) and which command lines the controller
+    copied from the measurement (:func:`fed_back_lines`): set on ``data`` (a
+    :class:`.data.Data`), said in its notes and to ``say``."""
+    if not data.has_command:
+        return
+    k0 = data.k0
+    u = data.u[k0:]
+    v = S.H.ev.residual(model, False)[0][k0:]
+    lines = data.command_lines()
+    fb = feedback(u, v, data.Ts, lines)
+    if fb is None or not fb.closed:
+        return
+    data.feedback = fb
+    data.fed_back = fed_back_lines(fb, u, v, lines)
+    data.notes.append(fb.sentence() + (f" (lines copied: {', '.join(f'{f:.4g}' for f in data.fed_back)} Hz)"
+                                       if data.fed_back.size else ""))
+    say(data.notes[-1])

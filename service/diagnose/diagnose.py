@@ -27,9 +27,11 @@ import numpy as np
 from .. import parallel
 from ..model.effects import CATALOGUE
 from ..model.effects.base import _g
+from .closed_loop import mark_closed_loop
 from .compare import auto_burn, check_samples, compare, transient_samples
 from .data import Data
 from .intervals import interval_tasks, merge_intervals
+from .lines import line_hz, lines_params, own_params, without_line
 from .modes import ADD, REFIT, replacing
 from .results import fmt_score
 from .search import Search
@@ -155,7 +157,7 @@ class _Exchange:
                 m = cur.model.with_params(c.effect, S.nominal.effects[c.effect].param_dict())
             elif c.mode.kind == "add" and CATALOGUE[c.effect].repeatable \
                     and len(cur.model.effects[c.effect].all_lines()) > 1:   # its line alone, the others kept
-                m = cur.model.with_params(c.effect, _without_line(cur.model.effects[c.effect], _line_hz(c)))
+                m = cur.model.with_params(c.effect, without_line(cur.model.effects[c.effect], line_hz(c)))
                 free = dict(cur.free)
             elif c.mode.replaces is not None:           # the user's effect back, at the user's values
                 old = c.mode.replaces
@@ -191,7 +193,7 @@ class _Exchange:
             what = {"refit": f"{c.effect} back at the model's values",
                     "replace": f"{c.mode.replaces} back in place of {c.effect}"}.get(c.mode.kind, c.effect)
             if CATALOGUE[c.effect].repeatable and c.mode.kind == "add":
-                what = f"the line of {c.effect} at {_g(_line_hz(c))} Hz"
+                what = f"the line of {c.effect} at {_g(line_hz(c))} Hz"
             self.say(f"drop: {what} (Delta BIC {own:.1f} once the others are in)")
             self.accepted.remove(c)
             self.cur, self.swapped = d, True
@@ -315,68 +317,11 @@ def _vanished(eff) -> bool:
     return bool(sizes) and all(not np.any(v) for v in sizes)
 
 
-def _line_hz(c) -> float:
-    """The frequency (Hz, its largest over the outputs) of the line candidate ``c`` of a
-    ``repeatable`` effect fitted: the line its fit holds as the fitted one (``all_lines()[0]``)."""
-    return float(np.max(c.fit.model.effects[c.effect].all_lines()[0][1]))
-
-
-def _nearest_line(eff, hz: float) -> int:
-    """The index in ``eff.all_lines()`` of the line nearest ``hz`` (a line's frequency moves a
-    little in the joint refits after its step)."""
-    return int(np.argmin([abs(float(np.max(f)) - hz) for _, f in eff.all_lines()]))
-
-
-def _lines_params(eff, hz: list, extra: list) -> dict:
-    """The parameters of ``eff`` (``repeatable``) holding only its lines nearest the frequencies
-    ``hz`` (the first the fitted one) and ``extra``, in that order."""
-    lines = eff.all_lines()
-    pick = [_nearest_line(eff, h) for h in list(hz) + list(extra)]
-    pick = list(dict.fromkeys(pick))                   # each line once
-    scale = type(eff).fit.scale
-    params = {k: v for k, v in eff.param_dict().items() if k not in (scale, "frequency_hz", "lines")}
-    params[scale], params["frequency_hz"] = (_plain_list(v) for v in lines[pick[0]])
-    if len(pick) > 1:
-        params["lines"] = [{scale: _plain_list(lines[i][0]), "frequency_hz": _plain_list(lines[i][1])} for i in pick[1:]]
-    return params
-
-
-def _without_line(eff, hz: float) -> dict:
-    """The parameters of ``eff`` (``repeatable``) without its line nearest ``hz``: that line put
-    first (the fitted one) and popped (:meth:`.effects.base.Effect.pop_line` undoes a push)."""
-    lines = eff.all_lines()
-    i = _nearest_line(eff, hz)
-    keep = [ln for k, ln in enumerate(lines) if k != i]
-    params = eff.param_dict()
-    scale = type(eff).fit.scale
-    params[scale], params["frequency_hz"] = (_plain_list(v) for v in keep[0])
-    if len(keep) > 1:
-        params["lines"] = [{scale: _plain_list(a), "frequency_hz": _plain_list(f)} for a, f in keep[1:]]
-    else:
-        params.pop("lines", None)
-    return params
-
-
-def _plain_list(v):
-    v = np.asarray(v, float)
-    return float(v[0]) if np.all(v == v[0]) else [float(x) for x in v]
-
-
-def _own_params(c, model) -> dict:
-    """Candidate ``c``'s parameters in ``model``: the effect's, or for an effect of several lines
-    (``repeatable``) the line ``c`` found (the nearest to its frequency)."""
-    eff = model.effects[c.effect]
-    if not type(eff).repeatable:
-        return eff.param_dict()
-    a, f = eff.all_lines()[_nearest_line(eff, _line_hz(c))]
-    return {type(eff).fit.scale: _plain_list(a), "frequency_hz": _plain_list(f)}
-
-
 def _step(c, model, error, Ts: float) -> dict:
     """A step's entry in the report: candidate ``c`` as fitted in ``model``, the model error after."""
     return {"effect": c.effect, "mode": str(c.mode), "score": float(c.score),
             "error": None if error is None else float(error), "accepted_by": "error" if c.by_error else "bic",
-            "params": _report_params(c.effect, _own_params(c, model), Ts)}
+            "params": _report_params(c.effect, own_params(c, model), Ts)}
 
 
 def _compare(S, model, t, y, u, burn, revision: int):
@@ -457,9 +402,9 @@ def _replay(S, start, final, accepted):
         params = final.model.effects[c.effect].param_dict()
         if CATALOGUE[c.effect].repeatable and c.mode.kind == "add":
             # the lines found so far (this one first) and those the model had at the start
-            hz = [_line_hz(a) for a in accepted[:accepted.index(c) + 1] if a.effect == c.effect and a.mode.kind == "add"]
+            hz = [line_hz(a) for a in accepted[:accepted.index(c) + 1] if a.effect == c.effect and a.mode.kind == "add"]
             own = start.model.effects.get(c.effect)
-            params = _lines_params(final.model.effects[c.effect], hz[::-1],
+            params = lines_params(final.model.effects[c.effect], hz[::-1],
                                    [] if own is None else [float(np.max(f)) for _, f in own.all_lines()])
         m = m.with_params(c.effect, params) if c.effect in m.effects else m.with_effect(c.effect, params)
         free[c.effect] = list(c.fit.free.get(c.effect, []))
@@ -548,28 +493,6 @@ class _Counted:
         return out
 
 
-def _closed_loop(S, model, data: Data, say) -> None:
-    """Whether the record is under feedback (the command follows the residual's past,
-    :func:`.closed_loop.feedback`, on the nominal model's residual) and which command lines the
-    controller copied from the measurement (:func:`.closed_loop.fed_back_lines`): set on ``data``,
-    said in its notes."""
-    from .closed_loop import feedback, fed_back_lines
-    if not data.has_command:
-        return
-    k0 = data.k0
-    u = data.u[k0:]
-    v = S.H.ev.residual(model, False)[0][k0:]
-    lines = data.command_lines()
-    fb = feedback(u, v, data.Ts, lines)
-    if fb is None or not fb.closed:
-        return
-    data.feedback = fb
-    data.fed_back = fed_back_lines(fb, u, v, lines)
-    data.notes.append(fb.sentence() + (f" (lines copied: {', '.join(f'{f:.4g}' for f in data.fed_back)} Hz)"
-                                       if data.fed_back.size else ""))
-    say(data.notes[-1])
-
-
 def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MAX_EFFECTS, log=None,
              compare_burn="auto", progress=None) -> dict:
     """Diagnose samples y (N, p) at t (N,) with the recorded command u (N, m) against ``model``.
@@ -589,7 +512,7 @@ def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MA
     burn = auto_burn(at_rest, u) if compare_burn == "auto" else compare_burn
     data = Data(y, u, model.Ts, at_rest, k0)
     S = Search(model, data, log=say)
-    _closed_loop(S, model, data, say)
+    mark_closed_loop(S, model, data, say)
     count = _Counted(S, progress) if progress is not None else None
     # the comparisons (before, after each step, after all) run beside the fits on long records
     # (:meth:`.search.Search.beside`): as one more item of the next candidate map where the maps
@@ -678,7 +601,7 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0,
     missing = []
     # the profile-likelihood intervals of the effects found, concurrently on long records
     tasks = [(i, key, f) for i, c in enumerate(accepted) for key, f in interval_tasks(
-        S.H, cur, c.effect, line_hz=_line_hz(c) if CATALOGUE[c.effect].repeatable else None)]
+        S.H, cur, c.effect, line_hz=line_hz(c) if CATALOGUE[c.effect].repeatable else None)]
     phase("profile intervals")
     res = S._map(lambda task: task[2](), tasks)
     ivs = [merge_intervals([(key, r) for (i, key, _), r in zip(tasks, res) if i == k]) for k in range(len(accepted))]
@@ -720,7 +643,7 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0,
 def _missing_entry(c, iv_c: dict, per_c: dict, cur, model, data: Data) -> dict:
     """Candidate ``c``'s entry in the report's ``missing``: its parameters as fitted in ``cur``, its
     intervals (``iv_c``, per output ``per_c``), score, mode and sentence of evidence."""
-    params = _own_params(c, cur.model)
+    params = own_params(c, cur.model)
     iv = _report_intervals(c.effect, iv_c, model.Ts)
     iv_per = _report_intervals_per_output(c.effect, per_c, model.Ts)
     band = _band(cur, c.effect, data)
@@ -731,7 +654,7 @@ def _missing_entry(c, iv_c: dict, per_c: dict, cur, model, data: Data) -> dict:
     if c.mode == REFIT and c.effect in model.effects:
         # a changed value: what the user's model said, and what the data say (the effect's own
         # sentence describes it as an excess over nothing, which a changed value is not)
-        evidence = (f"the model's value does not fit the data ({_changes(_own_params(c, model), params)}); "
+        evidence = (f"the model's value does not fit the data ({_changes(own_params(c, model), params)}); "
                     f"refitted: {evidence.rsplit(': ', 1)[-1]}")
     if c.by_error:
         e0, e1 = c.by_error

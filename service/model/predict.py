@@ -357,10 +357,9 @@ class Predictor(MeanResponses, Linearization, Spectra):
         return primitives(self.model, self._filter)
 
     def stationary_starts(self, ls=None) -> list:
-        """[(effect id, state indices, covariance)]: the sensor sources that start in their
-        stationary distribution (``initial_cov``: a flicker bias, the integral's white noise), their
-        states in the augmented system of ``ls`` (default: the steady state's) and the covariance at
-        k = 0. A source's own states lead its block; a filter's states after them start at rest."""
+        """[(effect id, state indices, covariance at k = 0)] of the sensor sources that start
+        stationary (``initial_cov``), in the augmented system ``ls`` (default: the steady state's).
+        A source's own states lead its block; a filter's after them start at rest."""
         if ls is None:
             self.steady_state()
             ls = self._ls
