@@ -30,10 +30,10 @@ from ..model.effects.base import _g
 from .closed_loop import mark_closed_loop
 from .compare import auto_burn, check_samples, compare, transient_samples
 from .data import Data
+from .entries import candidate_entry, missing_entry, step_entry
 from .intervals import interval_tasks, merge_intervals
-from .lines import line_hz, lines_params, own_params, without_line
+from .lines import line_hz, lines_params, without_line
 from .modes import ADD, REFIT, replacing
-from .results import fmt_score
 from .search import Search
 from .thresholds import MAX_EFFECTS, THRESHOLD
 
@@ -56,27 +56,6 @@ def _step_cap(model, max_effects: int) -> int:
     of the user's model on top (a refit frees every value of the effect, so a second refit of the
     same effect is the joint refit's business, not a step's)."""
     return max_effects + len(model.effects)
-
-
-def _band(fit, eid: str, data: Data):
-    """Frequencies (Hz) over which ``eid`` holds most of the fitted spectrum of the differenced
-    residual: where it is the physical effect's signature."""
-    if not fit.parts or eid not in fit.parts:
-        return None
-    parts = fit.scaled_parts() if fit.v is not None else fit.parts   # at the fitted values
-
-    def power(E):          # per group: summed over outputs (the diagonal of cross-spectral matrices)
-        return np.einsum("bii->b", E).real if E.ndim == 3 else np.sum(E, axis=1)
-
-    share = power(parts[eid]) / np.maximum(power(sum(parts.values())), 1e-300)
-    idx = np.flatnonzero(share > 0.5)
-    if idx.size == 0:
-        return None
-    end = idx[0]
-    while end + 1 < share.size and share[end + 1] > 0.5:
-        end += 1
-    f = (data.starts + 0.5 * (data.sizes - 1)) / (data.M * data.Ts)
-    return float(f[idx[0]]), float(f[end])
 
 
 def _prefer_replacements(S, cur, accepted, say):
@@ -317,13 +296,6 @@ def _vanished(eff) -> bool:
     return bool(sizes) and all(not np.any(v) for v in sizes)
 
 
-def _step(c, model, error, Ts: float) -> dict:
-    """A step's entry in the report: candidate ``c`` as fitted in ``model``, the model error after."""
-    return {"effect": c.effect, "mode": str(c.mode), "score": float(c.score),
-            "error": None if error is None else float(error), "accepted_by": "error" if c.by_error else "bic",
-            "params": _report_params(c.effect, own_params(c, model), Ts)}
-
-
 def _compare(S, model, t, y, u, burn, revision: int):
     """:func:`compare` as the diagnosis runs it on its record: the level view when it starts at
     rest; else, under a command, the mean state fitted where the analysis starts."""
@@ -378,7 +350,7 @@ def _by_error(S, cur, accepted, steps, comps, step_models, max_effects, t, y, u,
             f"2 Delta l = {lr:.1f} against {crit:.1f}; model error {comps[-1].error:.3g} -> {cmp.error:.3g})")
         c.by_error = (float(comps[-1].error), float(cmp.error))
         cmp.model_name = f"+ {c.effect}"
-        steps.append(_step(c, new.model, cmp.error, S.nominal.Ts))
+        steps.append(step_entry(c, new.model, cmp.error, S.nominal.Ts))
         comps.append(cmp)
         step_models.append(new.model)
         accepted.append(c)
@@ -410,43 +382,6 @@ def _replay(S, start, final, accepted):
         free[c.effect] = list(c.fit.free.get(c.effect, []))
         cur = S.refit_all(Fit(m, free, float("-inf")))
         out.append(cur)
-    return out
-
-
-def _changes(old: dict, new: dict) -> str:
-    """``k old -> new`` for the parameters a refit changed (as the model file spells them)."""
-    out = [f"{k} {_g(old[k])} -> {_g(v)}" for k, v in new.items()
-           if k in old and not np.allclose(np.asarray(old[k], float), np.asarray(v, float), rtol=1e-6, atol=0)]
-    return ", ".join(out) or "the same values"
-
-
-def _report_intervals(eid: str, iv: dict, Ts: float) -> dict:
-    """The intervals, and the same for the equivalent spellings (monotone maps of the ends)."""
-    out = dict(iv)
-    for k, (lo, hi) in iv.items():
-        e_lo = CATALOGUE[eid].equivalents({k: lo}, Ts)
-        e_hi = CATALOGUE[eid].equivalents({k: hi}, Ts)
-        for name in e_lo:
-            if name not in out and name in e_hi:
-                a, b = e_lo[name], e_hi[name]
-                if isinstance(a, (int, float)) and isinstance(b, (int, float)):
-                    out[name] = [min(a, b), max(a, b)]
-    return out
-
-
-def _report_intervals_per_output(eid: str, per: dict, Ts: float) -> dict:
-    """Each output's intervals of the parameters fitted per output ({name: [[lo, hi] or None, one
-    per output]}: :func:`.intervals.interval_tasks`), and the same for the equivalent spellings, as
-    :func:`_report_intervals` gives them for one interval."""
-    n = max((len(v) for v in per.values()), default=0)
-    each = [_report_intervals(eid, {k: v[j] for k, v in per.items() if v[j] is not None}, Ts) for j in range(n)]
-    return {k: [e.get(k) for e in each] for k in dict.fromkeys(k for e in each for k in e)}
-
-
-def _report_params(eid: str, params: dict, Ts: float) -> dict:
-    out = dict(params)
-    for k, v in CATALOGUE[eid].equivalents(params, Ts).items():
-        out.setdefault(k, v)
     return out
 
 
@@ -575,7 +510,7 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0,
         pending.append((len(steps), _later(bg, lambda m=new.model, rev=len(comps):
                                             _compare(S, m, t, y, u, burn, revision=rev))))
         comps.append(None)
-        steps.append(_step(best, new.model, None, model.Ts))
+        steps.append(step_entry(best, new.model, None, model.Ts))
         accepted.append(best)
         step_models.append(new.model)
         say(f"step {len(steps)}: {best.mode} {best.effect} (Delta BIC {best.score:.1f})")
@@ -606,7 +541,7 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0,
     res = S._map(lambda task: task[2](), tasks)
     ivs = [merge_intervals([(key, r) for (i, key, _), r in zip(tasks, res) if i == k]) for k in range(len(accepted))]
     for c, (iv_c, per_c) in zip(accepted, ivs):
-        missing.append(_missing_entry(c, iv_c, per_c, cur, model, data))
+        missing.append(missing_entry(c, iv_c, per_c, cur, model, data))
     phase("comparing the fitted model with the data")
     after = after_f.result() if accepted else before
     if accepted:
@@ -621,7 +556,7 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0,
         "error_after": float(after.error),
         "missing": missing,
         "steps": steps,
-        "candidates": [_candidate_entry(c, model.Ts) for c in (first or [])[:10]],
+        "candidates": [candidate_entry(c, model.Ts) for c in (first or [])[:10]],
         "regions": [r.__dict__ for r in before.regions],
         "samples": int(len(y)),
         "Ts": model.Ts,
@@ -640,51 +575,6 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0,
     return out
 
 
-def _missing_entry(c, iv_c: dict, per_c: dict, cur, model, data: Data) -> dict:
-    """Candidate ``c``'s entry in the report's ``missing``: its parameters as fitted in ``cur``, its
-    intervals (``iv_c``, per output ``per_c``), score, mode and sentence of evidence."""
-    params = own_params(c, cur.model)
-    iv = _report_intervals(c.effect, iv_c, model.Ts)
-    iv_per = _report_intervals_per_output(c.effect, per_c, model.Ts)
-    band = _band(cur, c.effect, data)
-    alts = [{"effect": a.effect, "mode": str(a.mode), "score": float(a.score),
-             "params": _report_params(a.effect, a.fit.model.effects[a.effect].param_dict(), model.Ts)}
-            for a in c.alternatives if a.effect in a.fit.model.effects]
-    evidence = CATALOGUE[c.effect].explain(params, model.Ts, {"band": band} if band else None)
-    if c.mode == REFIT and c.effect in model.effects:
-        # a changed value: what the user's model said, and what the data say (the effect's own
-        # sentence describes it as an excess over nothing, which a changed value is not)
-        evidence = (f"the model's value does not fit the data ({_changes(own_params(c, model), params)}); "
-                    f"refitted: {evidence.rsplit(': ', 1)[-1]}")
-    if c.by_error:
-        e0, e1 = c.by_error
-        evidence += (f"; added on the views' word: Delta BIC {fmt_score(c.score)} is under the threshold "
-                     f"{THRESHOLD:g}, but it takes the model error from {e0:.3g} to {e1:.3g}")
-    if alts:
-        evidence += "; the data support " + " and ".join(
-            f"{a.effect} ({', '.join(f'{k} = {_g(v)}' for k, v in a.fit.model.effects[a.effect].param_dict().items())})"
-            for a in [a for a in c.alternatives if a.effect in a.fit.model.effects][:2]) + " as well"
-    return {
-        "effect": c.effect,
-        "params": _report_params(c.effect, params, model.Ts),
-        "interval": {k: [float(a) for a in v] for k, v in iv.items()},
-        "intervals_per_output": {k: [None if x is None else [float(a) for a in x] for x in v]
-                                 for k, v in iv_per.items()},
-        "score": float(c.score),
-        "mode": str(c.mode),
-        "accepted_by": "error" if c.by_error else "bic",
-        "evidence": evidence,
-        "alternatives": alts,
-    }
-
-
-def _candidate_entry(c, Ts: float) -> dict:
-    """A first step's candidate in the report's ``candidates``."""
-    return {"effect": c.effect, "mode": str(c.mode), "score": float(c.score),
-            "params": _report_params(c.effect, c.fit.model.effects[c.effect].param_dict(), Ts)
-            if c.effect in c.fit.model.effects else {}}
-
-
 def _replayed_steps(S, start, cur, accepted, before, model, t, y, u, burn) -> tuple[list, list, list]:
     """The steps, comparisons and step models again, in order, after an exchange (:func:`_replay`)."""
     steps, comps, step_models = [], [before], [model]
@@ -694,7 +584,7 @@ def _replayed_steps(S, start, cur, accepted, before, model, t, y, u, burn) -> tu
         cmp.model_name = f"+ {c.effect}"
         comps.append(cmp)
         step_models.append(fit.model)
-        steps.append(_step(c, fit.model, cmp.error, model.Ts))
+        steps.append(step_entry(c, fit.model, cmp.error, model.Ts))
     return steps, comps, step_models
 
 
