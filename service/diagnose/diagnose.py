@@ -25,6 +25,7 @@ import time
 import numpy as np
 
 from .. import parallel
+from ..model.command import replay
 from ..model.effects import CATALOGUE
 from ..model.effects.base import _g
 from .closed_loop import mark_closed_loop
@@ -443,6 +444,8 @@ def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MA
     t0 = time.perf_counter()
     y, t = check_samples(model, t, y, u)       # bad input fails here, before any fitting
     u = None if u is None else np.asarray(u, float).reshape(len(u), -1)
+    users = model
+    model = replaying(model, u)
     k0 = 0 if at_rest else min(transient_samples(model), len(y) // 2)
     burn = auto_burn(at_rest, u) if compare_burn == "auto" else compare_burn
     data = Data(y, u, model.Ts, at_rest, k0)
@@ -457,7 +460,8 @@ def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MA
     try:
         before = _later(bg, lambda: _compare(S, model, t, y, u, burn, revision=0))
         try:
-            return _diagnose(model, t, y, u, S, data, before, burn, say, bg, max_effects, t0, count)
+            return _given_back(_diagnose(model, t, y, u, S, data, before, burn, say, bg, max_effects, t0, count),
+                               users, model)
         except Exception:
             # what the comparison found wrong with the input comes first (as when it ran first)
             exc = before.exception()
@@ -573,6 +577,31 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0,
         "fed_back": data.fed_back,
     }
     return out
+
+
+def replaying(model, u):
+    """``model`` with its command replaying the recorded ``u`` (:func:`noiselab.model.command.replay`)
+    where the two differ: an ``external`` command (a closed loop, a user's recording) is zero as
+    the model computes it, and the nonlinearities' gains, the jitter's slope and the quantizer's
+    spread are averages over the command (a dead zone's gain P(|u| > w) at u = 0 is the noise's
+    small chance of leaving it: its noise's fit came out 17 times too large under feedback)."""
+    if u is None:
+        return model
+    own = model.command.values(0, len(u), model.Ts)
+    if own.shape == u.shape and np.allclose(u, own, rtol=1e-6, atol=1e-9 * max(1.0, float(np.max(np.abs(u))))):
+        return model
+    return model.with_command({"kind": "external", "replay": replay(u)})
+
+
+def _given_back(rep: dict, users, model) -> dict:
+    """The report with the user's command back in its models (the replayed one is internal)."""
+    if model is users:
+        return rep
+    cmd = users.to_dict()["command"]
+    rep["model"] = rep["model"].with_command(cmd)
+    rep["fitted_model"] = rep["model"].to_toml()
+    rep["step_models"] = [m.with_command(cmd) for m in rep["step_models"]]
+    return rep
 
 
 def _replayed_steps(S, start, cur, accepted, before, model, t, y, u, burn) -> tuple[list, list, list]:

@@ -4,7 +4,7 @@ Kinds (``[command] kind``): ``sine`` (amplitude, frequency_hz, optional offset, 
 (amplitude, optional time_s, offset), ``chirp`` (amplitude, f0_hz, f1_hz, duration_s: linear sweep,
 repeated), ``prbs`` (amplitude, bit_s, optional order = 7..15: a maximal-length LFSR sequence of
 +-amplitude, deterministic), ``none`` (zero), ``external`` (commands arrive over Zenoh; zero offline
-unless a command sequence is given). Amplitudes may be a list with one value per input.
+unless a command sequence is given, or a recorded one replayed: :func:`replay`). Amplitudes may be a list with one value per input.
 Sample k is at t_k = k Ts.
 
 In a sensor-only model (no [plant]) the command is the reference each output measures, one input
@@ -14,6 +14,9 @@ accelerometer axis; ``none`` is a sensor at rest.
 
 from __future__ import annotations
 
+import hashlib
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -24,6 +27,38 @@ KINDS = ("sine", "step", "chirp", "prbs", "none", "external")
 
 # Feedback taps of maximal-length Fibonacci LFSRs (x^order + x^tap + 1).
 _PRBS_TAPS = {7: 6, 9: 5, 10: 7, 11: 9, 15: 14}
+
+
+# Recorded commands an ``external`` command replays (:func:`replay`), by the digest of their bytes:
+# a model's command is text (its file, and every edit of the diagnosis re-parses it), so the
+# recording travels as its key, ``replay = "<digest>"``. The last few are kept (a diagnosis holds
+# one; forked workers inherit them).
+_REPLAYS: OrderedDict[str, np.ndarray] = OrderedDict()
+_REPLAYS_KEPT = 8
+_REPLAYS_LOCK = threading.Lock()
+
+
+def replay(u: np.ndarray) -> str:
+    """Register the recorded command ``u`` (N, m) and return its key, for an ``external``
+    command's ``replay`` parameter: such a model's own command is then the record's (the
+    nonlinearities' gains, the jitter's slope and the quantizer's spread are averaged over the
+    command the record carries, not over zeros). Read-only copy; the last few are kept."""
+    a = np.array(u, dtype=float, order="C")
+    a = a.reshape(len(a), -1)
+    key = hashlib.sha256(a.tobytes() + repr(a.shape).encode()).hexdigest()[:24]
+    a.setflags(write=False)
+    with _REPLAYS_LOCK:
+        _REPLAYS[key] = a
+        _REPLAYS.move_to_end(key)
+        while len(_REPLAYS) > _REPLAYS_KEPT:
+            _REPLAYS.popitem(last=False)
+    return key
+
+
+def replayed(key: str) -> np.ndarray | None:
+    """The recorded command of ``key`` (:func:`replay`), or None."""
+    with _REPLAYS_LOCK:
+        return _REPLAYS.get(key)
 
 
 @dataclass(frozen=True)
@@ -37,6 +72,13 @@ class Command:
         k = np.arange(k0, k0 + n, dtype=np.float64)
         t = k * Ts
         p = self.params
+        if self.kind == "external" and "replay" in p:
+            # the recorded command; zero beyond its end, as before its start
+            rec, out = replayed(p["replay"]), np.zeros((n, self.m))
+            lo, hi = max(k0, 0), min(k0 + n, 0 if rec is None else rec.shape[0])
+            if hi > lo:
+                out[lo - k0:hi - k0] = rec[lo:hi]
+            return out
         if self.kind in ("none", "external"):
             return np.zeros((n, self.m))
         if self.kind == "sine":
@@ -96,5 +138,11 @@ def parse_command(t: Table | None, m: int, Ts: float) -> Command:
         p["bit_s"] = t.number("bit_s", check=lambda v: v >= Ts, expect=f"a bit duration in s >= Ts = {Ts:g}")
         p["order"] = t.integer("order", 9, check=lambda v: v in _PRBS_TAPS,
                                expect=f"one of {sorted(_PRBS_TAPS)}")
+    elif kind == "external" and t.has("replay"):
+        # internal (the diagnosis' replay of a record's command, :func:`replay`), never in a file
+        # a user writes: only a key this process registered, of m inputs
+        key = t.string("replay", pattern=lambda v: (replayed(v) is not None and replayed(v).shape[1] == m),
+                       expect="the key of a command recorded in this process (an internal parameter)")
+        p["replay"] = key
     t.done()
     return Command(kind, m, p)

@@ -62,7 +62,7 @@ def scenario_names(group: str | None = None) -> list[str]:
 
 def _is_scenario(name: str) -> bool:
     group, _, rest = name.rpartition("/")
-    if group not in ("", "hidden") or not rest:
+    if group not in ("", "hidden", "hidden-closed") or not rest:
         return False
     return name in scenario_names(group or None)
 
@@ -350,6 +350,16 @@ class Model:
             model._asm["plant"] = d["plant"]
         return model
 
+    def with_command(self, command: dict) -> "Model":
+        """The model with its ``[command]`` table replaced by ``command`` (the diagnosis replays a
+        record's command in it, :func:`.command.replay`, and gives the user's back)."""
+        d = self.to_dict()
+        d["command"] = dict(command)
+        model = _from_data(d, self.source, dumps_toml(d))
+        if "plant" in d:
+            model._asm["plant"] = d["plant"]
+        return model
+
     def without_effect(self, eid: str) -> "Model":
         _check_effect_id(eid)
         d = self.to_dict()
@@ -398,7 +408,7 @@ def _plant_dict(plant: Plant, text: str, source: str) -> dict:
 def _command_dict(cmd: Command) -> dict:
     out: dict = {"kind": cmd.kind}
     for k, v in cmd.params.items():
-        a = np.atleast_1d(np.asarray(v, float)) if not isinstance(v, int) else None
+        a = np.atleast_1d(np.asarray(v, float)) if not isinstance(v, (int, str)) else None
         if a is None:
             out[k] = v
         else:

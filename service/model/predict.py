@@ -40,6 +40,7 @@ import numpy as np
 from scipy.linalg import block_diag, solve_discrete_lyapunov
 
 from ..memo import Memo
+from .command import replayed
 from .filter_cascade import output_filter_of, primitives, sensor_blocks
 
 # _COLORS: the colored fits' memo, cleared (by the tests) with this module's memos below
@@ -159,6 +160,9 @@ class Predictor(MeanResponses, Linearization, Spectra):
     def __init__(self, model, horizon_s: float = 60.0):
         self.model = model
         self.span = max(int(np.ceil(horizon_s / model.Ts)), 2)     # the horizon, samples
+        rec = replayed(model.command.params["replay"]) if "replay" in model.command.params else None
+        if rec is not None:
+            self.span = max(rec.shape[0], 2)         # a replayed record's command: the whole record
         self.horizon = min(self.span, HORIZON_MAX)                   # of it held at once
         m = model
         self._act_src = [e for e in m.effects.values() if hasattr(e, "drive_linear")]

@@ -88,3 +88,27 @@ def test_a_closed_loop_null_record_reports_nothing_and_the_json_says_closed_loop
     assert rep["missing"] == [], [(m["effect"], m["score"]) for m in rep["missing"]]
     js = diagnosis_json(rep)
     assert js["closed_loop"] is not None and js["closed_loop"]["p_value"] < ALPHA and js["closed_loop"]["r2"] > 0.5
+
+
+def test_an_external_command_is_averaged_over_the_record_it_drove():
+    """A dead zone's gain P(|u + n| > w) and the variances it sets are averages over the command.
+    An external command is zero as the model computes it; the diagnosis replays the recorded one
+    (:func:`noiselab.diagnose.diagnose.replaying`): over the same command, the steady state is
+    the open-loop model's to rounding, while over zeros the dead zone passes almost none of the
+    actuator's noise. The fitted model the report writes has the user's command back."""
+    from noiselab.diagnose.diagnose import replaying
+    sine = load_model("seed-nominal").with_params("actuator.white", {"std": 0.3}).with_effect(
+        "actuator.deadzone", {"width": 0.5})
+    ext = parse_model(re.sub(r"\[command\][^\[]*", '[command]\nkind = "external"\n\n', sine.to_toml()), "external")
+    n = sine.predictor().span                     # the open-loop model's horizon (60 s)
+    u = sine.command.values(0, n, sine.Ts)
+    assert replaying(sine, u) is sine             # its own command: nothing to replay
+    got = replaying(ext, u)
+    assert got.command.kind == "external" and "replay" in got.command.params
+    a, b, zero = (m.predictor().steady_state().contributions["actuator.white"] for m in (sine, got, ext))
+    np.testing.assert_allclose(b, a, rtol=1e-9)
+    assert np.all(zero < a / 4), (zero, a)        # at u = 0 the noise rarely leaves the dead zone
+    rec = sine.simulate(3000, seed=5)
+    rep = diagnose(ext, rec.t, rec.y, rec.u, max_effects=0)
+    assert 'kind = "external"' in rep["fitted_model"] and "replay" not in rep["fitted_model"]
+    assert all("replay" not in m.command.params for m in [rep["model"], *rep["step_models"]])
