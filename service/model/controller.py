@@ -145,8 +145,14 @@ def closed_loop_matrix(model, spec: ControllerSpec, delay: int = 1) -> np.ndarra
 
 
 def closed_loop_poles(model, spec: ControllerSpec, delay: int = 1) -> np.ndarray:
-    """Eigenvalues of :func:`closed_loop_matrix` (stable: all inside the unit circle)."""
-    return np.linalg.eigvals(closed_loop_matrix(model, spec, delay))
+    """Eigenvalues of :func:`closed_loop_matrix` (stable: all inside the unit circle). Without
+    integral action (ki = 0) the integral's state stays at zero, outside the loop: its eigenvalue
+    1 is not a pole of the loop and is left out (a PD read as marginally stable otherwise)."""
+    A = closed_loop_matrix(model, spec, delay)
+    if spec.ki == 0.0:
+        keep = np.arange(A.shape[0]) != A.shape[0] - 2           # the state I_{k-1}
+        A = A[np.ix_(keep, keep)]
+    return np.linalg.eigvals(A)
 
 
 def simulate_closed_loop(model, n: int, *, seed=None, spec: ControllerSpec | None = None, delay: int = 1) -> dict:

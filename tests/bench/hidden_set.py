@@ -486,8 +486,9 @@ def make_closed_case(seed: int, n_hidden: int | None = None, null: bool | None =
     until the loop settles), a reference none, step or sine; its nominal model process and sensor
     white noise, one or two of :data:`CLOSED_HIDEABLE` hidden (every effect of the catalogue), drawn
     as :func:`make_case` draws them against the open-loop variance, a saturation's or dead zone's
-    size against the closed loop's own command (its 95th percentile of |u| on the nominal). Its own
-    random stream (``[seed, 31]``)."""
+    size against the closed loop's own command (its 95th percentile of |u| on the nominal); a sensor
+    scale factor only with a reference (step or sine) to carry it. Its own random stream
+    (``[seed, 31]``)."""
     rng = np.random.default_rng([seed, 31])
     Ts = float(rng.choice(PERIODS))
     T = float(np.round(rng.uniform(60, 600) / 10) * 10)
@@ -532,6 +533,13 @@ def make_closed_case(seed: int, n_hidden: int | None = None, null: bool | None =
         if len(hidden) >= n_hidden:
             break
         if eid in DRIFTS and any(h in DRIFTS for h in hidden):
+            continue
+        if eid == "sensor.scale_factor" and ref == "none":
+            # with no reference the command is the controller's answer to the noise alone: a
+            # sensor gain is then read only from the noise's shape (the residual y - G u of a
+            # gain error (1 + e) is e G u plus the noise, and u is a filter of that noise), which
+            # carries next to nothing (Ljung 1999, sec. 13.4: no external excitation); the
+            # reference's response carries the gain, as an open loop's command does
             continue
         if eid in ("actuator.saturation", "actuator.deadzone") and any(
                 h in hidden for h in ("actuator.saturation", "actuator.deadzone")):
