@@ -27,6 +27,17 @@ chance. The command regressed on v's past alone estimates F.
 A command line at f is fed back when F(f) V(f) (V the residual's complex amplitude at f) accounts
 for most of the command's own amplitude U(f): |U - F V| < |U| / 2 (:data:`FED_BACK`). The others
 are the reference's.
+
+What only the reference shows (:func:`scale_factor_reach`): with r = 0 the command is the noise fed
+back, u = -S K v, and a sensor gain error e leaves e G u in the residual, a filter of the noise
+itself, which the noise model's own variances largely absorb: the gain is read from the noise's
+shape alone. The record's information on e, from the fitted model's log-likelihood at e = +-h
+(observed information I = -(l(h) + l(-h) - 2 l(0)) / h^2, the variances the fit has free refitted
+at each),
+gives the smallest scale factor the diagnosis would add, 2 Delta l = I e^2 > THRESHOLD + ln n:
+e_min = sqrt((THRESHOLD + ln n) / I). It falls as 1 / (the reference's amplitude) where the
+reference's response dominates the information (Ljung 1999, sec. 13.4: informative experiments
+in closed loop need an excitation from outside the loop).
 """
 
 from __future__ import annotations
@@ -36,6 +47,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
+REACH_H = 0.05            # the scale factor's trial values +-h about the fitted model (:func:`scale_factor_reach`)
 LAGS = 40                 # past samples of the residual the command is regressed on (F's FIR length)
 ALPHA = 1e-6              # level of the test that the command follows the measurement
 FED_BACK = 0.5            # a command line is fed back when F V leaves less than this share of it
@@ -151,3 +163,30 @@ def mark_closed_loop(S, model, data, say) -> None:
     data.notes.append(fb.sentence() + (f" (lines copied: {', '.join(f'{f:.4g}' for f in data.fed_back)} Hz)"
                                        if data.fed_back.size else ""))
     say(data.notes[-1])
+
+
+def scale_factor_reach(S, cur, data) -> float | None:
+    """The smallest sensor scale factor |e| the diagnosis would add to the fitted model ``cur`` (a
+    :class:`.hypotheses.Fit`) on this closed-loop record (module docstring); None for an open-loop
+    record, a model without a plant or with a scale factor already, or no information at all."""
+    from .thresholds import THRESHOLD
+
+    model = cur.model
+    if data.feedback is None or not model.has_plant or "sensor.scale_factor" in model.effects:
+        return None
+    trials = [model] + [model.with_params("sensor.scale_factor", {"error": e}) for e in (REACH_H, -REACH_H)]
+    # the likelihood a candidate is scored by (Search.score): without the level term, which only
+    # places a mean effect's parameter (a PI-D's integral holds y at a step's level: there the
+    # level's information on e is large and does not count)
+    l0, lp, lm = (f.loglik for f in S._map(lambda m: S.H.inner_fit(m, cur.free), trials))
+    info = -(lp + lm - 2.0 * l0) / REACH_H**2
+    if not info > 0:
+        return None
+    return float(np.sqrt((THRESHOLD + np.log(data.n_bic)) / info))
+
+
+def reach_sentence(reach: float) -> str:
+    """The note on :func:`scale_factor_reach`."""
+    return ("under feedback a sensor's scale factor shows through what the reference puts into the command: "
+            f"on this record one of about {100 * reach:.2g} % or more would be found (the fitted model's "
+            "information on it); a larger or richer reference lowers that")

@@ -28,7 +28,7 @@ from .. import parallel
 from ..model.command import replay
 from ..model.effects import CATALOGUE
 from ..model.effects.base import _g
-from .closed_loop import mark_closed_loop
+from .closed_loop import mark_closed_loop, reach_sentence, scale_factor_reach
 from .compare import auto_burn, check_samples, compare, transient_samples
 from .data import Data
 from .entries import candidate_entry, missing_entry, step_entry
@@ -551,6 +551,10 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0,
     if accepted:
         after.model_name = f"fitted ({len(accepted)} added)"
         comps[-1] = after
+    reach = scale_factor_reach(S, cur, data)
+    if reach is not None:
+        data.notes.append(reach_sentence(reach))
+        say(data.notes[-1])
     fitted = cur.model
     if accepted:
         fitted.description = (model.description + "; " if model.description else "") + \
@@ -575,6 +579,7 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0,
         "notes": data.notes,
         "feedback": data.feedback,         # a closed-loop record's test (:mod:`.closed_loop`), or None
         "fed_back": data.fed_back,
+        "scale_factor_reach": reach,       # the least scale factor this closed-loop record shows, or None
     }
     return out
 

@@ -57,7 +57,8 @@ def diagnosis_json(rep: dict, series=None, extra: dict | None = None) -> dict:
     out["coefficients"] = fitted_coefficients(rep)
     fb = rep.get("feedback")
     out["closed_loop"] = None if fb is None else {"F": fb.F, "p_value": fb.p_value, "r2": fb.r2,
-                                                  "fed_back_hz": [float(f) for f in rep.get("fed_back", [])]}
+                                                  "fed_back_hz": [float(f) for f in rep.get("fed_back", [])],
+                                                  "scale_factor_reach": rep.get("scale_factor_reach")}
     out.update(extra or {})
     return _clean(out)
 

@@ -9,6 +9,7 @@ Records: the seed plant under a discrete PID on its measurement, offline
 
 from __future__ import annotations
 
+import math
 import re
 
 import numpy as np
@@ -88,6 +89,39 @@ def test_a_closed_loop_null_record_reports_nothing_and_the_json_says_closed_loop
     assert rep["missing"] == [], [(m["effect"], m["score"]) for m in rep["missing"]]
     js = diagnosis_json(rep)
     assert js["closed_loop"] is not None and js["closed_loop"]["p_value"] < ALPHA and js["closed_loop"]["r2"] > 0.5
+    reach = js["closed_loop"]["scale_factor_reach"]
+    assert reach == rep["scale_factor_reach"] > 0 and any("scale factor" in n for n in js["notes"])
+
+
+@pytest.mark.slow
+def test_the_scale_factor_a_closed_loop_record_shows_falls_as_its_reference_grows():
+    """The smallest scale factor a closed-loop record shows (``scale_factor_reach``, from the fitted
+    model's information on it) on the PI-D null servo, 90 s: with a sine reference the information
+    is the reference response's, A^2 times a constant, plus the noise's shape, I0, which alone is
+    what the loop with no reference has. So e_min(A) / e_min(2A) = sqrt((4 I_A + I0) / (I_A + I0)):
+    2 where the reference dominates, 1 where it adds nothing. With I0 from the record without a
+    reference, the ratios are within 5 % of that prediction (the information is a quadratic form
+    in the record: its spread over records of 18,000 samples is a few % at most), and without a
+    reference the reach is several times the 0.15 rad sine's."""
+    from noiselab.model.controller import ControllerSpec, simulate_closed_loop
+
+    def reach(amplitude):
+        m = load_model("hidden-closed/null-pid")
+        spec = ControllerSpec(m.controller.kp, m.controller.ki, m.controller.kd, reference="sine" if amplitude else "none",
+                              amplitude=amplitude, frequency_hz=0.4 if amplitude else 0.0)
+        o = simulate_closed_loop(m, 18_000, seed=3, spec=spec)
+        rep = diagnose(m, o["t"], o["y"], o["u"], max_effects=1)
+        assert rep["feedback"] is not None and rep["missing"] == []
+        return rep["scale_factor_reach"]
+
+    none = reach(0.0)
+    e = {a: reach(a) for a in (0.15, 0.3, 0.6)}
+    assert none > 2 * e[0.15], (none, e)
+    for a in (0.15, 0.3):
+        # information I = (THRESHOLD + ln n) / e_min^2; I0 the no-reference record's
+        i_a, i0 = e[a] ** -2 - none ** -2, none ** -2
+        predicted = math.sqrt((4 * i_a + i0) / (i_a + i0))
+        assert abs(e[a] / e[2 * a] / predicted - 1) < 0.05, (a, e, none, predicted)
 
 
 def test_an_external_command_is_averaged_over_the_record_it_drove():
