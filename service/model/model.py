@@ -52,7 +52,8 @@ TS_MAX = 86400.0
 def scenario_names(group: str | None = None) -> list[str]:
     """Built-in scenarios: ``seed``, ``seed-nominal``, ... and, with ``group="hidden"``, the
     hidden-effect pairs of ``service/scenarios/hidden/`` (``hidden/<effect id>`` and
-    ``hidden/<effect id>-nominal``, ``hidden/null-*``)."""
+    ``hidden/<effect id>-nominal``, ``hidden/null-*``); ``group="hidden-closed"``: the same under
+    feedback (a servo under its ``[controller]``, ``hidden-closed/<effect id>``, ...)."""
     pkg = resources.files("noiselab.scenarios")
     if group:
         pkg = pkg.joinpath(group)

@@ -55,7 +55,8 @@ def run_metadata(model, n: int, seed: int, start_time_ns: int, fmt: str) -> dict
 def write_simulation(model, n: int, seed: int, out: Path, *, force: bool = False,
                      progress: bool | None = None, fmt: str = "mcap",
                      start_time_ns: int | None = None) -> dict:
-    """Simulate ``n`` samples of ``model`` from ``seed`` and write them to ``out`` in ``fmt``
+    """Simulate ``n`` samples of ``model`` from ``seed`` (under its ``[controller]`` if it has one)
+    and write them to ``out`` in ``fmt``
     (:data:`FORMATS`). ``start_time_ns``: the wall-clock anchor (default: now). Returns a
     summary: ``out``, ``samples``, ``format``, ``start_time_ns``, ``messages`` per topic.
 
@@ -89,7 +90,14 @@ def _blocks(model, n: int, seed: int, start: int):
     from .. import wire
 
     k0 = 0
-    for blk in model.simulate_blocks(n, seed=seed):
+    command = None
+    if model.controller is not None:
+        # a closed loop (an external command and a [controller]): the applied command is the
+        # controller's answers, each from the next sample, as the live loop on time; the same
+        # seed then gives the same noises and measurements (simulate_closed_loop)
+        from ..model.controller import simulate_closed_loop
+        command = simulate_closed_loop(model, n, seed=seed)["u"]
+    for blk in model.simulate_blocks(n, seed=seed, command=command):
         t, _ = wire.sample_times(k0, blk.t.size, model.Ts)
         yield k0, t, np.int64(start) + np.rint(t * 1e9).astype(np.int64), blk
         k0 += blk.t.size

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.closed_loop import controlled
 from helpers.models import ENCODER_TOML
 from helpers.rrd import column, read_chunks
 
@@ -22,6 +23,7 @@ from noiselab.diagnose.modes import ADD
 from noiselab.diagnose.search import Search
 from noiselab.diagnose.thresholds import THRESHOLD
 from noiselab.model import load_model, parse_model
+from noiselab.model.controller import closed_loop_poles
 from noiselab.model.effects import CATALOGUE
 from noiselab.model.model import scenario_names
 
@@ -29,9 +31,16 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "tests" / "bench"))
 from hidden_set import make_case, make_closed_case, make_sensor_case, score_case  # noqa: E402
 
-PAIRS = sorted(n.split("/")[1] for n in scenario_names("hidden") if not n.endswith("-nominal")
-               and "/null-" not in n)
+def _pairs(group: str) -> list[str]:
+    return sorted(n.split("/")[1] for n in scenario_names(group) if not n.endswith("-nominal") and "/null-" not in n)
+
+
+PAIRS = _pairs("hidden")
+# the closed-loop pairs: a servo under its [controller] (PD or PI-D, a reference none, step or
+# sine), recorded offline as the live loop runs (simulate_closed_loop)
+CLOSED_PAIRS = _pairs("hidden-closed")
 NULLS = [n for n in scenario_names("hidden") if "/null-" in n]
+CLOSED_NULLS = [n for n in scenario_names("hidden-closed") if "/null-" in n]
 DURATION = 180.0
 
 
@@ -42,33 +51,66 @@ def cli(*args, timeout=600):
 
 
 def _record(model, seed, duration=DURATION):
+    """The model's record of ``duration`` s: open loop, or under its ``[controller]``, the applied
+    command recorded."""
     n = int(round(duration / model.Ts))
+    if model.controller is not None:
+        return controlled(model, n, seed)
     return model.simulate(n, seed=seed)
 
 
 # -- the scenario pairs: one per effect of the catalogue -------------------------------------------------
-def test_a_pair_for_every_effect_of_the_catalogue():
-    assert set(PAIRS) == set(CATALOGUE)
-    for eid in PAIRS:
-        truth, nominal = load_model(f"hidden/{eid}"), load_model(f"hidden/{eid}-nominal")
+@pytest.mark.parametrize("group", ["hidden", "hidden-closed"])
+def test_a_pair_for_every_effect_of_the_catalogue(group):
+    """Open loop and closed loop alike: a pair per effect, the truth the nominal plus that effect.
+    A closed-loop pair's command is external and its controller's loop stable in both models."""
+    pairs = _pairs(group)
+    assert set(pairs) == set(CATALOGUE)
+    for eid in pairs:
+        truth, nominal = load_model(f"{group}/{eid}"), load_model(f"{group}/{eid}-nominal")
         assert eid in truth.effects and eid not in nominal.effects
         assert set(truth.effects) - set(nominal.effects) == {eid}
+        if group == "hidden-closed":
+            for m in (truth, nominal):
+                assert m.command.kind == "external" and m.controller is not None
+                assert np.max(np.abs(closed_loop_poles(m, m.controller))) < 1.0
+    if group == "hidden-closed":
+        laws = {(m.controller.ki > 0, m.controller.reference) for m in map(load_model, scenario_names(group))}
+        assert {ki for ki, _ in laws} == {False, True} and {r for _, r in laws} == {"none", "step", "sine"}
 
 
 def _value(v):
     return float(np.max(v)) if isinstance(v, list) else float(v)
 
 
+JITTER_UNDER_A_NOISY_COMMAND = (
+    "the jitter's std_s reads about 2 % low under a command that carries broadband noise (a closed loop's: "
+    "z = (truth - estimate) / standard error 2.2, 0.4, 2.3, 2.1, 2.1, 1.6, 0.9 over seeds 11-17, against -0.5 on "
+    "average in open loop under the pair's sine); the same record simulated open loop under a closed loop's "
+    "command reads as low (z 1.3 on average), so it is not the feedback; without the process and actuator "
+    "noise it does not (z 0.1), and the model's Var(ydot) of those noises is right (1.83e-3 against 1.84e-3 "
+    "simulated): the interval (+-2 %) misses 0.001 by 0.3 %")
+
+
+def _pair_params():
+    out = [("hidden", e) for e in PAIRS]
+    for e in CLOSED_PAIRS:
+        marks = [pytest.mark.xfail(strict=True, reason=JITTER_UNDER_A_NOISY_COMMAND)] if e == "sensor.jitter" else []
+        out.append(pytest.param("hidden-closed", e, marks=marks))
+    return out
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("eid", PAIRS)
-def test_hidden_effect_ranked_first_and_recovered(eid):
+@pytest.mark.parametrize("group,eid", _pair_params())
+def test_hidden_effect_ranked_first_and_recovered(group, eid):
     """3 minutes of the truth model: the hidden effect is ranked first, each planted parameter is
     inside its 95 % interval and within 30 %, and the model error falls to about 1. A parameter
     that is a choice (the sensor filter's kind, a moving average's taps: the search tries each) is
-    the planted one."""
-    truth, nominal = load_model(f"hidden/{eid}"), load_model(f"hidden/{eid}-nominal")
+    the planted one. The same acceptance in closed loop, where the record is also said to be one."""
+    truth, nominal = load_model(f"{group}/{eid}"), load_model(f"{group}/{eid}-nominal")
     rec = _record(truth, seed=11)
     rep = diagnose(nominal, rec.t, rec.y, rec.u)
+    assert (rep["feedback"] is not None) == (group == "hidden-closed"), rep["notes"]
     assert rep["missing"], rep["candidates"][:3]
     first = rep["missing"][0]
     assert first["effect"] == eid, [(m["effect"], m["score"]) for m in rep["missing"]]
@@ -102,6 +144,24 @@ def test_nothing_reported_on_null_scenarios_over_many_seeds():
             if rep["missing"]:
                 reported.append((name, seed, rep["missing"][0]["effect"]))
     assert len(reported) <= 0.05 * runs, (reported, worst)
+
+
+@pytest.mark.slow
+def test_nothing_reported_on_closed_loop_null_scenarios():
+    """7 seeds of each closed-loop null scenario (PD with no reference, PI-D with a sine, a stiffer
+    PI-D with a step; 90 s each): a false report in at most 5 % of them, and each record is said
+    to be closed-loop."""
+    runs, reported = 0, []
+    for name in CLOSED_NULLS:
+        model = load_model(name)
+        for seed in range(7):
+            rec = _record(model, seed=200 + seed, duration=90.0)
+            rep = diagnose(model, rec.t, rec.y, rec.u, max_effects=1)
+            runs += 1
+            assert rep["feedback"] is not None, (name, seed)
+            if rep["missing"]:
+                reported.append((name, seed, rep["missing"][0]["effect"], rep["missing"][0]["score"]))
+    assert runs == 21 and len(reported) <= 0.05 * runs, reported
 
 
 @pytest.mark.slow
@@ -1025,19 +1085,19 @@ def test_generated_sensor_cases(seed):
     assert sc["ok"], (case.hidden, sc, [(m["effect"], m["params"]) for m in rep["missing"]])
 
 
-SCALE_IN_LOOP = ("a sensor scale factor of +4.6 % under a PI-D with no reference: the command is the noise fed back "
-                 "alone, the scale factor's only trace a 4.6 % change of the loop's noise gain, which the noises "
-                 "absorb (model error 1.04 without it); under a step reference the closed loop's level hides it too "
-                 "(the bench's seed 16): the rules that read the mean response are not yet closed-loop aware")
+SCALE_AT_REACH = ("a sensor scale factor of -14.4 % under a PI-D with a 0.068 m step reference: the integral holds "
+                  "y at the step's level, so the scale factor shows in the level (which places a mean effect's "
+                  "parameter but does not score it) and in the step's transient alone; the report's "
+                  "scale_factor_reach for this record is 14.6 % (Delta BIC -4.5 for it)")
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", [0, pytest.param(2, marks=pytest.mark.xfail(strict=True, reason=SCALE_IN_LOOP)),
-                                  3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15])
+@pytest.mark.parametrize("seed", [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 12, 13, 14, 15,
+                                  pytest.param(16, marks=pytest.mark.xfail(strict=True, reason=SCALE_AT_REACH))])
 def test_generated_closed_loop_cases(seed):
     """The closed-loop family of generated cases (tests/bench/hidden_set.py ``make_closed_case``: a
     mass-spring-damper under a PD or PI-D on its measurement, several gains, a reference none, step
-    or sine, one or two effects of the whole catalogue hidden; seed 1's truth loop is unstable and
+    or sine, one or two effects of the whole catalogue hidden; seed 11's truth loop is unstable and
     is not a case), with the generator's acceptance: the planted effects on top, parameters within
     30 %, error after at most 1.5 and below before; nothing on a null case. Process and actuator
     white noise entering through the command's input have the same spectrum: where the report

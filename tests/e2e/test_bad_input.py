@@ -172,8 +172,8 @@ def test_a_dead_zone_wider_than_any_drive_passes_nothing():
 
 
 def test_every_built_in_scenario_still_loads():
-    names = scenario_names() + scenario_names("hidden")
-    assert len(names) >= 30
+    names = scenario_names() + scenario_names("hidden") + scenario_names("hidden-closed")
+    assert len(names) >= 65
     for name in names:
         model = load_model(name)
         assert TS_MIN <= model.Ts <= TS_MAX, name

@@ -31,3 +31,9 @@ def closed_loop(model, n: int, kp: float, ki: float, kd: float, seed: int, ref: 
     """n samples of ``model`` (one input, one output, command external) under the PID."""
     out = simulate_closed_loop(model, n, seed=seed, spec=spec(kp, ki, kd, ref, amplitude, frequency_hz))
     return Record(out["t"], out["y"], out["u"])
+
+
+def controlled(model, n: int, seed: int) -> Record:
+    """n samples of ``model`` under its own ``[controller]``."""
+    out = simulate_closed_loop(model, n, seed=seed)
+    return Record(out["t"], out["y"], out["u"])

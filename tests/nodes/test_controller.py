@@ -1,7 +1,8 @@
 """The reference controller (issue 45, part 1): its PID law against a hand computation, the
 seed-closed loop's poles, the [controller] table, bad flags; and live, on 127.0.0.1 with real
 MCAP: `noiselab run seed-closed` records a control stream that is the PID of the recorded
-measurements, and a controller fed hostile measurements counts them and answers the rest.
+measurements, a live closed-loop recording is diagnosed, and a controller fed hostile
+measurements counts them and answers the rest.
 
 Live runs are short (2 s of samples at 10x real time). How late the controller's answers reach
 the emulator depends on the machine, so the applied command is checked against the timing
@@ -116,6 +117,21 @@ amplitude = 0.3
 """
 
 
+def test_simulate_closes_the_loop_of_a_model_with_a_controller(capsys, tmp_path):
+    """`noiselab simulate` of a model with a [controller] records the closed loop: the command on
+    file is the controller's answers applied from the next sample (simulate_closed_loop), not the
+    external command's zeros, and the measurements are the model's under that command."""
+    out = tmp_path / "closed.mcap"
+    rc, _, err = cli(capsys, "simulate", "seed-closed", "--duration", "5", "--seed", "4", "--out", out)
+    assert rc == 0, err
+    dev = read_recording(out).device("seed-closed")
+    model = load_model("seed-closed")
+    loop = simulate_closed_loop(model, 500, seed=4)
+    np.testing.assert_array_equal(dev.command.values, loop["u"])
+    np.testing.assert_array_equal(dev.measurement.values, loop["y"])
+    assert np.std(loop["u"]) > 0.1
+
+
 def test_controller_table_is_parsed_validated_and_written_back():
     m = parse_model(CLOSED, "closed")
     assert m.controller == ControllerSpec(8.0, 0.0, 1.5, reference="step", amplitude=0.3)
@@ -210,6 +226,28 @@ def test_run_seed_closed_records_the_pid_of_the_recorded_measurements(capsys, tm
     dev = read_recording(rep["recording"]).device("seed-closed")
     sim = model.simulate(n, seed=3, command=dev.command.values)
     assert np.array_equal(sim.y, dev.measurement.values)
+
+
+def test_a_live_closed_loop_recording_is_diagnosed(capsys, tmp_path):
+    """Emulator, controller and recorder live on 127.0.0.1 (`run hidden-closed/sensor.tone`: a servo
+    under a PD, a 3.1 Hz sensor line inside the loop's bandwidth), then `diagnose` of the MCAP
+    against the model without the line: the record is said to be closed-loop and the line is found
+    as a sensor tone (frequency inside its interval, amplitude within 30 %), though the controller
+    copies it into the command. However late the answers arrive, the record's command is the one
+    the plant got, so the residual is the noise process."""
+    rc, out, err = cli(capsys, "run", "hidden-closed/sensor.tone", "--duration", "40", "--speed", "10",
+                       "--seed", "5", "--out", tmp_path, "--no-analyze", "--json")
+    assert rc == 0, err
+    rec = json.loads(out)["recording"]
+    rc, out, err = cli(capsys, "diagnose", rec, "--model", "hidden-closed/sensor.tone-nominal", "--json")
+    assert rc == 0, err
+    rep = json.loads(out)
+    assert rep["closed_loop"] is not None and rep["closed_loop"]["p_value"] < 1e-6, rep["closed_loop"]
+    first = rep["missing"][0]
+    assert first["effect"] == "sensor.tone", [(m["effect"], m["score"]) for m in rep["missing"]]
+    lo, hi = first["interval"]["frequency_hz"]
+    assert lo <= 3.1 <= hi and abs(first["params"]["amplitude"] / 1e-3 - 1) < 0.3, first
+    assert rep["error_after"] < rep["error_before"] and rep["error_after"] <= 1.5
 
 
 def test_a_controller_counts_and_skips_hostile_measurements(spawn):
