@@ -36,7 +36,7 @@ def _pairs(group: str) -> list[str]:
 
 
 PAIRS = _pairs("hidden")
-# the closed-loop pairs: a servo under its [controller] (PD or PI-D, a reference none, step or
+# the closed-loop pairs: a servo under its [controller] (PD, PI or PI-D, a reference none, step or
 # sine), recorded offline as the live loop runs (simulate_closed_loop)
 CLOSED_PAIRS = _pairs("hidden-closed")
 NULLS = [n for n in scenario_names("hidden") if "/null-" in n]
@@ -75,8 +75,9 @@ def test_a_pair_for_every_effect_of_the_catalogue(group):
                 assert m.command.kind == "external" and m.controller is not None
                 assert np.max(np.abs(closed_loop_poles(m, m.controller))) < 1.0
     if group == "hidden-closed":
-        laws = {(m.controller.ki > 0, m.controller.reference) for m in map(load_model, scenario_names(group))}
-        assert {ki for ki, _ in laws} == {False, True} and {r for _, r in laws} == {"none", "step", "sine"}
+        ctl = [load_model(n).controller for n in scenario_names(group)]
+        assert {(c.ki > 0, c.kd > 0) for c in ctl} == {(False, True), (True, False), (True, True)}   # PD, PI, PI-D
+        assert {c.reference for c in ctl} == {"none", "step", "sine"}
 
 
 def _value(v):
