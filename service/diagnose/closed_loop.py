@@ -18,8 +18,14 @@ the views carry over; but the command is no longer independent of v. Two consequ
 
 Detection (Granger's test of v -> u, Granger 1969): the command's broadband part (its own lines
 taken out by least squares) is regressed on its own past and on v's past, lags 1..L
-(:data:`LAGS`); the partial F statistic of v's L p regressors, at level :data:`ALPHA`, says the
-command follows past measurements. An open-loop command (a sine, a chirp, a PRBS, none) is
+(:data:`LAGS`); the partial F statistic of v's L p regressors, at level :data:`ALPHA`, and a
+share r2 >= :data:`R2_MIN` of what the command's own past leaves that v's past explains, say the
+command follows past measurements. The share is a materiality bar: at N ~ 1e5 the test alone
+passes for r2 of a few 1e-4, and a mean-response error whose memory is longer than the lags (a
+missing actuator lag under a chirp, its frequency drifting: r2 = 0.25 to 0.5 %, p = 8e-27) carries a
+little of the command's own past that its 40 lags do not. A digital controller's command is an
+exact function of past measurements (r2 = 1.00 on every closed record of the test families);
+open-loop records stay below 0.5 %. An open-loop command (a sine, a chirp, a PRBS, none) is
 independent of v's noise, and the mean response's error in v (a wrong gain, a missing lag) is a
 function of past commands, which the command's own lags carry: the regression finds nothing beyond
 chance. The command regressed on v's past alone estimates F.
@@ -50,6 +56,7 @@ from scipy import stats
 REACH_H = 0.05            # the scale factor's trial values +-h about the fitted model (:func:`scale_factor_reach`)
 LAGS = 40                 # past samples of the residual the command is regressed on (F's FIR length)
 ALPHA = 1e-6              # level of the test that the command follows the measurement
+R2_MIN = 0.05            # the least share of the command's broadband part that the measurement's past explains
 FED_BACK = 0.5            # a command line is fed back when F V leaves less than this share of it
 
 
@@ -57,7 +64,7 @@ FED_BACK = 0.5            # a command line is fed back when F V leaves less than
 class Feedback:
     """The command against the residual's past (module docstring)."""
 
-    closed: bool                 # the command follows past measurements (at level ALPHA)
+    closed: bool                 # the command follows past measurements (at level ALPHA, share R2_MIN)
     F: float                     # the F statistic
     p_value: float
     r2: float                    # share of what the command's own past leaves that v's past explains
@@ -125,7 +132,7 @@ def feedback(u: np.ndarray, v: np.ndarray, Ts: float, lines=(), lags: int = LAGS
     # F's FIR: the command on v's past alone (the response F = -S K from v to u, own lags not
     # separated out), coef (lags * p, m) in the order (lag, output): to (m, lags, p)
     c_v, *_ = np.linalg.lstsq(Xv, Y, rcond=None)
-    return Feedback(pval < ALPHA, float(Fs[i]), min(pval, 1.0), r2, c_v.T.reshape(m, lags, p), Ts)
+    return Feedback(pval < ALPHA and r2 >= R2_MIN, float(Fs[i]), min(pval, 1.0), r2, c_v.T.reshape(m, lags, p), Ts)
 
 
 def fed_back_lines(fb: Feedback, u: np.ndarray, v: np.ndarray, lines) -> np.ndarray:
@@ -166,15 +173,20 @@ def mark_closed_loop(S, model, data, say) -> None:
 
 
 def scale_factor_reach(S, cur, data) -> float | None:
-    """The smallest sensor scale factor |e| the diagnosis would add to the fitted model ``cur`` (a
-    :class:`.hypotheses.Fit`) on this closed-loop record (module docstring); None for an open-loop
-    record, a model without a plant or with a scale factor already, or no information at all."""
+    """The smallest sensor gain error |e| (the catalogue's ``gain_start`` effect: a scale factor)
+    the diagnosis would add to the fitted model ``cur`` (a :class:`.hypotheses.Fit`) on this
+    closed-loop record (module docstring); None for an open-loop record, a model without a plant or
+    with that effect already, or no information at all."""
+    from ..model.effects import CATALOGUE
     from .thresholds import THRESHOLD
 
     model = cur.model
-    if data.feedback is None or not model.has_plant or "sensor.scale_factor" in model.effects:
+    gain = next((eid for eid, cls in CATALOGUE.items() if cls.gain_start), None)
+    if data.feedback is None or gain is None or not model.has_plant or gain in model.effects \
+            or not model.can_have(gain):
         return None
-    trials = [model] + [model.with_params("sensor.scale_factor", {"error": e}) for e in (REACH_H, -REACH_H)]
+    name = CATALOGUE[gain].fit.shape[0][0]
+    trials = [model] + [model.with_params(gain, {name: e}) for e in (REACH_H, -REACH_H)]
     # the likelihood a candidate is scored by (Search.score): without the level term, which only
     # places a mean effect's parameter (a PI-D's integral holds y at a step's level: there the
     # level's information on e is large and does not count)
