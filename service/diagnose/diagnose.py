@@ -588,8 +588,8 @@ def replaying(model, u):
     """``model`` with its command replaying the recorded ``u`` (:func:`noiselab.model.command.replay`)
     where the two differ: an ``external`` command (a closed loop, a user's recording) is zero as
     the model computes it, and the nonlinearities' gains, the jitter's slope and the quantizer's
-    spread are averages over the command (a dead zone's gain P(|u| > w) at u = 0 is the noise's
-    small chance of leaving it: its noise's fit came out 17 times too large under feedback)."""
+    spread are averages over the command (a dead zone's gain is P(|u + n| > w): about 0.05 at
+    u = 0 for a noise n of std w / 2, about 0.8 over a servo's closed-loop record)."""
     if u is None:
         return model
     own = model.command.values(0, len(u), model.Ts)
