@@ -25,7 +25,6 @@ import time
 import numpy as np
 
 from .. import parallel
-from ..model.command import replay
 from ..model.effects import CATALOGUE
 from ..model.effects.base import _g
 from .closed_loop import mark_closed_loop, reach_sentence, scale_factor_reach
@@ -445,7 +444,7 @@ def diagnose(model, t, y, u=None, *, at_rest: bool = True, max_effects: int = MA
     y, t = check_samples(model, t, y, u)       # bad input fails here, before any fitting
     u = None if u is None else np.asarray(u, float).reshape(len(u), -1)
     users = model
-    model = replaying(model, u)
+    model = model.replaying(u)
     k0 = 0 if at_rest else min(transient_samples(model), len(y) // 2)
     burn = auto_burn(at_rest, u) if compare_burn == "auto" else compare_burn
     data = Data(y, u, model.Ts, at_rest, k0)
@@ -582,20 +581,6 @@ def _diagnose(model, t, y, u, S, data, before_f, burn, say, bg, max_effects, t0,
         "scale_factor_reach": reach,       # the least scale factor this closed-loop record shows, or None
     }
     return out
-
-
-def replaying(model, u):
-    """``model`` with its command replaying the recorded ``u`` (:func:`noiselab.model.command.replay`)
-    where the two differ: an ``external`` command (a closed loop, a user's recording) is zero as
-    the model computes it, and the nonlinearities' gains, the jitter's slope and the quantizer's
-    spread are averages over the command (a dead zone's gain is P(|u + n| > w): about 0.05 at
-    u = 0 for a noise n of std w / 2, about 0.8 over a servo's closed-loop record)."""
-    if u is None:
-        return model
-    own = model.command.values(0, len(u), model.Ts)
-    if own.shape == u.shape and np.allclose(u, own, rtol=1e-6, atol=1e-9 * max(1.0, float(np.max(np.abs(u))))):
-        return model
-    return model.with_command({"kind": "external", "replay": replay(u)})
 
 
 def _given_back(rep: dict, users, model) -> dict:

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from . import discretize
-from .command import Command, parse_command
+from .command import Command, parse_command, replay
 from .controller import ControllerSpec, parse_controller
 from .effects import CATALOGUE, Dims, Effect
 from .errors import ModelError
@@ -360,6 +360,21 @@ class Model:
         if "plant" in d:
             model._asm["plant"] = d["plant"]
         return model
+
+    def replaying(self, u) -> "Model":
+        """The model with its command replaying the recorded ``u`` (N, m) (:func:`.command.replay`)
+        where the two differ, for the predictions of a record: an ``external`` command (a closed
+        loop, a user's recording) is zero as the model computes it, and the nonlinearities' gains,
+        the jitter's slope and the quantizer's spread are averages over the command (a dead zone's
+        gain is P(|u + n| > w): about 0.05 at u = 0 for a noise n of std w / 2, about 0.8 over a
+        servo's closed-loop record). The model itself where ``u`` is None or its own command."""
+        if u is None:
+            return self
+        u = np.asarray(u, float).reshape(len(u), -1)
+        own = self.command.values(0, len(u), self.Ts)
+        if own.shape == u.shape and np.allclose(u, own, rtol=1e-6, atol=1e-9 * max(1.0, float(np.max(np.abs(u))))):
+            return self
+        return self.with_command({"kind": "external", "replay": replay(u)})
 
     def without_effect(self, eid: str) -> "Model":
         _check_effect_id(eid)

@@ -135,17 +135,16 @@ def test_the_scale_factor_a_closed_loop_record_shows_falls_as_its_reference_grow
 def test_an_external_command_is_averaged_over_the_record_it_drove():
     """A dead zone's gain P(|u + n| > w) and the variances it sets are averages over the command.
     An external command is zero as the model computes it; the diagnosis replays the recorded one
-    (:func:`noiselab.diagnose.diagnose.replaying`): over the same command, the steady state is
+    (:meth:`Model.replaying`): over the same command, the steady state is
     the open-loop model's to rounding, while over zeros the dead zone passes almost none of the
     actuator's noise. The fitted model the report writes has the user's command back."""
-    from noiselab.diagnose.diagnose import replaying
     sine = load_model("seed-nominal").with_params("actuator.white", {"std": 0.3}).with_effect(
         "actuator.deadzone", {"width": 0.5})
     ext = parse_model(re.sub(r"\[command\][^\[]*", '[command]\nkind = "external"\n\n', sine.to_toml()), "external")
     n = sine.predictor().span                     # the open-loop model's horizon (60 s)
     u = sine.command.values(0, n, sine.Ts)
-    assert replaying(sine, u) is sine             # its own command: nothing to replay
-    got = replaying(ext, u)
+    assert sine.replaying(u) is sine             # its own command: nothing to replay
+    got = ext.replaying(u)
     assert got.command.kind == "external" and "replay" in got.command.params
     a, b, zero = (m.predictor().steady_state().contributions["actuator.white"] for m in (sine, got, ext))
     np.testing.assert_allclose(b, a, rtol=1e-9)
@@ -154,3 +153,15 @@ def test_an_external_command_is_averaged_over_the_record_it_drove():
     rep = diagnose(ext, rec.t, rec.y, rec.u, max_effects=0)
     assert 'kind = "external"' in rep["fitted_model"] and "replay" not in rep["fitted_model"]
     assert all("replay" not in m.command.params for m in [rep["model"], *rep["step_models"]])
+
+
+def test_analyze_predicts_a_closed_loop_record_over_its_recorded_command():
+    """The comparison (`noiselab analyze`) of a closed-loop record with a dead zone: its predicted
+    variance is averaged over the recorded command, not over the external command's zeros, where
+    the dead zone would pass almost none of the drive's noise; the model error is then about 1."""
+    from noiselab.diagnose.compare import compare
+    truth = load_model("hidden-closed/actuator.deadzone")
+    rec = closed_loop(truth, 18_000, kp=truth.controller.kp, ki=truth.controller.ki, kd=truth.controller.kd,
+                      seed=3, ref="sine", amplitude=0.3, frequency_hz=0.4)
+    cmp = compare(truth, rec.t, rec.y, rec.u, level=True)
+    assert cmp.error < 1.5, (cmp.error, cmp.error_per_view)

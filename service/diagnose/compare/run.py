@@ -108,6 +108,10 @@ def compare(model, t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
     (:func:`noiselab.model.mean_response.free_response_fit`).
     """
     y, t = check_samples(model, t, y, u)
+    if model.command.kind == "external":
+        # zero as the model computes it: the predictions' averages over the recorded command (a
+        # generated command's record is its own, a live window of it the same shifted)
+        model = model.replaying(u)
     pr = predictor_of(model)
     try:
         mean = pr.mean_response(command=u) if u is not None else pr.mean_response(len(y))
